@@ -24,6 +24,14 @@ def _check_parent(path: Path) -> None:
         raise OutputError(f"{path}: cannot write, a folder of that name exists")
 
 
+def _umask_mode(p: Path, mode: int) -> None:
+    """Give a temporary file the permissions a plain ``open()`` would (mkstemp uses 0600)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    with contextlib.suppress(OSError):
+        os.chmod(p, mode & ~umask)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, protect: tuple[str | os.PathLike, ...] = ()) -> Iterator[Path]:
     """Yield a temporary file path; on success rename it to ``path``, on failure delete it.
@@ -36,9 +44,13 @@ def atomic_path(path: str | os.PathLike, protect: tuple[str | os.PathLike, ...] 
         if Path(p).exists() and path.exists() and os.path.samefile(p, path):
             raise OutputError(f"{path}: refusing to overwrite an input file")
     _check_parent(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent or ".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent or ".")
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write ({e.strerror or e})") from e
     os.close(fd)
     tmp_path = Path(tmp)
+    _umask_mode(tmp_path, 0o666)
     try:
         yield tmp_path
         os.replace(tmp_path, path)
@@ -59,7 +71,11 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     _check_parent(path)
     if path.exists() and not path.is_dir():
         raise OutputError(f"{path}: cannot write a folder, a file of that name exists")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent or "."))
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent or "."))
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write ({e.strerror or e})") from e
+    _umask_mode(tmp, 0o777)
     try:
         yield tmp
         if path.exists():
