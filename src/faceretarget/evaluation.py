@@ -1,0 +1,316 @@
+"""Metrics and ground truth of evaluation protocol P1 (paired rigs, see ``EVALUATION.md``).
+
+Every metric compares predicted target vertices ``pred`` with the ground truth ``gt``, both
+``(T, V, 3)`` (a single ``(V, 3)`` frame is taken as ``T = 1``), vectorised over frames:
+
+========================  ====================================================================
+``rel_motion_pct``        ``sum_t,j |v - v^| / sum_t,j |v - v0| * 100``: the share of the facial
+                          motion that is wrong (the headline; independent of origin and scale)
+``err_pct``               Pyun et al. 2003, Eq. 12: per frame ``sum_j |v_j - v^_j| / sum_j |v_j|``,
+                          averaged over frames, in %; in the target rig's own coordinates
+``err_pct_x/y/z``         the same per axis, with absolute values of that coordinate
+``mve_mm``                mean vertex distance in millimetres
+``mve_pct_diag``          the same over the neutral's bounding-box diagonal, in %
+``lve_mm``                per frame the largest distance over the lip vertices, averaged over frames
+``oracle_rel_motion_pct`` ``rel_motion_pct`` of :func:`oracle_blend`, the least-squares best blend
+                          of the target key-models: the floor no key-blending method can beat
+========================  ====================================================================
+
+Norms are Euclidean norms of 3-vectors (``v`` ground truth, ``v^`` predicted, ``v0`` the target
+neutral).  ``unit`` is the rig's unit (``"cm"``, ``"m"``, ...; see :data:`faceretarget.rig.UNIT_TO_MM`),
+millimetres per unit as a number, or the :class:`~faceretarget.rig.Rig` itself.
+
+Ground truth: :func:`rig_animation` drives a rig with named ARKit weights (``Rig.map_weights`` gives a
+whole weight to both halves of a split shape and 0 to shapes the weights lack), and
+:class:`ArkitPairing` does so for a source and a target rig at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InvalidDataError
+from .mesh import Mesh
+from .rig import UNIT_TO_MM, Rig
+
+__all__ = [
+    "rel_motion_pct",
+    "err_pct",
+    "err_pct_axis",
+    "mve_mm",
+    "mve_pct_diag",
+    "lve_mm",
+    "lip_vertices",
+    "oracle_blend",
+    "oracle_rel_motion_pct",
+    "metrics",
+    "add_capture_noise",
+    "rig_animation",
+    "keymodels_from_weights",
+    "ArkitPairing",
+    "LIP_LANDMARKS",
+]
+
+#: Positions of the lip landmarks (outer and inner lip contour) among the 68 Multi-PIE landmarks.
+LIP_LANDMARKS = np.arange(48, 68)
+
+
+# ---------------------------------------------------------------------------------------- helpers
+def _frames(a, what: str) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim == 2:
+        a = a[None]
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise InvalidDataError(f"{what} must have shape (T, V, 3) or (V, 3), got {a.shape}")
+    return a
+
+
+def _pair(pred, gt) -> tuple[np.ndarray, np.ndarray]:
+    p, g = _frames(pred, "predicted vertices"), _frames(gt, "ground-truth vertices")
+    if p.shape != g.shape:
+        raise InvalidDataError(f"predicted vertices {p.shape} and ground truth {g.shape} differ in shape")
+    return p, g
+
+
+def _neutral(neutral, n_vertices: int | None = None) -> np.ndarray:
+    if isinstance(neutral, Rig):
+        neutral = neutral.neutral
+    if isinstance(neutral, Mesh):
+        neutral = neutral.vertices
+    n = np.asarray(neutral, dtype=np.float64)
+    if n.ndim != 2 or n.shape[1] != 3 or (n_vertices is not None and n.shape[0] != n_vertices):
+        want = f"({n_vertices}, 3)" if n_vertices is not None else "(V, 3)"
+        raise InvalidDataError(f"target neutral must have shape {want}, got {n.shape}")
+    return n
+
+
+def _mm_per_unit(unit) -> float:
+    if isinstance(unit, Rig):
+        return unit.mm_per_unit
+    if isinstance(unit, str):
+        if unit not in UNIT_TO_MM:
+            raise InvalidDataError(f"unknown unit '{unit}', use one of {list(UNIT_TO_MM)}")
+        return UNIT_TO_MM[unit]
+    u = float(unit)
+    if not (np.isfinite(u) and u > 0):
+        raise InvalidDataError(f"millimetres per unit must be positive, got {unit}")
+    return u
+
+
+def _ratio(num: float, den: float) -> float:
+    """``num / den * 100``; 0 when both are 0, inf when only the denominator is."""
+    if den > 0:
+        return float(num / den * 100.0)
+    return 0.0 if num == 0 else float("inf")
+
+
+def _dist(pred, gt) -> np.ndarray:
+    p, g = _pair(pred, gt)
+    return np.linalg.norm(p - g, axis=-1)  # (T, V)
+
+
+# ---------------------------------------------------------------------------------------- metrics
+def rel_motion_pct(pred, gt, neutral) -> float:
+    """``sum_t,j |v - v^| / sum_t,j |v - v0| * 100``: the share of the motion that is wrong.
+
+    >>> n = np.zeros((2, 3)); gt = n + [[1.0, 0, 0], [0, 2.0, 0]]
+    >>> rel_motion_pct(gt + [0, 0, 0.3], gt, n)
+    20.0
+    """
+    p, g = _pair(pred, gt)
+    n = _neutral(neutral, g.shape[1])
+    return _ratio(float(np.linalg.norm(p - g, axis=-1).sum()), float(np.linalg.norm(g - n, axis=-1).sum()))
+
+
+def err_pct(pred, gt) -> float:
+    """Pyun et al.'s Eq. 12: per frame ``sum_j |v_j - v^_j| / sum_j |v_j| * 100``, mean over frames."""
+    p, g = _pair(pred, gt)
+    num = np.linalg.norm(p - g, axis=-1).sum(axis=1)
+    den = np.linalg.norm(g, axis=-1).sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.mean(num / den) * 100.0)
+
+
+def err_pct_axis(pred, gt, axis: int) -> float:
+    """Eq. 12 for one coordinate (0 = x, 1 = y, 2 = z) with absolute values, mean over frames, in %."""
+    if axis not in (0, 1, 2):
+        raise InvalidDataError(f"axis must be 0, 1 or 2, got {axis}")
+    p, g = _pair(pred, gt)
+    num = np.abs(p[..., axis] - g[..., axis]).sum(axis=1)
+    den = np.abs(g[..., axis]).sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.mean(num / den) * 100.0)
+
+
+def mve_mm(pred, gt, unit) -> float:
+    """Mean vertex distance over all frames and vertices, in millimetres."""
+    return float(_dist(pred, gt).mean() * _mm_per_unit(unit))
+
+
+def mve_pct_diag(pred, gt, neutral) -> float:
+    """Mean vertex distance over the neutral's bounding-box diagonal, in %."""
+    d = _dist(pred, gt)
+    n = _neutral(neutral, d.shape[1])
+    return _ratio(float(d.mean()), float(np.linalg.norm(n.max(0) - n.min(0))))
+
+
+def lip_vertices(rig: Rig) -> np.ndarray:
+    """The rig's lip vertices: its landmarks 48-67 of the 68 Multi-PIE landmarks."""
+    if rig.landmarks is None or rig.landmarks.size != 68:
+        n = 0 if rig.landmarks is None else rig.landmarks.size
+        raise InvalidDataError(f"{rig.name}: lip vertices need the 68 landmarks, the rig has {n}")
+    return rig.landmarks[LIP_LANDMARKS]
+
+
+def lve_mm(pred, gt, unit, lips=None) -> float:
+    """Per frame the largest distance over the lip vertices, averaged over frames, in millimetres.
+
+    ``lips`` are vertex indices; when ``None``, ``unit`` must be a :class:`Rig` with 68 landmarks and
+    its landmarks 48-67 are used.
+    """
+    d = _dist(pred, gt)
+    if lips is None:
+        if not isinstance(unit, Rig):
+            raise InvalidDataError("lve_mm: give the lip vertex indices or pass the Rig as unit")
+        lips = lip_vertices(unit)
+    lips = np.asarray(lips, dtype=np.int64).reshape(-1)
+    if lips.size == 0 or lips.min() < 0 or lips.max() >= d.shape[1]:
+        raise InvalidDataError(f"lip vertex indices must be a non-empty subset of 0..{d.shape[1] - 1}")
+    return float(d[:, lips].max(axis=1).mean() * _mm_per_unit(unit))
+
+
+# ---------------------------------------------------------------------------------------- oracle
+def oracle_blend(gt, target_keys, target_neutral, *, return_weights: bool = False):
+    """The least-squares best blend of the target key-models' displacements against the ground truth.
+
+    ``B^(t) = B0 + sum_i w_i(t) (B_i - B0)`` with unconstrained ``w(t)`` minimising
+    ``||B^(t) - B(t)||`` for every frame at once (one least-squares solve with ``T`` right-hand
+    sides).  No method that blends these key-models can do better.
+
+    Parameters
+    ----------
+    gt : (T, V, 3) float
+        Ground-truth target animation.
+    target_keys : (N, V, 3) float
+        Target key-models (a neutral among them contributes nothing and is harmless).
+    target_neutral : (V, 3) float, Mesh or Rig
+    return_weights : bool
+        Also return the ``(T, N)`` weights (minimum-norm when keys are linearly dependent).
+
+    Returns
+    -------
+    (T, V, 3) float, and ``(T, N)`` weights when asked.
+    """
+    g = _frames(gt, "ground-truth vertices")
+    keys = np.asarray(target_keys, dtype=np.float64)
+    T, V, _ = g.shape
+    n = _neutral(target_neutral, V)
+    if keys.ndim != 3 or keys.shape[1:] != (V, 3):
+        raise InvalidDataError(f"target key-models must have shape (N, {V}, 3), got {keys.shape}")
+    D = (keys - n).reshape(len(keys), -1)  # (N, 3V)
+    G = (g - n).reshape(T, -1)  # (T, 3V)
+    w = np.linalg.lstsq(D.T, G.T, rcond=None)[0].T  # (T, N)
+    pred = (w @ D).reshape(T, V, 3) + n
+    return (pred, w) if return_weights else pred
+
+
+def oracle_rel_motion_pct(gt, target_keys, target_neutral) -> float:
+    """:func:`rel_motion_pct` of :func:`oracle_blend`: the floor for blending these key-models."""
+    n = _neutral(target_neutral)
+    return rel_motion_pct(oracle_blend(gt, target_keys, n), gt, n)
+
+
+def metrics(pred, gt, neutral, unit=None, lips=None, *, target_keys=None) -> dict[str, float]:
+    """All P1 metrics as a dict (keys as in the P1 JSON).
+
+    ``neutral`` may be an array, a Mesh or the target Rig, ``unit`` a unit name, millimetres per unit
+    or the Rig (``None`` when ``neutral`` is the Rig).  ``lve_mm`` uses ``lips``, else the lip landmarks of a Rig passed as ``unit`` or
+    ``neutral``; without either it is NaN.  With ``target_keys`` (N, V, 3) the dict also holds
+    ``oracle_rel_motion_pct``.
+    """
+    p, g = _pair(pred, gt)
+    n = _neutral(neutral, g.shape[1])
+    rig = unit if isinstance(unit, Rig) else neutral if isinstance(neutral, Rig) else None
+    if lips is None and rig is not None and rig.landmarks is not None and rig.landmarks.size == 68:
+        lips = lip_vertices(rig)
+    if unit is None:
+        if rig is None:
+            raise InvalidDataError("metrics: give the unit, or the target Rig as neutral")
+        unit = rig
+    mm = _mm_per_unit(unit)
+    out = {
+        "rel_motion_pct": rel_motion_pct(p, g, n),
+        "err_pct": err_pct(p, g),
+        "err_pct_x": err_pct_axis(p, g, 0),
+        "err_pct_y": err_pct_axis(p, g, 1),
+        "err_pct_z": err_pct_axis(p, g, 2),
+        "mve_mm": mve_mm(p, g, mm),
+        "mve_pct_diag": mve_pct_diag(p, g, n),
+        "lve_mm": float("nan") if lips is None else lve_mm(p, g, mm, lips),
+    }
+    if target_keys is not None:
+        out["oracle_rel_motion_pct"] = oracle_rel_motion_pct(g, target_keys, n)
+    return out
+
+
+def add_capture_noise(points, sigma_mm: float, unit, seed: int = 0) -> np.ndarray:
+    """``points`` plus Gaussian noise of ``sigma_mm`` millimetres per coordinate (deterministic).
+
+    ``unit`` is the points' unit (name, millimetres per unit, or a Rig); the same ``seed`` and shape
+    give the same noise.  P1 uses 0.5 mm on the source feature points.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if not (np.isfinite(sigma_mm) and sigma_mm >= 0):
+        raise InvalidDataError(f"noise sigma must be a non-negative number of mm, got {sigma_mm}")
+    if sigma_mm == 0:
+        return p.copy()
+    rng = np.random.default_rng(seed)
+    return p + rng.normal(0.0, sigma_mm / _mm_per_unit(unit), size=p.shape)
+
+
+# ---------------------------------------------------------------------------------------- ground truth
+def rig_animation(rig: Rig, names, weights, *, warn: bool = False) -> np.ndarray:
+    """Drive ``rig`` with named weights (any spelling, e.g. Live Link Face PascalCase): ``(T, V, 3)``.
+
+    ``Rig.map_weights`` does the P1 name map: a whole ARKit weight (``browInnerUp``) drives both
+    halves of a split shape, the rig's extra shapes get 0, and channels the rig lacks (``tongueOut``
+    on a rig without it) are dropped, silently unless ``warn``.
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    if w.ndim == 1:
+        w = w[None]
+    if w.ndim != 2 or w.shape[1] != len(names):
+        raise InvalidDataError(f"weights must be (T, {len(names)}) for {len(names)} names, got {w.shape}")
+    return rig.evaluate(rig.map_weights(list(names), w, source="weights", warn=warn))
+
+
+def keymodels_from_weights(rig: Rig, names, U) -> np.ndarray:
+    """Key-models ``(N, V, 3)``: the rig at each weight vector ``u_i`` (rows of ``U``, named ``names``)."""
+    return rig_animation(rig, names, U)
+
+
+@dataclass
+class ArkitPairing:
+    """Two rigs with ARKit semantics driven by the same weights (P1 ground truth).
+
+    ``source`` and ``target`` are :class:`Rig` objects whose names are ARKit camelCase after
+    normalisation; :meth:`animations` gives ``A(t)`` and ``B(t)``, :meth:`keymodels` the source and
+    target key-models of weight vectors ``u_i`` (a perfectly consistent artist).
+    """
+
+    source: Rig
+    target: Rig
+
+    def animations(self, names, weights) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, B)``: source and target animation ``(T, Vs, 3)``, ``(T, Vt, 3)``."""
+        return rig_animation(self.source, names, weights), rig_animation(self.target, names, weights)
+
+    def keymodels(self, names, U) -> tuple[np.ndarray, np.ndarray]:
+        """Source and target key-models ``(N, Vs, 3)``, ``(N, Vt, 3)`` for weight vectors ``U``."""
+        return keymodels_from_weights(self.source, names, U), keymodels_from_weights(self.target, names, U)
+
+    def swapped(self) -> ArkitPairing:
+        """The same pair with source and target exchanged."""
+        return ArkitPairing(self.target, self.source)

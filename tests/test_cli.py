@@ -1,0 +1,119 @@
+"""The command line, end to end on the embedded demo characters (no shared data needed)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from faceretarget.cli import main
+from faceretarget.demo_data import make_demo_character, make_demo_take
+from faceretarget.io import read_glb_weights, save_rig_obj, write_livelinkface
+from faceretarget.rig import Rig
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    ada, bo = make_demo_character("ada"), make_demo_character("bo")
+    save_rig_obj(ada, d / "ada")
+    save_rig_obj(bo, d / "bo")
+    (d / "ada" / "landmarks68.txt").write_text(" ".join(map(str, ada.landmarks)))
+    (d / "bo" / "landmarks68.txt").write_text(" ".join(map(str, bo.landmarks)))
+    take = make_demo_take(seconds=3.0, fps=30.0, seed=4)
+    write_livelinkface(d / "take.csv", take)
+    # artist-style key-model folders: neutral + a few expressions, paired by file name
+    names = ["jawOpen", "mouthSmileLeft", "mouthSmileRight", "eyeBlinkLeft", "eyeBlinkRight", "browInnerUp"]
+    for rig, sub in ((ada, "ada_keys"), (bo, "bo_keys")):
+        save_rig_obj(rig.subset(names), d / sub)
+        (d / sub / "landmarks68.txt").write_text(" ".join(map(str, rig.landmarks)))
+    return d, ada, bo, take
+
+
+def test_clone_rigs_arkit_keys_to_glb(files, capsys):
+    d, ada, bo, take = files
+    out = d / "out.glb"
+    rc = main(["clone", "--source-rig", str(d / "ada"), "--target-rig", str(d / "bo"), "--keys", "arkit",
+               "--features", "all", "--performance", str(d / "take.csv"), "--out", str(out)])
+    assert rc == 0
+    names, times, w = read_glb_weights(out)
+    assert w.shape == (take.n_frames, 52)
+    np.testing.assert_allclose(times, take.times - take.times[0], atol=1e-4)
+    # arkit keys: the cloned weights are the take's own weights (to the CSV's 3 decimals)
+    truth = bo.map_weights(take.names, take.weights, warn=False)
+    order = [bo.index(n) for n in names]
+    np.testing.assert_allclose(w, truth[:, order], atol=2e-3)
+
+
+def test_clone_key_folders_paired_by_name(files):
+    d, ada, bo, take = files
+    out = d / "keys_out.npz"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rc = main(["--quiet", "clone", "--source-keys", str(d / "ada_keys"), "--target-keys", str(d / "bo_keys"),
+                   "--source-rig", str(d / "ada"), "--performance", str(d / "take.csv"), "--out", str(out)])
+    assert rc == 0
+    z = np.load(out)
+    assert z["vertices"].shape == (take.n_frames, bo.n_vertices, 3)
+
+
+def test_keys_compose_writes_84_models(files):
+    d, ada, _, _ = files
+    out = d / "composed"
+    assert main(["--quiet", "keys", "compose", "--rig", str(d / "ada"), "--out", str(out)]) == 0
+    objs = sorted(out.glob("*.obj"))
+    assert len(objs) == 84          # the neutral (pure 'neutral' key-model) + 83 composed key-models
+    assert (out / "happyPP.obj").exists() and (out / "angry.obj").exists()   # names in camelCase
+
+
+def test_errors_are_one_line_and_nonzero(files, capsys, tmp_path):
+    d, _, _, _ = files
+    # missing neutral
+    empty = tmp_path / "noneutral"
+    empty.mkdir()
+    (empty / "jawOpen.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    rc = main(["clone", "--source-keys", str(empty), "--target-keys", str(d / "bo_keys"),
+               "--performance", str(d / "take.csv"), "--out", str(tmp_path / "x.glb")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "neutral" in err[0] and "noneutral" in err[0]
+    assert not (tmp_path / "x.glb").exists()
+    # output folder that does not exist: nothing written, path named
+    rc = main(["clone", "--source-rig", str(d / "ada"), "--target-rig", str(d / "bo"), "--keys", "arkit",
+               "--performance", str(d / "take.csv"), "--out", str(tmp_path / "nope" / "x.glb")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "nope" in err
+    # refusing to overwrite the input
+    before = (d / "take.csv").read_bytes()
+    rc = main(["clone", "--source-rig", str(d / "ada"), "--target-rig", str(d / "bo"), "--keys", "arkit",
+               "--performance", str(d / "take.csv"), "--out", str(d / "take.csv")])
+    assert rc == 2 and "input" in capsys.readouterr().err
+    assert (d / "take.csv").read_bytes() == before
+    # a key model missing on the target side is named
+    rc = main(["clone", "--source-keys", str(d / "ada"), "--target-keys", str(d / "bo_keys"),
+               "--performance", str(d / "take.csv"), "--out", str(tmp_path / "y.glb")])
+    assert rc == 2 and "no target key-model" in capsys.readouterr().err
+    # unknown output format
+    rc = main(["clone", "--source-rig", str(d / "ada"), "--target-rig", str(d / "bo"), "--keys", "arkit",
+               "--performance", str(d / "take.csv"), "--out", str(tmp_path / "x.fbx")])
+    assert rc == 2 and ".fbx" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.part")) and not list(tmp_path.glob(".*.part"))
+
+
+def test_demo_command(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
+    out = capsys.readouterr().out
+    assert "temporal" in out and "rel_motion" in out
+    import json
+
+    m = json.loads((tmp_path / "demo" / "metrics.json").read_text())
+    assert m["temporal"]["rel_motion_pct"] < m["pyun"]["rel_motion_pct"]
+    assert (tmp_path / "demo" / "clone.glb").stat().st_size > 10_000
+    assert (tmp_path / "demo" / "preview.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_rig_unused(files):
+    # keep Rig import meaningful: a subset rig keeps vertex order
+    _, ada, _, _ = files
+    sub = ada.subset(["jawOpen"])
+    assert isinstance(sub, Rig) and sub.n_vertices == ada.n_vertices
