@@ -117,3 +117,64 @@ def test_rig_unused(files):
     _, ada, _, _ = files
     sub = ada.subset(["jawOpen"])
     assert isinstance(sub, Rig) and sub.n_vertices == ada.n_vertices
+
+
+def _copy_keys(src, dst):
+    import shutil
+
+    shutil.copytree(src, dst)
+    return dst
+
+
+@pytest.mark.parametrize("case", ["vertex_count", "non_numeric", "non_finite", "nan_weight", "empty_csv"])
+def test_bad_inputs_one_line_nonzero_no_output(files, tmp_path, capsys, case):
+    d, _, _, _ = files
+    keys = _copy_keys(d / "ada_keys", tmp_path / "keys")
+    perf = d / "take.csv"
+    expect = None
+    if case == "vertex_count":
+        (keys / "jawOpen.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+        expect = "jawOpen"
+    elif case == "non_numeric":
+        lines = (keys / "browInnerUp.obj").read_text().splitlines()
+        lines[3] = "v 0.1 abc 0.3"
+        (keys / "browInnerUp.obj").write_text("\n".join(lines) + "\n")
+        expect = "browInnerUp.obj"
+    elif case == "non_finite":
+        lines = (keys / "eyeBlinkLeft.obj").read_text().splitlines()
+        lines[5] = "v 0.1 nan 0.3"
+        (keys / "eyeBlinkLeft.obj").write_text("\n".join(lines) + "\n")
+        expect = "eyeBlinkLeft.obj"
+    elif case == "nan_weight":
+        rows = perf.read_text().splitlines()
+        cells = rows[7].split(",")
+        cells[5] = "nan"
+        rows[7] = ",".join(cells)
+        perf = tmp_path / "nan.csv"
+        perf.write_text("\n".join(rows) + "\n")
+        expect = "nan.csv"
+    elif case == "empty_csv":
+        perf = tmp_path / "empty.csv"
+        perf.write_text("")
+        expect = "empty.csv"
+    out = tmp_path / "out.glb"
+    rc = main(["clone", "--source-keys", str(keys), "--target-keys", str(d / "bo_keys"), "--source-rig", str(d / "ada"),
+               "--performance", str(perf), "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert len(err) == 1 and err[0].startswith("faceretarget: error:") and expect in err[0]
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".part")]
+
+
+def test_neutral_given_by_file(files, tmp_path):
+    d, ada, bo, take = files
+    keys = _copy_keys(d / "ada_keys", tmp_path / "keys")
+    (keys / "neutral.obj").rename(keys / "rest_pose.obj")
+    out = tmp_path / "o.npz"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rc = main(["--quiet", "clone", "--source-keys", str(keys), "--source-neutral", str(keys / "rest_pose.obj"),
+                   "--target-keys", str(d / "bo_keys"), "--source-rig", str(d / "ada"),
+                   "--performance", str(d / "take.csv"), "--out", str(out)])
+    assert rc == 0 and np.load(out)["vertices"].shape == (take.n_frames, bo.n_vertices, 3)

@@ -69,21 +69,21 @@ def cmd_clone(args, log) -> int:
     _protect(out, inputs)
     t0 = time.perf_counter()
     perf = read_performance(args.performance, fps=args.fps)
-    source_rig = load_rig(args.source_rig) if args.source_rig else None
+    source_rig = load_rig(args.source_rig, neutral=args.source_neutral) if args.source_rig else None
     if args.source_keys or args.target_keys:
         if not (args.source_keys and args.target_keys):
             raise InvalidDataError("give both --source-keys and --target-keys")
-        sk = load_rig(args.source_keys, landmarks=args.source_landmarks)
-        tk = load_rig(args.target_keys, landmarks=args.target_landmarks)
+        sk = load_rig(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks)
+        tk = load_rig(args.target_keys, neutral=args.target_neutral, landmarks=args.target_landmarks)
         log(f"key-models: {sk.n_shapes} pairs from {args.source_keys} and {args.target_keys}")
         if source_rig is None and perf.kind == "weights":
             source_rig = sk
     else:
         if not (args.source_rig and args.target_rig):
             raise InvalidDataError("give --source-keys/--target-keys, or --source-rig/--target-rig with --keys")
-        target_rig = load_rig(args.target_rig, landmarks=args.target_landmarks)
+        target_rig = load_rig(args.target_rig, neutral=args.target_neutral, landmarks=args.target_landmarks)
         if args.source_landmarks is not None:
-            source_rig = load_rig(args.source_rig, landmarks=args.source_landmarks)
+            source_rig = load_rig(args.source_rig, neutral=args.source_neutral, landmarks=args.source_landmarks)
         rom = read_performance(args.keys_from) if args.keys_from else None
         if args.keys.startswith("rom-") and rom is None:
             if perf.kind == "weights":
@@ -95,9 +95,9 @@ def cmd_clone(args, log) -> int:
         log(f"key-models: {args.keys}, {sk.n_shapes} pairs generated on {source_rig.name} and {target_rig.name}")
     frames = _source_frames(perf, source_rig, log)
     features = args.features
-    cloner = ExpressionCloner(args.method, features=features).fit(sk, tk)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
+        cloner = ExpressionCloner(args.method, features=features).fit(sk, tk)
         w = cloner.transform(frames, perf.times)
     for c in caught:
         log(f"warning: {c.message}")
@@ -116,7 +116,7 @@ def cmd_keys_compose(args, log) -> int:
 
     out = Path(args.out)
     _protect(out, [args.rig])
-    rig = load_rig(args.rig)
+    rig = load_rig(args.rig, neutral=args.neutral)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         labels, verts = build_key_models(rig)
@@ -163,6 +163,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
     c.add_argument("--source-landmarks", help="landmark index file for the source (default landmarks68.txt)")
     c.add_argument("--target-landmarks", help="landmark index file for the target")
+    c.add_argument("--source-neutral", help="the source folder's neutral OBJ when it is not named neutral*")
+    c.add_argument("--target-neutral", help="the target folder's neutral OBJ when it is not named neutral*")
     c.set_defaults(func=cmd_clone)
 
     k = sub.add_parser("keys", help="key-model tools")
@@ -170,6 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     kc = ksub.add_parser("compose", help="write the 84 composed emotion x viseme key-models of a rig as OBJ")
     kc.add_argument("--rig", required=True, help="ARKit-style rig folder")
     kc.add_argument("--out", required=True, help="output folder")
+    kc.add_argument("--neutral", help="the rig's neutral OBJ when it is not named neutral*")
     kc.set_defaults(func=cmd_keys_compose)
 
     d = sub.add_parser("demo", help="run the main job end to end on the embedded demo characters")

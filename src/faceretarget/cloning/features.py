@@ -73,7 +73,7 @@ def feature_vectors(vertices: np.ndarray, neutral: np.ndarray, idx: np.ndarray |
     (T, 3P) float
     """
     v = np.asarray(vertices, dtype=np.float64)
-    if idx is None:
+    if idx is None or (len(idx) == v.shape[1] == len(neutral) and idx[0] == 0 and np.all(np.diff(idx) == 1)):
         return (v - neutral).reshape(len(v), -1)
     return (v[:, idx] - neutral[idx]).reshape(len(v), -1)
 
