@@ -61,6 +61,20 @@ def _source_frames(perf, source_rig, log):
 
 
 def cmd_clone(args, log) -> int:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            return _clone(args, log)
+        finally:
+            seen = set()
+            for c in caught:
+                msg = str(c.message)
+                if msg not in seen:
+                    seen.add(msg)
+                    log(f"warning: {msg}")
+
+
+def _clone(args, log) -> int:
     from .cloning import ExpressionCloner, keymodel_pair
     from .io import load_rig, read_performance
 
@@ -95,12 +109,8 @@ def cmd_clone(args, log) -> int:
         log(f"key-models: {args.keys}, {sk.n_shapes} pairs generated on {source_rig.name} and {target_rig.name}")
     frames = _source_frames(perf, source_rig, log)
     features = args.features
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        cloner = ExpressionCloner(args.method, features=features).fit(sk, tk)
-        w = cloner.transform(frames, perf.times)
-    for c in caught:
-        log(f"warning: {c.message}")
+    cloner = ExpressionCloner(args.method, features=features).fit(sk, tk)
+    w = cloner.transform(frames, perf.times)
     if cloner.noise_sigma_ > 0:
         log(f"estimated capture noise {cloner.noise_sigma_ * sk.mm_per_unit:.3f} mm: denoised over time")
     log(f"cloned {perf.n_frames} frames with '{args.method}' in {time.perf_counter() - t0:.2f} s; "

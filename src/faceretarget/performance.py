@@ -49,7 +49,8 @@ class Performance:
     audio : (N,) float, optional
         Mono audio samples in [-1, 1] synchronous with ``times[0]``; ``audio_rate`` in Hz.
     head_rotation : (T, 3) float, optional
-        Head yaw, pitch, roll in degrees.
+        Head yaw, pitch, roll as the source gives them (a Live Link Face CSV's ``HeadYaw``,
+        ``HeadPitch``, ``HeadRoll`` columns unchanged; see that reader for their units).
     head_translation : (T, 3) float, optional
     unit : str, optional
         Unit of points / vertices.

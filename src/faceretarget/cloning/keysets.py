@@ -73,10 +73,10 @@ def keyset_weights(spec: str, source: Rig, *, rom: Performance | None = None, fe
         if rom is None or rom.weights is None:
             raise InvalidDataError(f"key-model set '{spec}' needs a range-of-motion weight take (--keys-from)")
         W = source.map_weights(rom.names, rom.weights, warn=False)
-        V = source.evaluate(W)
-        idx = features if features is not None else (source.landmarks if source.landmarks is not None else None)
-        X = (V[:, idx] - source.neutral.vertices[idx]) if idx is not None else V - source.neutral.vertices
-        frames = select_keyshapes(X.reshape(len(X), -1), k, selection)
+        idx = features if features is not None else source.landmarks
+        D = source.deltas if idx is None else source.deltas[:, idx]          # only the feature points
+        X = W @ D.reshape(source.n_shapes, -1)                               # (T, 3P) displacements
+        frames = select_keyshapes(X, k, selection)
         Urom = np.zeros((len(frames), len(names)))
         col = {n: j for j, n in enumerate(rom.names)}
         from ..names import normalize_name

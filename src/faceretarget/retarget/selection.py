@@ -37,6 +37,9 @@ def pca_extrema(X: np.ndarray, k: int, min_distance: float = 0.05) -> np.ndarray
         raise InvalidDataError(f"cannot choose {k} keyshapes from a take of {T} frames")
     Xc = X - X.mean(axis=0)
     _, _, vt = np.linalg.svd(Xc, full_matrices=False)
+    # SVD axes have no sign: fix it (largest coordinate positive) so the choice order is reproducible
+    big = np.argmax(np.abs(vt), axis=1)
+    vt = vt * np.sign(vt[np.arange(len(vt)), big])[:, None]
     proj = Xc @ vt.T
     spread = float(np.sqrt((Xc**2).sum(axis=1).mean())) or 1.0
     tol = min_distance * spread
