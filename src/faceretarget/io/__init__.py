@@ -1,4 +1,4 @@
-"""Readers and writers: OBJ meshes and rigs, Live Link Face CSV, glTF binary, ``.npz`` and OBJ sequences.
+"""Readers and writers: OBJ meshes and rigs, Live Link Face CSV, glTF binary, ``.npz``, OBJ sequences and C3D markers.
 
 Every reader raises :class:`~faceretarget.errors.InputFileError` (or a more specific
 :class:`~faceretarget.errors.FaceRetargetError`) whose message names the file and the line, row,
@@ -7,6 +7,7 @@ shape or key at fault; every writer produces its output whole or not at all
 path it could not write.
 """
 
+from .c3d import read_c3d, write_c3d
 from .gltf import glb_vertex_order, read_glb_rig, read_glb_weights, write_glb
 from .livelinkface import LiveLinkFaceInfo, read_livelinkface, write_livelinkface
 from .npz import read_npz_performance, write_npz
@@ -35,4 +36,6 @@ __all__ = [
     "read_npz_performance",
     "read_performance",
     "write_animation",
+    "read_c3d",
+    "write_c3d",
 ]

@@ -39,7 +39,7 @@ def read_performance(path: str | os.PathLike, fps: float | None = None) -> Perfo
     Parameters
     ----------
     path : path-like
-        ``.csv`` (Live Link Face), ``.npz`` (:func:`~faceretarget.io.npz.read_npz_performance`),
+        ``.csv`` (Live Link Face), ``.c3d`` (optical markers), ``.npz`` (:func:`~faceretarget.io.npz.read_npz_performance`),
         ``.glb`` (morph-target weight animation), ``.obj`` (a single frame at time 0) or a folder of
         OBJ frames (:func:`~faceretarget.io.obj.read_obj_sequence`).
     fps : float, optional
@@ -68,12 +68,16 @@ def read_performance(path: str | os.PathLike, fps: float | None = None) -> Perfo
     if ext == ".glb":
         names, times, weights = read_glb_weights(path)
         return Performance.from_weights(weights, names, times=times, source=str(path))
+    if ext == ".c3d":
+        from .c3d import read_c3d
+
+        return read_c3d(path)
     if ext == ".obj":
         mesh = read_obj(path)
         return Performance.from_vertices(mesh.vertices[None], mesh, times=[0.0],
                                          fps=fps or 30.0, source=str(path))
     raise InputFileError(f"{path}: unknown take format '{ext or '(no extension)'}'; supported: "
-                         ".csv (Live Link Face), .npz, .glb, .obj, or a folder of OBJ frames")
+                         ".csv (Live Link Face), .c3d (markers), .npz, .glb, .obj, or a folder of OBJ frames")
 
 
 def _weights_for(rig: Rig, weights, names, what: str) -> np.ndarray:
