@@ -163,6 +163,8 @@ def test_save_load_round_trip(tmp_path, demo):
             c = ExpressionCloner(method).fit(sk, tk)
             c.save(tmp_path / f"{method}.npz")
             c2 = ExpressionCloner.load(tmp_path / f"{method}.npz")
+            assert c2.target_keys.names == c.target_keys.names
+            np.testing.assert_allclose(c2.target_keys.deltas, c.target_keys.deltas)
             src = _anim(ada, take)
             np.testing.assert_allclose(c2.blend(c2.transform(src, take.times)), c.blend(c.transform(src, take.times)),
                                        atol=1e-10)

@@ -294,5 +294,11 @@ class ExpressionCloner:
             b = CardinalBasis()
             b.centers_, b.dilation_, b.linear_, b.radial_ = z["centers"], z["dilation"], z["linear"], z["radial"]
             self.basis_ = b
-        self._target_rig = None
+        # faces are not saved: the loaded target keys carry vertices and deltas (enough for .glb
+        # morph targets as points, .npz and blending)
+        from ..mesh import Mesh
+
+        self._target_rig = Rig(Mesh(self.target_neutral_), list(self.names_),
+                               self.target_deltas_.reshape(len(self.names_), -1, 3), self.target_unit_,
+                               name="loaded:target-keys")
         return self
