@@ -195,7 +195,8 @@ def test_export_points_and_read_back(tmp_path):
     frames = [3, 17, 8]
     out = export_keyshapes(perf, frames, tmp_path / "keys", labels=["open", "smile", "frown"])
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["contact_sheet.png", "frame_00003.obj", "frame_00008.obj", "frame_00017.obj", "keyshapes.txt"]
+    assert names == ["contact_sheet.png", "frame_00003.obj", "frame_00008.obj", "frame_00017.obj", "keyshapes.txt",
+                     "markers.txt"]
     m = read_obj(out / "frame_00017.obj")
     assert m.n_faces == 0
     np.testing.assert_array_equal(m.vertices, perf.points[17])

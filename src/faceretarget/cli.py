@@ -1,4 +1,4 @@
-"""Command line: ``faceretarget clone | keys compose | demo``.
+"""Command line: ``faceretarget clone | retarget | keys compose | keys select | demo``.
 
 Every error a user can act on is printed as one line (``faceretarget: error: ...``) naming the file,
 shape or frame, and the exit code is non-zero (2 for bad input, 1 otherwise).  Outputs are written to a
@@ -16,28 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import FaceRetargetError, InvalidDataError, OutputError
+from ._cli_support import protect, run_command, warnings_to_log
+from .errors import InvalidDataError, OutputError
 
 __all__ = ["main"]
 
 
-class _Log:
-    def __init__(self, quiet: bool):
-        self.quiet = quiet
-
-    def __call__(self, *a):
-        if not self.quiet:
-            print(*a, flush=True)
-
-
-def _protect(out: Path, inputs: list) -> None:
-    o = out.resolve()
-    for p in inputs:
-        if p is None:
-            continue
-        p = Path(p).resolve()
-        if o == p or (p.is_dir() and p in o.parents and o.suffix == ""):
-            raise OutputError(f"{out}: refusing to write over the input '{p}'")
+_protect = protect
 
 
 def _write_clone(out: Path, cloner, weights: np.ndarray, times: np.ndarray, log) -> None:
@@ -61,17 +46,8 @@ def _source_frames(perf, source_rig, log):
 
 
 def cmd_clone(args, log) -> int:
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            return _clone(args, log)
-        finally:
-            seen = set()
-            for c in caught:
-                msg = str(c.message)
-                if msg not in seen:
-                    seen.add(msg)
-                    log(f"warning: {msg}")
+    with warnings_to_log(log):
+        return _clone(args, log)
 
 
 def _clone(args, log) -> int:
@@ -142,6 +118,174 @@ def cmd_keys_compose(args, log) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- retargeting (Chuang Ch. 3)
+def _geometry_take(perf, source_rig, log, *, align: bool = True, rigid_subset=None):
+    """``(points (T, P, 3), labels, neutral or None, mesh or None, aligner)`` of a take for keyshape work."""
+    from .retarget import RigidAligner
+
+    if perf.kind == "weights":
+        if source_rig is None:
+            raise InvalidDataError(f"{perf.source}: a weight take needs the rig it drives (--source-rig DIR)")
+        log(f"playing {perf.n_frames} frames of weights on {source_rig.name}")
+        V = source_rig.evaluate(source_rig.map_weights(perf.names, perf.weights, source=perf.source))
+        return V, [], source_rig.neutral.vertices, source_rig.neutral, None
+    if perf.kind == "vertices":
+        return perf.vertices, [], None, perf.mesh, None
+    pts = perf.points
+    if pts.shape[2] != 3:
+        raise InvalidDataError(f"{perf.source}: keyshape selection needs 3-D points, the take has 2-D points")
+    al = None
+    if align and pts.shape[1] >= 4:
+        subset = [s.strip() for s in rigid_subset.split(",")] if rigid_subset else None
+        al = RigidAligner(subset=subset)
+        perf = al.fit_transform(perf)
+        log(al.report(perf.unit))
+        pts = perf.points
+    return pts, list(perf.labels), None, None, al
+
+
+def cmd_keys_select(args, log) -> int:
+    from .cloning.features import resolve_features
+    from .io import load_rig, read_performance
+    from .retarget import SELECTION_METHODS, export_keyshapes, reconstruction_error, select_keyshapes
+
+    out = Path(args.out)
+    _protect(out, [args.performance, args.source_rig])
+    method = {"kmeans": "kmeans2", "pca": "pca-extrema", "greedy": "nnls-greedy", "qr": "pivoted-qr"}.get(
+        args.method, args.method)
+    if method not in SELECTION_METHODS:
+        raise InvalidDataError(f"unknown selection method '{args.method}', use one of "
+                               f"{', '.join(SELECTION_METHODS)} (kmeans = kmeans2)")
+    if args.k < 1:
+        raise InvalidDataError(f"--k must be at least 1, got {args.k}")
+    t0 = time.perf_counter()
+    perf = read_performance(args.performance, fps=args.fps)
+    rig = load_rig(args.source_rig, neutral=args.source_neutral) if args.source_rig else None
+    pts, labels, neutral, mesh, _ = _geometry_take(perf, rig, log, align=not args.no_align,
+                                                   rigid_subset=args.rigid_subset)
+    T = len(pts)
+    complete = np.isfinite(pts).all(axis=(1, 2))
+    if not complete.any():
+        raise InvalidDataError(f"{perf.source}: no frame has every marker; fill gaps first")
+    if neutral is None:
+        nf = int(np.flatnonzero(complete)[0]) if args.neutral_frame is None else args.neutral_frame
+        if not 0 <= nf < T:
+            raise InvalidDataError(f"--neutral-frame {nf} is outside the take's frames 0..{T - 1}")
+        if not complete[nf]:
+            raise InvalidDataError(f"{perf.source}: neutral frame {nf} has missing markers; choose another")
+        neutral = pts[nf]
+        log(f"source neutral: frame {nf}")
+    feats = np.arange(pts.shape[1])
+    if rig is not None and args.features != "all":
+        feats = resolve_features(args.features, rig.n_vertices, rig.landmarks, who=rig.name)
+    cand = np.flatnonzero(complete)
+    X = (pts[cand][:, feats] - neutral[feats]).reshape(len(cand), -1)
+    if args.k > len(cand):
+        raise InvalidDataError(f"--k {args.k} is more than the {len(cand)} complete frames of {perf.source}")
+    frames = cand[np.asarray(select_keyshapes(X, args.k, method), dtype=int)]
+    err = reconstruction_error(X, np.searchsorted(cand, frames))
+    log(f"selected {len(frames)} keyshapes with {method} in {time.perf_counter() - t0:.2f} s; "
+        f"non-negative reconstruction error of the take {100 * err:.2f} %")
+    chosen = sorted(frames.tolist())
+    if perf.kind == "points":
+        from .performance import Performance
+
+        aligned = Performance.from_points(pts, labels, times=perf.times, unit=perf.unit, source=perf.source)
+        export_keyshapes(aligned, chosen, out, neutral=neutral)
+    else:
+        export_keyshapes(pts, chosen, out, mesh=mesh, neutral=neutral)
+    log(f"wrote {out}: {len(frames)} keyshapes, neutral.obj, keyshapes.txt and contact_sheet.png; model the "
+        "target counterparts under the same file names (frame_*.obj) beside the target's neutral.obj")
+    return 0
+
+
+def _load_keys(folder, neutral, landmarks, rig=None):
+    """Keyshapes from an exported/artist folder (``frame_*.obj``) or an ARKit-style rig folder."""
+    from .io import load_rig
+    from .retarget.export import is_keyshape_folder, read_marker_labels, read_target_keyshapes
+
+    if folder is None:
+        return None, []
+    if Path(folder).is_dir() and is_keyshape_folder(folder):
+        keys = read_target_keyshapes(folder, neutral=neutral)
+        if landmarks is not None:
+            keys.landmarks = np.loadtxt(landmarks, dtype=np.int64, ndmin=1)
+        elif rig is not None and rig.n_vertices == keys.n_vertices:
+            keys.landmarks = rig.landmarks
+        return keys, read_marker_labels(folder)
+    return load_rig(folder, neutral=neutral, landmarks=landmarks), []
+
+
+def cmd_retarget(args, log) -> int:
+    with warnings_to_log(log):
+        return _retarget(args, log)
+
+
+def _retarget(args, log) -> int:
+    from .io import load_rig, read_performance, write_animation
+    from .names import ARKIT_NAMES, normalize_name
+    from .performance import Performance
+    from .retarget import BlendshapeRetargeter, check_consistency, load_regions
+
+    out = Path(args.out)
+    _protect(out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions])
+    t0 = time.perf_counter()
+    perf = read_performance(args.performance, fps=args.fps)
+    rig = load_rig(args.source_rig, neutral=args.source_neutral) if args.source_rig else None
+    from .retarget.export import is_keyshape_folder
+
+    sk, labels = _load_keys(args.source_keys, args.source_neutral, args.source_landmarks, rig)
+    tk, _ = _load_keys(args.target_keys, args.target_neutral, args.target_landmarks)
+    rigs = not is_keyshape_folder(args.source_keys) and not is_keyshape_folder(args.target_keys)
+    if rigs:
+        # two ARKit-style rigs: pair their shapes through the ARKit names (split halves, aliases)
+        from .cloning import keymodel_pair
+
+        if rig is None:
+            rig = sk
+        sk, tk, _ = keymodel_pair(sk, tk, "arkit")
+    log(f"keyshapes: {sk.n_shapes} source from {args.source_keys}, {tk.n_shapes} target from {args.target_keys}")
+    if perf.kind == "weights":
+        if rig is None:
+            raise InvalidDataError(f"{perf.source}: a weight take needs the rig it drives (--source-rig DIR)")
+        frames = _source_frames(perf, rig, log)
+        take = Performance.from_vertices(frames, times=perf.times, source=perf.source)
+        take.head_rotation = perf.head_rotation
+    else:
+        take = perf
+    regions = None
+    if args.regions:
+        regions = args.regions if args.regions in ("upper-lower", "default") else load_regions(args.regions)
+    if args.check:
+        rep = check_consistency(sk, tk)
+        log(rep.table())
+    rt = BlendshapeRetargeter(args.solver, upper=args.upper, l1=args.l1, l2=args.l2, smooth=args.temporal,
+                              denoise=not args.no_denoise, filter_level=args.smooth, regions=regions,
+                              align=not args.no_align,
+                              rigid_subset=[s.strip() for s in args.rigid_subset.split(",")] if args.rigid_subset else None)
+    rt.fit(sk, tk, source_labels=labels)
+    W = rt.transform(take)
+    if getattr(rt, "aligner_", None) is not None:
+        log(rt.aligner_.report(perf.unit))
+    if rt.noise_sigma_ > 0:
+        log(f"estimated capture noise {rt.noise_sigma_ * sk.mm_per_unit:.3f} mm: denoised over time")
+    if args.smooth:
+        log(f"weight filter level {args.smooth}: removed {100 * rt.extremes_removed_:.1f} % of the extremes")
+    log(f"retargeted {perf.n_frames} frames with '{args.solver}' in {time.perf_counter() - t0:.2f} s")
+    ext = out.suffix.lower()
+    if ext == ".csv":
+        kw = rt.key_weights(W)
+        arkit = [normalize_name(n) for n in rt.names_]
+        if not all(n in ARKIT_NAMES for n in arkit):
+            raise OutputError(f"{out}: a Live Link Face CSV needs ARKit-named target keys ({rt.names_[0]} is not "
+                              "one); write .glb or .npz instead")
+        write_animation(out, weights=kw, names=arkit, times=perf.times, head_rotation=take.head_rotation)
+    else:
+        write_animation(out, rig=rt.target_keys, weights=W, names=list(rt.weight_names_), times=perf.times)
+    log(f"wrote {out} ({perf.n_frames} frames, {len(rt.weight_names_)} target keyshapes)")
+    return 0
+
+
 def cmd_demo(args, log) -> int:
     from .demo import run_demo
 
@@ -184,6 +328,55 @@ def build_parser() -> argparse.ArgumentParser:
     kc.add_argument("--out", required=True, help="output folder")
     kc.add_argument("--neutral", help="the rig's neutral OBJ when it is not named neutral*")
     kc.set_defaults(func=cmd_keys_compose)
+    ks = ksub.add_parser("select", help="choose keyshape frames of a take for an artist to model (Chuang Ch. 3)",
+                         description="Choose k keyshape frames of a source take and export them (OBJ per frame, "
+                         "neutral.obj, keyshapes.txt, contact_sheet.png) for an artist to model the target "
+                         "counterparts.  Marker takes lose their rigid head motion first.")
+    ks.add_argument("--performance", required=True, help="take: .c3d markers, .csv weights (with --source-rig), "
+                    ".npz, OBJ-sequence folder")
+    ks.add_argument("--k", type=int, default=20, help="number of keyshapes (default 20)")
+    ks.add_argument("--method", default="pivoted-qr",
+                    help="pivoted-qr (default: keys for retargeting other takes too), nnls-greedy (best "
+                    "non-negative fit of this take), pca-extrema (the thesis), hull, kmeans (= kmeans2), kmeans3")
+    ks.add_argument("--out", required=True, help="output folder")
+    ks.add_argument("--source-rig", help="rig folder a weight take drives (frames exported as its meshes)")
+    ks.add_argument("--source-neutral", help="the rig's neutral OBJ when it is not named neutral*")
+    ks.add_argument("--features", default="landmarks", help="with a rig: landmarks (default) or all vertices")
+    ks.add_argument("--neutral-frame", type=int, help="frame of a marker/mesh take at rest (default the first "
+                    "complete frame)")
+    ks.add_argument("--rigid-subset", help="comma-separated markers that move with the skull (default automatic)")
+    ks.add_argument("--no-align", action="store_true", help="keep the markers' rigid head motion")
+    ks.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
+    ks.set_defaults(func=cmd_keys_select)
+
+    r = sub.add_parser("retarget", help="retarget a take through source/target keyshapes (Chuang Ch. 3)",
+                       description="Decompose every frame of a take into source keyshape weights and play them "
+                       "on the target keyshapes.  Keyshape folders are exported frames (frame_*.obj + neutral.obj, "
+                       "see 'keys select') or ARKit-style rig folders paired by shape name.")
+    r.add_argument("--performance", required=True, help="take: .c3d, .csv (with --source-rig), .npz, OBJ folder")
+    r.add_argument("--source-keys", required=True, help="source keyshape folder")
+    r.add_argument("--target-keys", required=True, help="target keyshape folder (same file or shape names)")
+    r.add_argument("--out", required=True, help="output: .glb, .csv (Live Link Face; ARKit-named keys), .npz "
+                   "or a folder (OBJ sequence)")
+    r.add_argument("--source-rig", help="rig a weight take drives")
+    r.add_argument("--regions", help="upper-lower, or a regions JSON file (see docs/retargeting.md)")
+    r.add_argument("--smooth", type=float, default=0.0, help="low-pass level of the weight curves (0 = none)")
+    r.add_argument("--solver", default="signed", choices=["signed", "nnls"],
+                   help="signed least squares (default; new takes) or non-negative (the thesis)")
+    r.add_argument("--upper", type=float, help="nnls: upper bound of the weights (e.g. 1)")
+    r.add_argument("--l1", type=float, default=0.0, help="nnls: sparsity weight")
+    r.add_argument("--l2", type=float, default=0.0, help="ridge weight")
+    r.add_argument("--temporal", type=float, default=0.0, help="nnls: temporal smoothness weight in the solve")
+    r.add_argument("--no-denoise", action="store_true", help="do not estimate and remove capture noise")
+    r.add_argument("--check", action="store_true", help="print the consistency report of the target keyshapes")
+    r.add_argument("--rigid-subset", help="comma-separated markers that move with the skull (default automatic)")
+    r.add_argument("--no-align", action="store_true", help="keep the markers' rigid head motion")
+    r.add_argument("--source-neutral", help="neutral OBJ of the source folder (default neutral.obj / neutral*)")
+    r.add_argument("--target-neutral", help="neutral OBJ of the target folder (default neutral.obj / neutral*)")
+    r.add_argument("--source-landmarks", help="landmark index file for mesh source keys")
+    r.add_argument("--target-landmarks", help="landmark index file for the target")
+    r.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
+    r.set_defaults(func=cmd_retarget)
 
     d = sub.add_parser("demo", help="run the main job end to end on the embedded demo characters")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
@@ -193,19 +386,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    log = _Log(args.quiet)
-    try:
-        return int(args.func(args, log) or 0)
-    except FaceRetargetError as e:
-        print(f"faceretarget: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("faceretarget: interrupted", file=sys.stderr)
-        return 130
-    except OSError as e:
-        print(f"faceretarget: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
-        return 1
+    return run_command(parser.parse_args(argv))
 
 
 if __name__ == "__main__":  # pragma: no cover

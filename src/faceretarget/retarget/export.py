@@ -30,9 +30,11 @@ from ..mesh import Mesh
 from ..performance import Performance
 from ..rig import Rig, guess_unit
 
-__all__ = ["export_keyshapes", "read_target_keyshapes", "keyshape_filename", "MANIFEST", "CONTACT_SHEET"]
+__all__ = ["export_keyshapes", "read_target_keyshapes", "read_marker_labels", "is_keyshape_folder",
+           "keyshape_filename", "MANIFEST", "MARKERS", "CONTACT_SHEET"]
 
 MANIFEST = "keyshapes.txt"
+MARKERS = "markers.txt"
 CONTACT_SHEET = "contact_sheet.png"
 
 
@@ -95,7 +97,7 @@ def _mesh_sheet(vertices: np.ndarray, mesh: Mesh, frames: list[int], labels: lis
 def export_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence[int],
                      out_dir: str | os.PathLike, *, mesh: Mesh | None = None,
                      labels: Sequence[str] | None = None, contact_sheet: bool = True,
-                     cell: int = 240) -> Path:
+                     cell: int = 240, neutral: np.ndarray | None = None) -> Path:
     """Write the chosen frames of a take for an artist to model (see the module).
 
     Parameters
@@ -118,6 +120,9 @@ def export_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequenc
         Write ``contact_sheet.png``.
     cell : int
         Size in pixels of each contact sheet cell.
+    neutral : (P, 3) float, optional
+        The source's rest pose (same points / vertices as the frames), written as ``neutral.obj``
+        so the folder is a complete set of source keyshapes for retargeting.
 
     Returns
     -------
@@ -189,6 +194,17 @@ def export_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequenc
                 write_obj(tmp / name, mesh, pts[n], header="\n".join(head))
             lines.append(f"{name}\t{f}\t{t}\t{labs[n]}")
         (tmp / MANIFEST).write_text("\n".join(lines) + "\n", encoding="utf-8")
+        if marker_labels:
+            (tmp / MARKERS).write_text("\n".join(marker_labels) + "\n", encoding="utf-8")
+        if neutral is not None:
+            nv = np.zeros((P, 3))
+            n_arr = np.asarray(neutral, dtype=np.float64)
+            if n_arr.shape[0] != P or n_arr.shape[1] not in (2, 3) or not np.isfinite(n_arr).all():
+                raise InvalidDataError(f"{source}: the neutral must be {P} finite points, got {n_arr.shape}")
+            nv[:, : n_arr.shape[1]] = n_arr
+            head = [f"faceretarget source neutral of {Path(source).name}"] + ([f"unit: {unit}"] if unit else [])
+            write_obj(tmp / "neutral.obj", Mesh(nv, name="neutral") if mesh is None else mesh,
+                      None if mesh is None else nv, header="\n".join(head))
         if contact_sheet:
             from ..render import save_png
 
@@ -311,3 +327,17 @@ def read_target_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str]
     labels = [label_of.get(f, stems[n]) for n, f in enumerate(ids)]
     labels = [stems[n] if lab == f"frame {f}" else lab for n, (f, lab) in enumerate(zip(ids, labels, strict=True))]
     return Rig(base, labels, deltas, unit or guess_unit(base), None, stems, name or folder.name)
+
+
+def read_marker_labels(folder: str | os.PathLike) -> list[str]:
+    """Marker labels of exported point keyshapes (``markers.txt``), empty when there are none."""
+    p = Path(folder) / MARKERS
+    if not p.is_file():
+        return []
+    return [ln.strip() for ln in p.read_text(encoding="utf-8").splitlines() if ln.strip()]
+
+
+def is_keyshape_folder(folder: str | os.PathLike) -> bool:
+    """Whether a folder holds exported keyshapes (``keyshapes.txt`` or ``frame_*.obj``) rather than a rig."""
+    f = Path(folder)
+    return (f / MANIFEST).is_file() or any(f.glob("frame_*.obj"))

@@ -26,6 +26,13 @@ and ``k``, and returns ``(k,)`` distinct frame indices.  They are registered by 
     Kumar et al. 2013; SNPA, Gillis 2014), with exact gains, an exhaustive best pair and exchange
     refinement for small sets and, by default, a guard that makes it never worse than PCA extrema
     (documented there).
+``pivoted-qr``
+    New here, for keys that will retarget *other* takes (:func:`pivoted_qr`): column-pivoted QR
+    (Businger & Golub 1965) of the frames' unit directions, i.e. greedily the frame whose direction
+    of motion is farthest from the span of those already chosen.  It maximises the volume the
+    keys' directions span, so every direction of motion has a well-conditioned key and capture
+    noise is amplified least by a signed solve; frames moving less than ``floor`` (5 %) of the
+    take's median motion are left out (their direction is mostly noise).  Nested in ``k``.
 
 The quality measure used to compare them (EVALUATION.md P2) is :func:`reconstruction_error`: the
 RMS over frames and coordinates of each frame's residual after its NNLS fit to the chosen keys,
@@ -47,6 +54,7 @@ __all__ = [
     "kmeans_selection",
     "nnls_greedy",
     "nnls_greedy_path",
+    "pivoted_qr",
     "nnls_weights",
     "reconstruction_error",
     "SELECTION_METHODS",
@@ -645,12 +653,44 @@ def nnls_greedy(X: np.ndarray, k: int, *, candidates: int = 4, exchange_up_to: i
                             max_eval_frames=max_eval_frames)[-1]
 
 
+def pivoted_qr(X: np.ndarray, k: int, floor: float = 0.05) -> np.ndarray:
+    """``k`` frames by column-pivoted QR of the frames' unit directions (see the module).
+
+    Parameters
+    ----------
+    X : (T, D) float
+        Frames (feature displacements from the neutral).
+    k : int
+    floor : float
+        Frames moving less than ``floor`` times the median frame motion are not candidates
+        (they come back, smallest last, only if too few frames move).
+
+    Returns
+    -------
+    (k,) int
+        In the order chosen (a prefix of the order for a larger ``k``).
+    """
+    from scipy.linalg import qr
+
+    X = _check(X, k)
+    n = np.linalg.norm(X, axis=1)
+    med = float(np.median(n[n > 0])) if (n > 0).any() else 0.0
+    cand = np.flatnonzero(n > floor * med) if med > 0 else np.arange(len(X))
+    if cand.size < k:                                            # too few moving frames: take the rest by size
+        rest = np.setdiff1d(np.arange(len(X)), cand)
+        cand = np.concatenate([cand, rest[np.argsort(-n[rest])][: k - cand.size]])
+    U = X[cand] / np.maximum(n[cand], 1e-300)[:, None]
+    _, _, piv = qr(U.T, mode="economic", pivoting=True)
+    return cand[piv[:k]]
+
+
 SELECTION_METHODS = {
     "pca-extrema": pca_extrema,
     "hull": hull_selection,
     "kmeans2": _kmeans2,
     "kmeans3": _kmeans3,
     "nnls-greedy": nnls_greedy,
+    "pivoted-qr": pivoted_qr,
 }
 
 
