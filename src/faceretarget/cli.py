@@ -1,4 +1,5 @@
-"""Command line: ``faceretarget clone | retarget | keys compose | keys select | demo``.
+"""Command line: ``faceretarget clone | retarget | keys compose | keys select | headmotion build |
+headmotion synth | demo``.
 
 Every error a user can act on is printed as one line (``faceretarget: error: ...``) naming the file,
 shape or frame, and the exit code is non-zero (2 for bad input, 1 otherwise).  Outputs are written to a
@@ -377,6 +378,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--target-landmarks", help="landmark index file for the target")
     r.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
     r.set_defaults(func=cmd_retarget)
+
+    from .headmotion.cli import register as _register_headmotion
+
+    _register_headmotion(sub)
 
     d = sub.add_parser("demo", help="run the main job end to end on the embedded demo characters")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

@@ -1,4 +1,5 @@
-"""Readers and writers: OBJ meshes and rigs, Live Link Face CSV, glTF binary, ``.npz``, OBJ sequences and C3D markers.
+"""Readers and writers: OBJ meshes and rigs, Live Link Face CSV, glTF binary (morph and head animation), ``.npz``,
+OBJ sequences, C3D markers, BVH head motion and WAV audio.
 
 Every reader raises :class:`~faceretarget.errors.InputFileError` (or a more specific
 :class:`~faceretarget.errors.FaceRetargetError`) whose message names the file and the line, row,
@@ -7,8 +8,10 @@ shape or key at fault; every writer produces its output whole or not at all
 path it could not write.
 """
 
+from .audio import read_audio
+from .bvh import Bvh, BvhJoint, bvh_chain, make_head_bvh, read_bvh, write_bvh
 from .c3d import read_c3d, write_c3d
-from .gltf import glb_vertex_order, read_glb_rig, read_glb_weights, write_glb
+from .gltf import glb_vertex_order, read_glb_head, read_glb_rig, read_glb_weights, write_glb, write_glb_head
 from .livelinkface import LiveLinkFaceInfo, read_livelinkface, write_livelinkface
 from .npz import read_npz_performance, write_npz
 from .obj import read_obj, read_obj_sequence, read_obj_vertices, write_obj, write_obj_sequence
@@ -38,4 +41,13 @@ __all__ = [
     "write_animation",
     "read_c3d",
     "write_c3d",
+    "read_audio",
+    "Bvh",
+    "BvhJoint",
+    "bvh_chain",
+    "make_head_bvh",
+    "read_bvh",
+    "write_bvh",
+    "write_glb_head",
+    "read_glb_head",
 ]

@@ -21,6 +21,15 @@ deltas.  The glTF vertices are ordered by source vertex (copies of one vertex ad
 order equals the rig's when there are no seams; otherwise :func:`glb_vertex_order` gives, for each
 glTF vertex, the rig vertex it came from, and the file stores the same array as
 ``mesh.extras.sourceVertices``.
+
+Head motion (:func:`write_glb_head`, or ``head_rotation=`` in :func:`write_glb`)
+---------------------------------------------------------------------------------
+A node named ``head`` animated by its own ``rotation`` channel (unit quaternions ``x, y, z, w``,
+``LINEAR``, which glTF viewers interpolate by slerp) and, when given, a ``translation`` channel
+(metres), in the same animation as the face's weights.  With a face, the face node becomes a child
+of the ``head`` node, so the face turns with the head; ``head_pivot`` (metres) puts the rotation
+centre at the neck rather than at the rig's origin (the face node is offset by ``-head_pivot`` and
+the head node sits at ``head_pivot + translation``).
 """
 
 from __future__ import annotations
@@ -38,7 +47,8 @@ from ..rig import Rig
 from ._atomic import atomic_path
 from .obj import check_output_path
 
-__all__ = ["write_glb", "read_glb_weights", "read_glb_rig", "glb_vertex_order"]
+__all__ = ["write_glb", "read_glb_weights", "read_glb_rig", "glb_vertex_order", "write_glb_head",
+           "read_glb_head"]
 
 _FLOAT, _USHORT, _UINT = 5126, 5123, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -116,7 +126,9 @@ class _Builder:
 
 def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.ndarray,
               names: list[str] | None = None, node_name: str = "face", *,
-              animation_name: str = "take") -> Path:
+              animation_name: str = "take", head_rotation: np.ndarray | None = None,
+              head_translation: np.ndarray | None = None,
+              head_pivot: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0)) -> Path:
     """Write the rig with its key shapes as morph targets, animated by ``weights``.
 
     Parameters
@@ -137,6 +149,14 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
         Name of the glTF node carrying the mesh and animated by the animation.
     animation_name : str
         Name of the animation.
+    head_rotation : (T, 4) float, optional
+        Head orientation per frame as unit quaternions ``x, y, z, w``: adds a ``head`` node, parent
+        of the face node, with a rotation channel in the same animation (module docstring).
+    head_translation : (T, 3) float, optional
+        Head displacement per frame in metres (a translation channel on the ``head`` node; only
+        with ``head_rotation``).
+    head_pivot : 3 floats
+        Rotation centre of the head in the rig's coordinates, metres.
 
     Returns
     -------
@@ -147,7 +167,7 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     ------
     InvalidDataError
         Wrong weight shape, non-finite weights, times that do not increase (also after rounding to
-        float32), or a rig without key shapes.
+        float32), a rig without key shapes, or malformed head keyframes.
     OutputError
         The file cannot be written (nothing partial is left).
     """
@@ -203,6 +223,12 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     t_acc = b.accessor(t32, "SCALAR")
     w_acc = b.accessor(w.astype(np.float32).reshape(-1), "SCALAR", minmax=False)
 
+    head = None
+    if head_rotation is not None:
+        head = _head_keys(path, b, t.size, head_rotation, head_translation, head_pivot)
+    elif head_translation is not None:
+        raise InvalidDataError(f"{path}: head_translation needs head_rotation")
+
     mesh_extras: dict = {"targetNames": list(rig.names)}
     if len(src) != mesh.n_vertices or not np.array_equal(src, np.arange(mesh.n_vertices)):
         mesh_extras["sourceVertices"] = src.tolist()
@@ -227,6 +253,12 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
         "bufferViews": b.views,
         "accessors": b.accessors,
     }
+    if head is not None:
+        _add_head(gltf, head, t_acc, child=0)
+    return _write_glb_file(path, gltf, b)
+
+
+def _write_glb_file(path: Path, gltf: dict, b: _Builder) -> Path:
     pad = (-b.size) % 4
     bin_len = b.size + pad
     gltf["buffers"][0]["byteLength"] = b.size
@@ -242,6 +274,140 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
             f.write(c)
         f.write(b"\0" * pad)
     return path
+
+
+def _head_keys(path: Path, b: _Builder, T: int, rotation, translation, pivot) -> dict:
+    """Check head keyframes and store them: accessor ids of rotation (and translation)."""
+    q = np.asarray(rotation, dtype=np.float64)
+    if q.ndim != 2 or q.shape != (T, 4):
+        raise InvalidDataError(f"{path}: head rotation must be ({T}, 4) quaternions x, y, z, w, got {q.shape}")
+    if not np.isfinite(q).all():
+        f = int(np.flatnonzero(~np.isfinite(q).all(axis=1))[0])
+        raise InvalidDataError(f"{path}: head rotation of frame {f} is not finite")
+    nq = np.linalg.norm(q, axis=1)
+    if (nq < 1e-6).any():
+        f = int(np.flatnonzero(nq < 1e-6)[0])
+        raise InvalidDataError(f"{path}: head rotation of frame {f} is a zero quaternion")
+    q = q / nq[:, None]
+    q = q * np.where(q[:, 3:] < 0, -1.0, 1.0)  # same rotation, w >= 0
+    # consecutive keys on the same hemisphere, so LINEAR (slerp) takes the short way
+    flip = np.cumprod(np.where(np.r_[1.0, np.sign((q[1:] * q[:-1]).sum(axis=1))] < 0, -1.0, 1.0))
+    q = q * flip[:, None]
+    pv = np.asarray(pivot, dtype=np.float64).reshape(3)
+    keys = {"rotation": b.accessor(q.astype(np.float32), "VEC4", minmax=False), "pivot": pv}
+    if translation is not None:
+        tr = np.asarray(translation, dtype=np.float64)
+        if tr.shape != (T, 3) or not np.isfinite(tr).all():
+            raise InvalidDataError(f"{path}: head translation must be finite ({T}, 3), got {tr.shape}")
+        keys["translation"] = b.accessor((tr + pv).astype(np.float32), "VEC3", minmax=False)
+    return keys
+
+
+def _add_head(gltf: dict, keys: dict, t_acc: int, child: int | None) -> None:
+    """Add the ``head`` node (parent of node ``child``) with its channels in animation 0."""
+    nodes = gltf["nodes"]
+    head: dict = {"name": "head"}
+    pv = keys["pivot"]
+    if np.any(pv != 0):
+        head["translation"] = [float(x) for x in pv]
+    if child is not None:
+        head["children"] = [child]
+        if np.any(pv != 0):
+            nodes[child]["translation"] = [float(-x) for x in pv]
+    nodes.append(head)
+    h = len(nodes) - 1
+    gltf["scenes"][0]["nodes"] = [h]
+    anim = gltf["animations"][0]
+    for p in ("rotation", "translation"):
+        if p in keys:
+            anim["samplers"].append({"input": t_acc, "output": keys[p], "interpolation": "LINEAR"})
+            anim["channels"].append({"sampler": len(anim["samplers"]) - 1, "target": {"node": h, "path": p}})
+
+
+def write_glb_head(path: str | os.PathLike, times: np.ndarray, rotation: np.ndarray,
+                   translation: np.ndarray | None = None, *, animation_name: str = "head",
+                   pivot: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0)) -> Path:
+    """Write a ``.glb`` holding only a ``head`` node animated by rotation (and translation) keys.
+
+    Parameters
+    ----------
+    path : path-like
+        Output ``.glb``.
+    times : (T,) float
+        Keyframe times in seconds, strictly increasing; written relative to ``times[0]``.
+    rotation : (T, 4) float
+        Unit quaternions ``x, y, z, w`` (glTF's order) of the head in its parent's axes (glTF: +Y
+        up, +Z forward).
+    translation : (T, 3) float, optional
+        Head displacement in metres.
+    animation_name : str
+    pivot : 3 floats
+        Rest position of the head node (metres), added to every translation key.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = check_output_path(path)
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    if t.size == 0:
+        raise InvalidDataError(f"{path}: no frames to write")
+    if not np.isfinite(t).all():
+        raise InvalidDataError(f"{path}: times are not all finite")
+    t32 = (t - t[0]).astype(np.float32)
+    if t.size > 1 and not (np.diff(t32) > 0).all():
+        k = int(np.flatnonzero(np.diff(t32) <= 0)[0]) + 1
+        raise InvalidDataError(f"{path}: frame {k} time {t[k]:.6f} s does not increase after "
+                               f"{t[k - 1]:.6f} s (in float32 seconds)")
+    b = _Builder()
+    t_acc = b.accessor(t32, "SCALAR")
+    keys = _head_keys(path, b, t.size, rotation, translation, pivot)
+    gltf = {
+        "asset": {"version": "2.0", "generator": "faceretarget"},
+        "extras": {"unit": "m"},
+        "scene": 0,
+        "scenes": [{"nodes": []}],
+        "nodes": [],
+        "animations": [{"name": animation_name, "samplers": [], "channels": []}],
+        "buffers": [{"byteLength": 0}],
+        "bufferViews": b.views,
+        "accessors": b.accessors,
+    }
+    _add_head(gltf, keys, t_acc, child=None)
+    return _write_glb_file(path, gltf, b)
+
+
+def read_glb_head(path: str | os.PathLike, node: str = "head"
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Read the rotation (and translation) keyframes of node ``node`` of a ``.glb``.
+
+    Returns
+    -------
+    times : (T,) float64
+    rotation : (T, 4) float64
+        Quaternions ``x, y, z, w``.
+    translation : (T, 3) float64 or None
+        Metres (including the node's rest position), None without a translation channel.
+    """
+    path = Path(path)
+    gltf, binchunk = _load_glb(path)
+    ids = [i for i, n in enumerate(gltf.get("nodes", [])) if n.get("name") == node]
+    if not ids:
+        raise InputFileError(f"{path}: no node named '{node}'")
+    found: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for anim in gltf.get("animations", []):
+        for ch in anim.get("channels", []):
+            tg = ch.get("target", {})
+            if tg.get("node") == ids[0] and tg.get("path") in ("rotation", "translation"):
+                s = anim["samplers"][ch["sampler"]]
+                found[tg["path"]] = (_accessor(path, gltf, binchunk, s["input"]).astype(np.float64).reshape(-1),
+                                     _accessor(path, gltf, binchunk, s["output"]).astype(np.float64))
+    if "rotation" not in found:
+        raise InputFileError(f"{path}: node '{node}' has no rotation animation")
+    t, q = found["rotation"]
+    tr = found["translation"][1] if "translation" in found else None
+    return t, q.reshape(-1, 4), tr
 
 
 # ---------------------------------------------------------------------------------------- reading

@@ -1,0 +1,318 @@
+"""P5 benchmark: head motion from audio (Chuang Ch. 4), protocol P5 of ../shared/EVALUATION.md.
+
+Data: ``headmotion/`` of the shared data, two speakers (BEAT ``beat_2_scott_0_1_1`` and ZEGGS
+``zeggs_067_Speech_2_x_1_0``), speech with the head chain Neck > Neck1 > Head of their BVH.
+
+Experiments
+-----------
+* **Leave-one-phrase-out** (LOPO): each phrase (as :func:`segment_speech` cuts it, 0.3 s pauses)
+  of at least 1 s, with its following pause, is held out in turn: the database is built from both
+  takes (mirrored) without that phrase, and head motion is synthesized for the phrase's audio.
+* **Leave-one-speaker-out** (LOSO): the database is the other speaker's take (mirrored), the input
+  the whole held-out take (about a minute of audio: the speed figure comes from here).
+
+Every synthesis is compared, in the same run, with two baselines for the same audio:
+``random`` (a uniformly random database segment for every input segment, blended the same way)
+and ``noise`` (Perlin-style smooth noise, :func:`perlin_noise`, 0.8 Hz base, 3 octaves, with the
+per-axis standard deviation of the database's motion), and with the real held-out motion.
+
+Metrics
+-------
+* ``beat_align``: symmetric F1 of pitch-accent onsets against motion beats (minima of angular
+  speed) within +-100 ms (definitions in :mod:`faceretarget.headmotion._metrics`), counts pooled
+  over all held-out phrases; the same function for synthesized, baseline and real motion.
+* ``join_jump_ratio``: the largest frame-to-frame angular change across a join (over every LOPO
+  and LOSO synthesis) divided by the 99th percentile of frame-to-frame change of the database's
+  own motion at the output rate; ``join_accel_ratio`` the same for the second difference.
+* ``velocity_w1``: Wasserstein-1 distance (deg/s) between the angular-speed distributions of the
+  synthesized and the real held-out motion (pooled LOPO frames); the same for the baselines.
+* ``range_deg``: mean over held-out phrases of each axis' 5-95 percentile range (yaw, pitch, roll).
+* Speed: pitch extraction and synthesis (everything after pitch) in seconds per minute of audio,
+  median of 3 runs on the LOSO inputs, and their ratio.
+
+Usage::
+
+    python bench/headmotion.py [--data ../shared/data] [--json] [--preview out/headmotion_preview.png]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import wasserstein_distance
+
+from faceretarget.headmotion import (
+    HeadMotionDatabase,
+    accent_onsets,
+    angular_speed,
+    beat_alignment,
+    motion_beats,
+    perlin_noise,
+    pitch_peaks,
+    read_head_take,
+    segment_speech,
+)
+from faceretarget.headmotion._metrics import summarize_alignment
+
+REPO = Path(__file__).resolve().parents[1]
+TAKES = ("beat_2_scott_0_1_1", "zeggs_067_Speech_2_x_1_0")
+FPS = 30.0
+MIN_PHRASE = 1.0  # s, shortest held-out phrase (with its pause)
+METHODS = ("synth", "random", "noise", "real")
+ACCENTS = ("onsets", "peaks")
+
+
+def _real_motion(take, t0: float, n: int) -> np.ndarray:
+    """The take's own rotation (radians) at FPS from t0, n frames (linear interpolation)."""
+    t = t0 + np.arange(n) / FPS
+    ts = np.arange(take.rotation.shape[0]) / take.fps
+    r = np.unwrap(take.rotation, axis=0)
+    return np.stack([np.interp(t, ts, r[:, k]) for k in range(3)], axis=1)
+
+
+class Pool:
+    """Per-case beat counts (for both accent definitions), speeds and ranges per method."""
+
+    def __init__(self) -> None:
+        self.counts = {d: {m: [] for m in METHODS} for d in ACCENTS}
+        self.speed = {m: [] for m in METHODS}
+        self.ranges = {m: [] for m in METHODS}
+
+    def add(self, method: str, rot: np.ndarray, accents: dict) -> None:
+        beats = motion_beats(rot, FPS)
+        for d, acc in accents.items():
+            r = beat_alignment(acc, beats)
+            self.counts[d][method].append([r["accents"], r["beats"], r["accent_hits"], r["beat_hits"]])
+        self.speed[method].append(angular_speed(rot, FPS))
+        deg = np.degrees(rot)
+        self.ranges[method].append(np.percentile(deg, 95, axis=0) - np.percentile(deg, 5, axis=0))
+
+    def beat(self, method: str, d: str = "onsets") -> dict:
+        return summarize_alignment(*np.sum(self.counts[d][method], axis=0).tolist())
+
+    def beat_ci(self, method: str, d: str = "onsets", n: int = 1000) -> tuple[float, float]:
+        """95 % bootstrap interval of the pooled F1, resampling held-out cases."""
+        c = np.asarray(self.counts[d][method])
+        if len(c) < 5:  # too few cases to resample (LOSO has 2)
+            return float("nan"), float("nan")
+        rng = np.random.default_rng(1)
+        f = [summarize_alignment(*c[rng.integers(0, len(c), len(c))].sum(axis=0).tolist())["f1"] for _ in range(n)]
+        return float(np.percentile(f, 2.5)), float(np.percentile(f, 97.5))
+
+    def w1(self, method: str) -> float:
+        return float(wasserstein_distance(np.concatenate(self.speed[method]), np.concatenate(self.speed["real"])))
+
+    def range(self, method: str) -> list[float]:
+        return np.mean(self.ranges[method], axis=0).round(3).tolist()
+
+
+def _diffs(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frame-to-frame change v (T-1, 3) and its change a (T-2, 3), yaw/pitch/roll degrees."""
+    v = np.diff(np.degrees(rot), axis=0)
+    return v, np.diff(v, axis=0)
+
+
+def _join_measures(rot: np.ndarray, joins: np.ndarray) -> np.ndarray:
+    """(J, 4) per join at frame j (segment starts at j; v[j-1] is the step across the join):
+    step |v[j-1]|, jump |v[j-1] - (v[j-2] + v[j]) / 2|, velocity jump |v[j] - v[j-2]|,
+    acceleration jump |a[j-1] - a[j-2]|."""
+    v, a = _diffs(rot)
+    j = joins[(joins >= 3) & (joins < len(rot) - 1)]
+    n = np.linalg.norm
+    return np.stack([n(v[j - 1], axis=1), n(v[j - 1] - 0.5 * (v[j - 2] + v[j]), axis=1),
+                     n(v[j] - v[j - 2], axis=1), n(a[j - 1] - a[j - 2], axis=1)], axis=1)
+
+
+def _data_p99(rots: list[np.ndarray]) -> np.ndarray:
+    """The data's 99th percentiles of the same four quantities at every frame (step, step, velocity
+    change over two frames, acceleration change)."""
+    out = []
+    for r in rots:
+        v, a = _diffs(r)
+        n = np.linalg.norm
+        out.append((n(v, axis=1), n(v[2:] - v[:-2], axis=1), n(a[1:] - a[:-1], axis=1)))
+    step = np.percentile(np.concatenate([o[0] for o in out]), 99)
+    return np.array([step, step, np.percentile(np.concatenate([o[1] for o in out]), 99),
+                     np.percentile(np.concatenate([o[2] for o in out]), 99)])
+
+
+def run_case(db: HeadMotionDatabase, audio, rate, pitch, real: np.ndarray, pool: Pool, rng, jumps: list):
+    perf = db.synthesize(audio, rate, pitch=pitch, fps=FPS)
+    info = db.last_synthesis_
+    n = perf.n_frames
+    real = real[:n]
+    accents = {"onsets": accent_onsets(info.segmentation), "peaks": pitch_peaks(pitch)}
+    pool.add("synth", perf.head_rotation, accents)
+    jumps["synth"].append(_join_measures(perf.head_rotation, info.joins))
+    rand_path = rng.integers(0, db.n_segments_, size=info.path.size)
+    pr = db.synthesize(audio, rate, pitch=pitch, fps=FPS, path=rand_path)
+    pool.add("random", pr.head_rotation, accents)
+    jumps["random"].append(_join_measures(pr.head_rotation, db.last_synthesis_.joins))
+    sd = db.motion_[:, :3].std(axis=0)
+    noise = db.mean_pose_[:3] + perlin_noise(n, FPS, rng) * sd
+    pool.add("noise", noise, accents)
+    pool.add("real", real, accents)
+    return perf, info
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--preview", default=str(REPO / "out" / "headmotion_preview.png"))
+    args = ap.parse_args(argv)
+    root = Path(args.data) / "headmotion"
+    if not root.is_dir():
+        print(f"no data at {root}", file=sys.stderr)
+        return 2
+    rng = np.random.default_rng(0)
+    db0 = HeadMotionDatabase(fps=FPS)
+    takes = [read_head_take(root / f"{t}.wav", root / f"{t}.bvh") for t in TAKES]
+    pitch_s, audio_min = [], []
+    for tk in takes:
+        t0 = time.perf_counter()
+        tk.pitch = db0.pitch(tk.audio, tk.rate)
+        pitch_s.append(time.perf_counter() - t0)
+        audio_min.append(tk.audio.size / tk.rate / 60)
+
+    # ---------------------------------------------------------------- leave one phrase out
+    lopo = Pool()
+    jumps: dict = {"synth": [], "random": []}
+    n_cases = 0
+    for tk in takes:
+        seg = segment_speech(tk.pitch, pause=db0.pause)
+        p_end = np.r_[seg.phrase_start[1:], min(seg.duration, tk.duration)]
+        for p in range(seg.n_phrases):
+            t0, t1 = float(seg.phrase_start[p]), float(p_end[p])
+            if t1 - t0 < MIN_PHRASE:
+                continue
+            db = HeadMotionDatabase(fps=FPS).build(takes, exclude=[(tk.name, t0, t1)])
+            a0, a1 = int(round(t0 * tk.rate)), int(round(t1 * tk.rate))
+            audio = tk.audio[a0:a1]
+            pitch = db.pitch(audio, tk.rate)
+            if not np.isfinite(pitch.f0).any():
+                continue
+            n = int(np.floor((a1 - a0) / tk.rate * FPS + 1e-9)) + 1
+            run_case(db, audio, tk.rate, pitch, _real_motion(tk, t0, n), lopo, rng, jumps)
+            n_cases += 1
+
+    # ---------------------------------------------------------------- leave one speaker out
+    loso = Pool()
+    speed = []
+    last = None
+    for i, tk in enumerate(takes):
+        other = [t for j, t in enumerate(takes) if j != i]
+        db = HeadMotionDatabase(fps=FPS).build(other)
+        n = int(np.floor(tk.audio.size / tk.rate * FPS + 1e-9)) + 1
+        perf, info = run_case(db, tk.audio, tk.rate, tk.pitch, _real_motion(tk, 0.0, n), loso, rng, jumps)
+        runs = []
+        for _ in range(3):
+            db.synthesize(tk.audio, tk.rate, pitch=tk.pitch, fps=FPS)
+            runs.append(db.last_synthesis_.search_seconds)
+        speed.append(float(np.median(runs)) / audio_min[i])
+        if last is None:
+            last = (tk, perf, info, db)
+
+    # the data's own 99th percentiles (both takes at the output rate)
+    p99 = _data_p99([_real_motion(tk, 0.0, int(tk.duration * FPS)) for tk in takes])
+    jm = {k: np.concatenate(v).max(axis=0) / p99 for k, v in jumps.items()}
+    n_joins = sum(len(x) for x in jumps["synth"])
+    pitch_per_min = float(np.sum(pitch_s) / np.sum(audio_min))
+    synth_per_min = float(np.median(speed))
+    res = {
+        "beat_align": round(lopo.beat("synth")["f1"], 4),
+        "beat_align_random": round(lopo.beat("random")["f1"], 4),
+        "beat_align_noise": round(lopo.beat("noise")["f1"], 4),
+        "beat_align_real": round(lopo.beat("real")["f1"], 4),
+        "beat_align_ci95": {m: [round(x, 4) for x in lopo.beat_ci(m)] for m in METHODS},
+        "beat_align_peaks": {m: round(lopo.beat(m, "peaks")["f1"], 4) for m in METHODS},
+        "join_jump_ratio": round(float(jm["synth"][1]), 4),
+        "join_step_ratio": round(float(jm["synth"][0]), 4),
+        "join_velocity_ratio": round(float(jm["synth"][2]), 4),
+        "join_accel_ratio": round(float(jm["synth"][3]), 4),
+        "join_ratios_random": [round(float(x), 4) for x in jm["random"]],
+        "n_joins": int(n_joins),
+        "velocity_w1": round(lopo.w1("synth"), 3),
+        "velocity_w1_random": round(lopo.w1("random"), 3),
+        "velocity_w1_noise": round(lopo.w1("noise"), 3),
+        "synth_s_per_min_audio": round(synth_per_min, 4),
+        "pitch_s_per_min_audio": round(pitch_per_min, 4),
+        "synth_over_pitch": round(synth_per_min / pitch_per_min, 4),
+        "range_deg": {m: lopo.range(m) for m in METHODS},
+        "lopo_cases": n_cases,
+        "loso": {
+            "beat_align": round(loso.beat("synth")["f1"], 4),
+            "beat_align_random": round(loso.beat("random")["f1"], 4),
+            "beat_align_noise": round(loso.beat("noise")["f1"], 4),
+            "beat_align_real": round(loso.beat("real")["f1"], 4),
+            "beat_align_peaks": {m: round(loso.beat(m, "peaks")["f1"], 4) for m in METHODS},
+            "velocity_w1": round(loso.w1("synth"), 3),
+            "velocity_w1_random": round(loso.w1("random"), 3),
+            "velocity_w1_noise": round(loso.w1("noise"), 3),
+            "range_deg": {m: loso.range(m) for m in METHODS},
+        },
+        "data_p99_deg": [round(float(x), 4) for x in p99],
+    }
+
+    # ---------------------------------------------------------------- table
+    print(f"P5 head motion from audio: {n_cases} held-out phrases (LOPO), 2 held-out speakers (LOSO)")
+    print("beat F1 (95% bootstrap interval over held-out cases): accents = onsets of accented voiced runs;"
+          " 'peaks' = interior pitch peaks")
+    print(f"{'':5s} {'method':7s} {'beat F1':>7s} {'interval':>13s} {'recall':>6s} {'prec':>6s} {'peaks F1':>8s} "
+          f"{'W1 deg/s':>8s} {'yaw rng':>7s} {'pitch rng':>9s} {'roll rng':>8s}")
+    for name, pool in (("LOPO", lopo), ("LOSO", loso)):
+        for m in METHODS:
+            b = pool.beat(m)
+            lo, hi = pool.beat_ci(m)
+            w = pool.w1(m) if m != "real" else 0.0
+            r = pool.range(m)
+            ci = f"[{lo:.3f}, {hi:.3f}]" if np.isfinite(lo) else "-"
+            print(f"{name:5s} {m:7s} {b['f1']:7.3f} {ci:>13s} {b['recall']:6.3f} "
+                  f"{b['precision']:6.3f} {pool.beat(m, 'peaks')['f1']:8.3f} {w:8.2f} {r[0]:7.2f} {r[1]:9.2f} "
+                  f"{r[2]:8.2f}")
+    names = ("step", "jump", "velocity jump", "acceleration jump")
+    print(f"joins ({n_joins} synthesized): largest / data p99 = "
+          + ", ".join(f"{nm} {jm['synth'][k]:.3f}" for k, nm in enumerate(names))
+          + "; random segments: " + ", ".join(f"{jm['random'][k]:.3f}" for k in range(4)))
+    print(f"speed: pitch {pitch_per_min:.3f} s, synthesis {synth_per_min:.4f} s per minute of audio "
+          f"(synthesis / pitch = {res['synth_over_pitch']:.3f})")
+
+    # ---------------------------------------------------------------- preview
+    if args.preview:
+        _preview(Path(args.preview), *last)
+        print(f"preview: {args.preview}")
+    if args.json:
+        print(json.dumps(res))
+    return 0
+
+
+def _preview(path: Path, take, perf, info, db) -> None:
+    """Eight frames of the demo head turned by the synthesized rotation, over the most active 4 s."""
+    from faceretarget.demo_data import make_demo_character
+    from faceretarget.headmotion._database import rotation_matrices
+    from faceretarget.render.preview import fit_camera, render_grid, render_mesh, save_png
+
+    rig = make_demo_character("ada")
+    v = rig.neutral.vertices
+    pivot = np.array([0.0, v[:, 1].min() - 2.0, v[:, 2].min()])
+    sp = angular_speed(perf.head_rotation, perf.fps)
+    win = int(4 * perf.fps)
+    k0 = int(np.argmax(np.convolve(sp, np.ones(win), "valid")))
+    frames = np.linspace(k0, k0 + win, 8).round().astype(int)
+    R = rotation_matrices(perf.head_rotation[frames])
+    verts = np.einsum("fij,vj->fvi", R, v - pivot) + pivot
+    cam = fit_camera(verts, (256, 256), "three_quarter", 0.08)
+    imgs = [render_mesh(x, rig.neutral, camera=cam) for x in verts]
+    deg = np.degrees(perf.head_rotation[frames])
+    labels = [f"t={f / perf.fps:.2f}s y{d[0]:+.0f} p{d[1]:+.0f} r{d[2]:+.0f}" for f, d in zip(frames, deg, strict=True)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_png(path, render_grid(imgs, labels, cols=4, font_size=13))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

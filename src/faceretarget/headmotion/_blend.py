@@ -1,0 +1,135 @@
+"""Stitch chosen database segments into one trajectory (Chuang 2004, Sec. 4.2.4).
+
+For input segments ``i`` occupying output frames ``[a_i, b_i)``, and database segments with motion
+frames ``[f0_i, f1_i]`` (inclusive, so consecutive database segments share their boundary frame):
+
+1. **Time warp.**  Each database stretch ``f0_i..f1_i`` (usually the segment's own frames; see
+   ``max_warp`` of :class:`HeadMotionDatabase`) is resampled (linear interpolation) to ``n_i + 1``
+   points ``r_i``, with ``n_i = b_i - a_i``: frames ``a_i..b_i - 1`` take
+   ``r_i[:n_i]`` and ``r_i[n_i]`` is where the segment would continue, the anchor of the next one.
+2. **Chain.**  Each segment is offset so it starts where the previous one would have continued
+   (``offset_i = placed_{i-1}[n_{i-1}] - r_i[0]``): positions are continuous and the step across
+   the join is the previous segment's own last step.  The velocity mismatch at the join,
+   ``dv = v_prev_end - v_next_start`` (per frame), is absorbed by adding ``dv * k * exp(-k / tau)``
+   to the new segment's ``k``-th frame: its first step then moves like the previous segment's
+   last, and the correction fades within a few ``tau`` (``tau_velocity`` seconds).
+3. **No drift.**  Chaining accumulates offsets.  The output is cut into sub-sequences (at phrase
+   starts and at least every ``max_subsequence`` seconds); at each sub-sequence boundary the chained
+   pose's distance from the database's own (unchained) pose there is measured, and a smooth
+   monotone cubic (PCHIP) through those distances (0 at the first frame) is subtracted.  So each
+   sub-sequence is warped to end exactly on real database poses, which spread around the database's
+   mean pose, and the trajectory cannot wander off however long the input is.
+4. **Smooth joins** (optional, ``smooth`` seconds, off by default): a Gaussian blended in around
+   each join only.
+
+Frames before the first segment (silence before speech starts) hold the first segment's first pose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+from scipy.ndimage import gaussian_filter1d
+
+__all__ = ["blend_segments"]
+
+
+def _resample(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, n: np.ndarray) -> list[np.ndarray]:
+    """For each segment the (n_i + 1, D) linear resampling of ``motion[f0_i..f1_i]``."""
+    counts = n + 1
+    seg = np.repeat(np.arange(n.size), counts)
+    k = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    u = f0[seg] + (f1[seg] - f0[seg]) * k / n[seg]
+    i0 = np.clip(np.floor(u).astype(int), 0, len(motion) - 1)
+    i1 = np.minimum(i0 + 1, len(motion) - 1)
+    w = (u - i0)[:, None]
+    r = motion[i0] * (1.0 - w) + motion[i1] * w
+    return np.split(r, np.cumsum(counts)[:-1])
+
+
+def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.ndarray, n_out: int, *,
+                   fps: float, knots: np.ndarray | None = None, tau_velocity: float = 0.1,
+                   smooth: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Chain, warp and smooth database segments into one trajectory (module docstring).
+
+    Parameters
+    ----------
+    motion : (F, D) float
+        Database motion (all takes, concatenated), one row per database frame.
+    f0, f1 : (N,) float
+        First and last database frame (fractional allowed) of the motion played for each input
+        segment, ``f1 > f0``.
+    a : (N,) int
+        First output frame of each input segment, strictly increasing, ``a[0] >= 0``; segment
+        ``i`` ends where ``i + 1`` starts, the last at ``n_out``.
+    n_out : int
+        Output frames.
+    fps : float
+        Output frame rate (for ``tau_velocity``, ``smooth``).
+    knots : (B,) int, optional
+        Output frames where sub-sequences start (drift correction, step 3).
+    tau_velocity : float
+        Fade time of the velocity correction at joins, seconds.
+    smooth : float
+        Gaussian sigma around joins, seconds (0 = off).
+
+    Returns
+    -------
+    trajectory : (n_out, D) float
+    joins : (N - 1,) int
+        Output frames where a new segment starts.
+    """
+    motion = np.asarray(motion, np.float64)
+    f0 = np.asarray(f0, np.float64)
+    f1 = np.asarray(f1, np.float64)
+    a = np.asarray(a, int)
+    N = a.size
+    D = motion.shape[1]
+    b = np.r_[a[1:], n_out]
+    n = b - a
+    if N == 0:
+        return np.zeros((n_out, D)), np.zeros(0, int)
+    r = _resample(motion, f0, f1, n)
+    chain = np.zeros((n_out, D))
+    raw = np.zeros((n_out, D))
+    tau = max(tau_velocity * fps, 1e-6)
+    prev_next = None  # where the previous segment would continue
+    prev_v = None  # its last step
+    for i in range(N):
+        ri = r[i]
+        if prev_next is None:
+            placed = ri.copy()
+        else:
+            placed = ri + (prev_next - ri[0])
+            if n[i] >= 1 and ri.shape[0] >= 2:
+                dv = prev_v - (ri[1] - ri[0])
+                k = np.arange(ri.shape[0], dtype=np.float64)[:, None]
+                placed = placed + dv * k * np.exp(-k / tau)
+        chain[a[i]:b[i]] = placed[: n[i]]
+        raw[a[i]:b[i]] = ri[: n[i]]
+        prev_next = placed[n[i]]
+        prev_v = placed[n[i]] - placed[n[i] - 1]
+    if a[0] > 0:
+        chain[: a[0]] = chain[a[0]]
+        raw[: a[0]] = raw[a[0]]
+    # 3. drift: warp each sub-sequence to end on database poses
+    k = np.unique(np.r_[0, [] if knots is None else np.asarray(knots, int), n_out - 1])
+    k = k[(k >= 0) & (k < n_out)]
+    err = chain[k] - raw[k]
+    err[0] = 0.0
+    if k.size >= 2:
+        corr = PchipInterpolator(k, err, axis=0)(np.arange(n_out))
+        out = chain - corr
+    else:
+        out = chain
+    # 4. smooth around joins
+    joins = a[1:]
+    sig = smooth * fps
+    if sig > 0 and joins.size and n_out > 3:
+        sm = gaussian_filter1d(out, sig, axis=0, mode="nearest")
+        t = np.arange(n_out) + 0.5  # a join sits between frames joins - 1 and joins
+        j = np.clip(np.searchsorted(joins, t), 1, joins.size) - 1
+        d = np.minimum(np.abs(t - joins[j]), np.abs(t - joins[np.minimum(j + 1, joins.size - 1)]))
+        w = np.exp(-0.5 * (d / (2.0 * sig)) ** 2)[:, None]
+        out = out * (1.0 - w) + sm * w
+    return out, joins

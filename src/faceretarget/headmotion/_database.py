@@ -1,0 +1,700 @@
+"""``HeadMotionDatabase``: head motion for new speech from recorded phrases (Chuang 2004, Ch. 4).
+
+Build
+-----
+Each take's pitch is extracted (:func:`extract_pitch`) and cut into phrases and segments
+(:func:`segment_speech`); the head motion (relative to the take's mean pose) is resampled to the
+database rate ``fps`` and each segment keeps the slice of motion between its onset and the next.
+With ``mirror=True`` every take is also stored left-right mirrored (same speech features,
+mirrored motion, :func:`mirror_head_motion`), doubling the data.
+
+Synthesize
+----------
+1. Pitch and segmentation of the new audio, exactly as for the database.
+2. **Phrase matching.**  Each input phrase is compared with every database phrase by the
+   Euclidean distance of their statistics (:data:`PHRASE_STATS`) each divided by its standard
+   deviation over the database; the ``n_phrases`` (M) nearest phrases give the candidate segments.
+3. **Segment matching** (Eqs. 4.3-4.5).  For input segment ``i`` and candidate ``j``::
+
+       d_pitch = sqrt(mean_k (p_i(k) - p_j(k))^2) / sigma_p        (4.3, length-normalised pitch)
+       d_len   = |log(voiced_i / voiced_j)|                        (4.4, length penalty)
+       c_ij    = d_pitch + c * d_len                               (4.5)
+
+   with ``p(k)`` the voiced run's pitch (semitones re the take's median) resampled to
+   ``n_shape`` points and ``sigma_p`` the database's pitch standard deviation; the ``n_candidates``
+   (K) lowest ``c_ij`` are kept per input segment.
+4. **Path search.**  Viterbi (:func:`viterbi`) over the K candidates of every input segment with
+   the costs of :class:`PathWeights`: unary ``pitch * c_ij + gap * |log((g_i + 0.05) / (g_j +
+   0.05))|`` (g = following voiceless length, s); pairwise at each join ``position * |dp| /
+   s_p + velocity * |dv| / s_v + acceleration * |da| / s_a`` between the end of the previous and
+   the start of the next segment's rotation, each time-scaled to the input lengths; ``|dp|`` is
+   divided by the database's RMS pose, ``|dv|`` (``|da|``) by the database's RMS speed
+   (acceleration) plus the mean magnitude of the two velocities (accelerations) compared, so that
+   slow segments are not preferred merely for being slow; ``- consecutive`` when the two are
+   consecutive in a database take; ``+ reuse`` when the same database segment (or its mirror) was
+   used within the last ``reuse_window`` segments.
+5. **Blending** (:func:`blend_segments`): time warp (by at most ``max_warp``: a database segment
+   much longer than the input segment is cut short, a much shorter one runs on into the motion
+   that follows it in its take), chain, drift correction, optional smoothing; then
+   ``amplitude`` scales the motion about the database's mean pose.
+
+``seed=None`` returns the best path; an integer seed perturbs the unary costs with Gumbel noise
+of scale ``temperature`` times their spread and so samples among near-best alternatives.
+
+File format (:meth:`HeadMotionDatabase.save`, ``.npz``, no pickles)
+---------------------------------------------------------------------
+=================== ================ ==========================================================
+key                 shape            meaning
+=================== ================ ==========================================================
+``format``          ()  str          ``"faceretarget-headmotion"``
+``version``         ()  int          1
+``config``          ()  str          JSON of the constructor parameters and weights
+``motion``          (F, 6) float     yaw, pitch, roll (rad), x, y, z (cm) minus the take's mean,
+                                     at ``fps``, every stored take (and mirror) concatenated
+``copy_offset``     (C + 1,) int     first row of each stored take in ``motion``
+``copy_name``       (C,) str         take name of each stored take
+``copy_mirrored``   (C,) bool
+``copy_mean``       (C, 6) float     the mean pose subtracted from that take
+``mean_pose``       (6,) float       database mean pose (mean of ``copy_mean``)
+``seg_copy``        (S,) int         stored take of each segment
+``seg_base``        (S,) int         segment id shared by a segment and its mirror (reuse)
+``seg_frames``      (S, 2) int       first and last (inclusive) row in ``motion``
+``seg_time``        (S, 3) float     onset, voiced end, end in the take, s
+``seg_shape``       (S, n_shape)     length-normalised pitch, semitones
+``seg_phrase``      (S,) int         phrase of each segment
+``seg_next``        (S,) int         the consecutive segment in the same take, or -1
+``phrase_stats``    (P, 7) float     :data:`PHRASE_STATS`
+``phrase_copy``     (P,) int         stored take of each phrase
+=================== ================ ==========================================================
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import zipfile
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.spatial.transform import Rotation
+
+from ..errors import InputFileError, InvalidDataError
+from ..io._atomic import atomic_path
+from ..io.obj import check_output_path
+from ..performance import Performance
+from ._blend import blend_segments
+from ._pitch import PitchTrack, extract_pitch
+from ._segments import PHRASE_STATS, Segmentation, segment_speech
+from ._takes import EULER, HeadTake, mirror_head_motion
+from ._viterbi import viterbi
+
+__all__ = ["HeadMotionDatabase", "PathWeights", "SynthesisInfo"]
+
+_FORMAT = "faceretarget-headmotion"
+_VERSION = 1
+_GAP0 = 0.05  # s, softens the log ratio of short voiceless lengths
+
+
+@dataclass
+class PathWeights:
+    """Weights of the path-search costs (all costs are unitless; see the module docstring).
+
+    Attributes
+    ----------
+    pitch : float
+        Segment match ``c_ij`` (pitch shape and voiced length, Eq. 4.5).
+    gap : float
+        Following voiceless length match.
+    position, velocity, acceleration : float
+        Continuity of the rotation at joins (each normalised by the database's RMS).
+    consecutive : float
+        Bonus (subtracted) for two segments that follow each other in a database take.
+    reuse : float
+        Penalty for using a database segment (or its mirror) again within ``reuse_window`` segments.
+    reuse_window : int
+    """
+
+    pitch: float = 1.0
+    gap: float = 0.5
+    position: float = 0.5
+    velocity: float = 0.5
+    acceleration: float = 0.25
+    consecutive: float = 0.5
+    reuse: float = 2.0
+    reuse_window: int = 8
+
+
+@dataclass
+class SynthesisInfo:
+    """What :meth:`HeadMotionDatabase.synthesize` chose (in ``last_synthesis_``).
+
+    Attributes
+    ----------
+    segmentation : Segmentation
+        Of the input audio (after merging segments shorter than one output frame).
+    path : (N,) int
+        The database segment chosen for each input segment.
+    start_frames : (N,) int
+        Output frame where each input segment starts.
+    joins : (N - 1,) int
+        Output frames where a new database segment starts.
+    knots : (B,) int
+        Output frames where sub-sequences start (drift correction).
+    cost : float
+        Path cost.
+    pitch_seconds, search_seconds : float
+        Time spent in pitch extraction and in everything after it.
+    """
+
+    segmentation: Segmentation
+    path: np.ndarray
+    start_frames: np.ndarray
+    joins: np.ndarray
+    knots: np.ndarray
+    cost: float
+    pitch_seconds: float = 0.0
+    search_seconds: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+def _rel_diff(x: np.ndarray, y: np.ndarray, scale: float) -> np.ndarray:
+    """(A, B) ``|x_a - y_b| / (scale + (|x_a| + |y_b|) / 2)`` for (A, 3) and (B, 3) vectors.
+
+    Dividing by the magnitudes as well as the database's RMS keeps the cost from preferring
+    slow segments merely because their velocities (accelerations) are small and so differ little.
+    """
+    d = np.linalg.norm(x[:, None] - y[None], axis=2)
+    m = 0.5 * (np.linalg.norm(x, axis=1)[:, None] + np.linalg.norm(y, axis=1)[None])
+    return d / (scale + m)
+
+
+class HeadMotionDatabase:
+    """Synthesize head motion for new speech from a database of recorded phrases.
+
+    Parameters
+    ----------
+    fps : float
+        Database and default output frame rate.
+    f0_min, f0_max : float
+        Pitch range searched, Hz.
+    pitch_step : float
+        Seconds between pitch frames.
+    pause : float
+        Voiceless stretches longer than this (s) end a phrase.
+    n_shape : int
+        Points of the length-normalised pitch of a segment.
+    mirror : bool
+        Also store every take mirrored left-right.
+    n_phrases : int
+        M, database phrases kept per input phrase.
+    n_candidates : int
+        K, database segments kept per input segment.
+    length_weight : float
+        ``c`` of Eq. 4.5.
+    weights : PathWeights, optional
+        Path-search weights.
+    max_subsequence : float
+        Longest stretch (s) chained before the drift correction pulls back to database poses.
+    max_warp : float
+        Largest factor by which a database segment is sped up or slowed down to fit an input
+        segment; beyond it the segment is cut short, or runs on into the motion that follows it in
+        its take (so recorded speeds change by at most this factor).
+    tau_velocity : float
+        Fade time (s) of the velocity correction at joins.
+    smooth : float
+        Gaussian sigma (s) blended in around joins (default 0: the velocity correction already
+        makes joins C1, and a Gaussian flattens the head's strokes, which fall at voiced onsets,
+        i.e. at the joins).
+    temperature : float
+        Scale of the perturbation that ``seed`` applies (relative to the spread of the costs).
+
+    Attributes
+    ----------
+    n_segments_, n_phrases_ : int
+        Database size (mirrored copies included).
+    take_names_ : list of str
+        Stored takes (a mirrored copy is named ``name~mirror``).
+    mean_pose_ : (6,) float
+        Yaw, pitch, roll (rad), x, y, z (cm) around which synthesized motion moves.
+    last_synthesis_ : SynthesisInfo
+        Details of the last :meth:`synthesize` call.
+    """
+
+    def __init__(self, *, fps: float = 30.0, f0_min: float = 60.0, f0_max: float = 500.0,
+                 pitch_step: float = 0.01, pause: float = 0.3, n_shape: int = 16, mirror: bool = True,
+                 n_phrases: int = 10, n_candidates: int = 12, length_weight: float = 1.0,
+                 weights: PathWeights | None = None, max_subsequence: float = 4.0, max_warp: float = 1.5,
+                 tau_velocity: float = 0.1, smooth: float = 0.0, temperature: float = 0.3) -> None:
+        self.fps = fps
+        self.f0_min = f0_min
+        self.f0_max = f0_max
+        self.pitch_step = pitch_step
+        self.pause = pause
+        self.n_shape = n_shape
+        self.mirror = mirror
+        self.n_phrases = n_phrases
+        self.n_candidates = n_candidates
+        self.length_weight = length_weight
+        self.weights = weights if weights is not None else PathWeights()
+        self.max_subsequence = max_subsequence
+        self.max_warp = max_warp
+        self.tau_velocity = tau_velocity
+        self.smooth = smooth
+        self.temperature = temperature
+
+    # ------------------------------------------------------------------------------ configuration
+    def _config(self) -> dict:
+        keys = ("fps", "f0_min", "f0_max", "pitch_step", "pause", "n_shape", "mirror", "n_phrases",
+                "n_candidates", "length_weight", "max_subsequence", "max_warp", "tau_velocity", "smooth",
+                "temperature")
+        cfg = {k: getattr(self, k) for k in keys}
+        cfg["weights"] = asdict(self.weights)
+        return cfg
+
+    def pitch(self, audio: np.ndarray, rate: float) -> PitchTrack:
+        """Pitch of ``audio`` with the database's settings."""
+        return extract_pitch(audio, rate, f0_min=self.f0_min, f0_max=self.f0_max, time_step=self.pitch_step)
+
+    def _check_built(self) -> None:
+        if not hasattr(self, "motion_"):
+            raise InvalidDataError("HeadMotionDatabase: call build() (or load()) first")
+
+    # ------------------------------------------------------------------------------------ build
+    def build(self, takes: Iterable[HeadTake], exclude: Iterable[tuple[str, float, float]] | None = None
+              ) -> HeadMotionDatabase:
+        """Analyse takes and store their phrases, segments and motion.
+
+        Parameters
+        ----------
+        takes : iterable of HeadTake
+            Takes with audio and head motion (their ``pitch`` is computed when absent and kept).
+        exclude : iterable of (name, t0, t1), optional
+            Leave out every phrase of take ``name`` overlapping ``t0..t1`` seconds (for
+            leave-one-out evaluation without re-extracting pitch).
+
+        Returns
+        -------
+        self
+        """
+        takes = list(takes)
+        if not takes:
+            raise InvalidDataError("HeadMotionDatabase.build: no takes given")
+        excl: dict[str, list[tuple[float, float]]] = {}
+        for nm, t0, t1 in exclude or ():
+            excl.setdefault(nm, []).append((float(t0), float(t1)))
+        F = float(self.fps)
+        motion, offs, names, mirrored, means = [], [0], [], [], []
+        seg_cols: dict[str, list] = {k: [] for k in ("copy", "base", "frames", "time", "shape", "phrase", "next")}
+        ph_stats, ph_copy = [], []
+        base0 = 0
+        for take in takes:
+            if take.pitch is None:
+                take.pitch = self.pitch(take.audio, take.rate)
+            seg = segment_speech(take.pitch, pause=self.pause, n_shape=self.n_shape)
+            dur = take.duration
+            n_f = int(np.floor(dur * F + 1e-9)) + 1
+            t_src = np.arange(take.rotation.shape[0]) / take.fps
+            t_db = np.arange(n_f) / F
+            rot = np.unwrap(take.rotation, axis=0)
+            m = np.concatenate([rot, take.translation], axis=1)
+            m = CubicSpline(t_src, m, axis=0)(t_db)
+            # segments and phrases kept
+            keep_ph = np.ones(seg.n_phrases, bool)
+            for t0, t1 in excl.get(take.name, []):
+                p_end = np.r_[seg.phrase_start[1:], seg.duration]
+                keep_ph &= ~((seg.phrase_start < t1) & (p_end > t0))
+            f0 = np.round(seg.start * F).astype(int)
+            f1 = np.minimum(np.round(seg.end * F).astype(int), n_f - 1)
+            ok = keep_ph[seg.phrase] & (f1 - f0 >= 2) & (seg.start < dur)
+            idx = np.flatnonzero(ok)
+            if idx.size == 0:
+                continue
+            new_ph = np.cumsum(keep_ph) - 1  # renumber kept phrases
+            copies = [(False, m)]
+            if self.mirror:
+                r2, t2 = mirror_head_motion(m[:, :3], m[:, 3:])
+                copies.append((True, np.concatenate([r2, t2], axis=1)))
+            nxt_local = np.full(idx.size, -1)
+            consec = np.diff(idx) == 1
+            nxt_local[:-1][consec] = np.arange(1, idx.size)[consec]
+            for is_mirror, mm in copies:
+                c = len(names)
+                mean = mm.mean(axis=0)
+                row0 = offs[-1]
+                motion.append(mm - mean)
+                offs.append(row0 + n_f)
+                names.append(take.name + ("~mirror" if is_mirror else ""))
+                mirrored.append(is_mirror)
+                means.append(mean)
+                s0 = sum(len(x) for x in seg_cols["copy"])
+                p0 = sum(len(x) for x in ph_copy)
+                seg_cols["copy"].append(np.full(idx.size, c))
+                seg_cols["base"].append(base0 + np.arange(idx.size))
+                seg_cols["frames"].append(np.stack([f0[idx], f1[idx]], axis=1) + row0)
+                seg_cols["time"].append(np.stack([seg.start[idx], seg.voiced_end[idx], seg.end[idx]], axis=1))
+                seg_cols["shape"].append(seg.shape[idx])
+                seg_cols["phrase"].append(p0 + new_ph[seg.phrase[idx]])
+                seg_cols["next"].append(np.where(nxt_local >= 0, nxt_local + s0, -1))
+                ph_stats.append(seg.phrase_stats[keep_ph])
+                ph_copy.append(np.full(int(keep_ph.sum()), c))
+            base0 += idx.size
+        if not names:
+            raise InvalidDataError("HeadMotionDatabase.build: no voiced speech with head motion in the "
+                                   f"takes ({', '.join(t.name for t in takes)})")
+        self.motion_ = np.concatenate(motion)
+        self.copy_offset_ = np.asarray(offs, int)
+        self.take_names_ = names
+        self.copy_mirrored_ = np.asarray(mirrored, bool)
+        self.copy_mean_ = np.asarray(means)
+        self.mean_pose_ = self.copy_mean_.mean(axis=0)
+        self.seg_copy_ = np.concatenate(seg_cols["copy"])
+        self.seg_base_ = np.concatenate(seg_cols["base"])
+        self.seg_frames_ = np.concatenate(seg_cols["frames"])
+        self.seg_time_ = np.concatenate(seg_cols["time"])
+        self.seg_shape_ = np.concatenate(seg_cols["shape"])
+        self.seg_next_ = np.concatenate(seg_cols["next"])
+        self.seg_phrase_ = np.concatenate(seg_cols["phrase"])
+        self.phrase_stats_ = np.concatenate(ph_stats)
+        self.phrase_copy_ = np.concatenate(ph_copy)
+        self._prepare()
+        return self
+
+    fit = build
+
+    def _prepare(self) -> None:
+        """Derived tables (not stored): scales, boundary states, phrase-to-segment lists."""
+        m = self.motion_
+        F = float(self.fps)
+        P = self.phrase_stats_.shape[0]
+        sd = self.phrase_stats_.std(axis=0) if P > 1 else np.ones(len(PHRASE_STATS))
+        self.stat_scale_ = np.where(sd > 1e-9, sd, 1.0)
+        sp = self.seg_shape_.std()
+        self.shape_scale_ = float(sp) if sp > 1e-9 else 1.0
+        # rotation statistics within takes (no differences across take boundaries)
+        rot = m[:, :3]
+        inner = np.ones(len(m), bool)
+        inner[self.copy_offset_[1:-1] - 1] = False
+        inner[-1] = False
+        d1 = np.diff(rot, axis=0)[inner[:-1]] * F
+        inner2 = inner[:-1] & inner[1:]
+        d2 = np.diff(rot, 2, axis=0)[inner2[:-1]] * F * F
+        self.pos_scale_ = float(np.sqrt((rot**2).sum(axis=1).mean())) or 1.0
+        self.vel_scale_ = float(np.sqrt((d1**2).sum(axis=1).mean())) or 1.0
+        self.acc_scale_ = float(np.sqrt((d2**2).sum(axis=1).mean())) or 1.0
+        f0 = self.seg_frames_[:, 0]
+        self.seg_start_state_ = np.stack([rot[f0], (rot[f0 + 1] - rot[f0]) * F,
+                                          (rot[f0 + 2] - 2 * rot[f0 + 1] + rot[f0]) * F * F], axis=1)
+        self.seg_last_ = self.copy_offset_[self.seg_copy_ + 1] - 1  # last frame of the segment's take
+        self.seg_len_ = self.seg_time_[:, 2] - self.seg_time_[:, 0]
+        self.seg_voiced_ = np.maximum(self.seg_time_[:, 1] - self.seg_time_[:, 0], 1e-3)
+        self.seg_gap_ = np.maximum(self.seg_time_[:, 2] - self.seg_time_[:, 1], 0.0)
+        order = np.argsort(self.seg_phrase_, kind="stable")
+        counts = np.bincount(self.seg_phrase_, minlength=P)
+        self._phrase_order = order
+        self._phrase_ptr = np.r_[0, np.cumsum(counts)]
+        # per-frame rotation speed (deg/s) of the data, for continuity reports
+        self.frame_step_ = np.degrees(np.linalg.norm(d1, axis=1)) / F
+
+    @property
+    def n_segments_(self) -> int:
+        return int(self.seg_copy_.size)
+
+    @property
+    def n_phrases_(self) -> int:
+        return int(self.phrase_stats_.shape[0])
+
+    # ------------------------------------------------------------------------------ synthesis
+    def _input_segments(self, track: PitchTrack, fps: float) -> tuple[Segmentation, np.ndarray, int]:
+        seg = segment_speech(track, pause=self.pause, n_shape=self.n_shape)
+        n_out = int(np.floor(track.duration * fps + 1e-9)) + 1
+        if seg.n_segments == 0:
+            return seg, np.zeros(0, int), n_out
+        a = np.round(seg.start * fps).astype(int)
+        keep = np.r_[True, np.diff(a) > 0] & (a < n_out)
+        if not keep.all():  # merge segments shorter than one output frame into the previous one
+            k = np.flatnonzero(keep)
+            end = np.r_[seg.start[k[1:]], seg.duration]
+            seg = Segmentation(seg.start[k], seg.voiced_end[k], end, seg.phrase[k], seg.shape[k],
+                               seg.phrase_start, seg.phrase_end, seg.phrase_stats, seg.reference_hz,
+                               seg.duration)
+            a = a[k]
+        return seg, a, n_out
+
+    def _candidates(self, seg: Segmentation) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Per input segment: K candidate database segments and their match cost c_ij."""
+        zdb = self.phrase_stats_ / self.stat_scale_
+        K = self.n_candidates
+        cands, costs = [], []
+        for p in range(seg.n_phrases):
+            z = seg.phrase_stats[p] / self.stat_scale_
+            d = np.sqrt(((zdb - z) ** 2).sum(axis=1))
+            M = min(self.n_phrases, d.size)
+            top = np.argpartition(d, M - 1)[:M] if M < d.size else np.arange(d.size)
+            pool = np.concatenate([self._phrase_order[self._phrase_ptr[q]:self._phrase_ptr[q + 1]] for q in top])
+            if pool.size == 0:
+                pool = np.arange(self.n_segments_)
+            ins = seg.phrase_segments(p)
+            dp = np.sqrt(((seg.shape[ins][:, None, :] - self.seg_shape_[pool][None]) ** 2).mean(axis=2))
+            dl = np.abs(np.log(np.maximum(seg.voiced_len[ins], 1e-3)[:, None] / self.seg_voiced_[pool][None]))
+            c = dp / self.shape_scale_ + self.length_weight * dl
+            k = min(K, pool.size)
+            for r in range(ins.size):
+                sel = np.argpartition(c[r], k - 1)[:k] if k < pool.size else np.arange(pool.size)
+                sel = sel[np.argsort(c[r, sel], kind="stable")]
+                cands.append(pool[sel])
+                costs.append(c[r, sel])
+        return cands, costs
+
+    def _warp(self, segs: np.ndarray, in_len: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """End frame (float) of each database segment played over ``in_len`` seconds, and the speed-up.
+
+        The time warp is limited to ``max_warp``: a longer database segment is cut short, a shorter
+        one runs on into the motion that follows it in its take (up to the take's end).
+        """
+        F = float(self.fps)
+        f0 = self.seg_frames_[segs, 0].astype(np.float64)
+        L = self.seg_frames_[segs, 1] - f0
+        Lin = np.maximum(np.asarray(in_len, np.float64) * F, 1e-9)
+        rho = np.clip(L / Lin, 1.0 / self.max_warp, self.max_warp)
+        end = np.minimum(f0 + rho * Lin, self.seg_last_[segs])
+        end = np.maximum(end, f0 + 2)
+        return end, (end - f0) / Lin
+
+    def _end_state(self, end: np.ndarray) -> np.ndarray:
+        """(n, 3, 3) rotation, velocity (/s), acceleration (/s^2) at (float) database frames."""
+        F = float(self.fps)
+        rot = self.motion_[:, :3]
+        k = np.floor(end).astype(int)
+        return np.stack([rot[k], (rot[k] - rot[k - 1]) * F, (rot[k] - 2 * rot[k - 1] + rot[k - 2]) * F * F],
+                        axis=1)
+
+    def _trellis(self, seg: Segmentation, cands: list[np.ndarray], costs: list[np.ndarray],
+                 in_len: np.ndarray, rng: np.random.Generator | None):
+        w = self.weights
+        gap_in = seg.gap_len
+        unary = []
+        for i, (cj, cc) in enumerate(zip(cands, costs, strict=True)):
+            g = np.abs(np.log((gap_in[i] + _GAP0) / (self.seg_gap_[cj] + _GAP0)))
+            unary.append(w.pitch * cc + w.gap * g)
+        if rng is not None and self.temperature > 0:
+            allu = np.concatenate(unary)
+            spread = float(allu.std()) or 1.0
+            unary = [u - self.temperature * spread * rng.gumbel(size=u.size) for u in unary]
+        pair = []
+        for i in range(1, len(cands)):
+            A, B = cands[i - 1], cands[i]
+            endA, sa = self._warp(A, in_len[i - 1])  # where A ends and its time scale
+            sa = sa[:, None]
+            sb = self._warp(B, in_len[i])[1][:, None]
+            ea, sbs = self._end_state(endA), self.seg_start_state_[B]
+            dp = np.linalg.norm(ea[:, None, 0] - sbs[None, :, 0], axis=2) / self.pos_scale_
+            dv = _rel_diff(ea[:, 1] * sa, sbs[:, 1] * sb, self.vel_scale_)
+            da = _rel_diff(ea[:, 2] * sa**2, sbs[:, 2] * sb**2, self.acc_scale_)
+            P = w.position * dp + w.velocity * dv + w.acceleration * da
+            P = P - w.consecutive * (self.seg_next_[A][:, None] == B[None, :])
+            pair.append(P)
+        labels = [self.seg_base_[c] for c in cands]
+        return unary, pair, labels
+
+    def synthesize(self, audio: np.ndarray, rate: float, *, amplitude: float = 1.0, rotation: bool = True,
+                   translation: bool = True, seed: int | None = None, fps: float | None = None,
+                   pitch: PitchTrack | None = None, source: str = "headmotion",
+                   path: np.ndarray | None = None) -> Performance:
+        """Head motion for new speech.
+
+        Parameters
+        ----------
+        audio : (N,) float
+            Mono speech samples in [-1, 1].
+        rate : float
+            Sampling rate, Hz.
+        amplitude : float
+            Scale of the motion about the database's mean pose (1 = as recorded).
+        rotation, translation : bool
+            Switch the rotation (then zeros) and the translation (then None) on or off.
+        seed : int, optional
+            None: the best path.  An integer: a near-best alternative, reproducible per seed.
+        fps : float, optional
+            Output frame rate (default the database's).
+        pitch : PitchTrack, optional
+            Precomputed pitch of ``audio``.
+        source : str
+            Name of the returned performance (for messages).
+        path : (N,) int, optional
+            Skip the search and blend these database segments, one per input segment (for
+            baselines and experiments; N must equal the input's segment count).
+
+        Returns
+        -------
+        Performance
+            ``times`` (T,) covering the audio at ``fps``; ``head_rotation`` (T, 3) yaw, pitch, roll
+            in **radians** (Y-X-Z, see :mod:`faceretarget.headmotion`), as Live Link Face writes
+            ``HeadYaw, HeadPitch, HeadRoll``; ``head_translation`` (T, 3) centimetres or None;
+            ``weights`` (T, 0) (no face channels) and the ``audio``.
+
+        Raises
+        ------
+        InvalidDataError
+            No voiced speech in the audio, or a database not built.
+        """
+        self._check_built()
+        fps = float(self.fps if fps is None else fps)
+        if not (np.isfinite(fps) and fps > 0):
+            raise InvalidDataError(f"fps must be positive, got {fps}")
+        if not np.isfinite(amplitude):
+            raise InvalidDataError(f"amplitude must be finite, got {amplitude}")
+        x = np.asarray(audio, np.float32).reshape(-1)
+        t0 = time.perf_counter()
+        track = pitch if pitch is not None else self.pitch(x, rate)
+        t1 = time.perf_counter()
+        y, info = self._synthesize_track(track, fps, seed, path)
+        info.pitch_seconds = t1 - t0
+        y = y * float(amplitude)
+        pose = self.mean_pose_ + y
+        n = len(pose)
+        rot = pose[:, :3] if rotation else np.zeros((n, 3))
+        rot = (rot + np.pi) % (2 * np.pi) - np.pi
+        tr = pose[:, 3:] if translation else None
+        info.search_seconds = time.perf_counter() - t1
+        self.last_synthesis_ = info
+        return Performance(times=np.arange(n) / fps, fps=fps, weights=np.zeros((n, 0)), names=[],
+                           head_rotation=rot, head_translation=tr, audio=x, audio_rate=float(rate),
+                           source=source)
+
+    def _synthesize_track(self, track: PitchTrack, fps: float, seed: int | None,
+                          path: np.ndarray | None = None) -> tuple[np.ndarray, SynthesisInfo]:
+        """Deviation trajectory (T, 6) about the mean pose, and what was chosen.
+
+        ``path`` (one database segment per input segment) skips the search (used by baselines).
+        """
+        seg, a, n_out = self._input_segments(track, fps)
+        if seg.n_segments == 0:
+            raise InvalidDataError(f"no voiced speech found in the audio ({track.duration:.2f} s, pitch "
+                                   f"range {self.f0_min:g}-{self.f0_max:g} Hz): nothing to follow")
+        b = np.r_[a[1:], n_out]
+        in_len = (b - a) / fps
+        cost = 0.0
+        if path is None:
+            cands, costs = self._candidates(seg)
+            rng = None if seed is None else np.random.default_rng(seed)
+            unary, pair, labels = self._trellis(seg, cands, costs, in_len, rng)
+            w = self.weights
+            states, cost = viterbi(unary, pair, labels=labels, history_penalty=w.reuse, window=w.reuse_window)
+            path = np.array([cands[i][k] for i, k in enumerate(states)], dtype=int)
+        path = np.asarray(path, int)
+        if path.shape != (seg.n_segments,) or path.min() < 0 or path.max() >= self.n_segments_:
+            raise InvalidDataError(f"path must hold {seg.n_segments} database segment indices in "
+                                   f"0..{self.n_segments_ - 1}, got shape {path.shape}")
+        # sub-sequence knots: phrase starts, and at least every max_subsequence seconds
+        first = np.r_[True, np.diff(seg.phrase) > 0]
+        knots = []
+        last = a[0]
+        for i in range(1, seg.n_segments):
+            if first[i] or (a[i] - last) / fps >= self.max_subsequence:
+                knots.append(a[i])
+                last = a[i]
+        knots = np.asarray(knots, int)
+        f0 = self.seg_frames_[path, 0]
+        f1 = self._warp(path, in_len)[0]
+        y, joins = blend_segments(self.motion_, f0, f1, a, n_out, fps=fps, knots=knots,
+                                  tau_velocity=self.tau_velocity, smooth=self.smooth)
+        return y, SynthesisInfo(seg, path, a, joins, knots, float(cost))
+
+    # ------------------------------------------------------------------------------ save / load
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the database to a ``.npz`` (layout in the module docstring), whole or not at all."""
+        self._check_built()
+        path = check_output_path(path)
+        arrays = dict(
+            format=np.array(_FORMAT), version=np.array(_VERSION), config=np.array(json.dumps(self._config())),
+            motion=self.motion_, copy_offset=self.copy_offset_, copy_name=np.array(self.take_names_, dtype=str),
+            copy_mirrored=self.copy_mirrored_, copy_mean=self.copy_mean_, mean_pose=self.mean_pose_,
+            seg_copy=self.seg_copy_, seg_base=self.seg_base_, seg_frames=self.seg_frames_,
+            seg_time=self.seg_time_, seg_shape=self.seg_shape_, seg_phrase=self.seg_phrase_,
+            seg_next=self.seg_next_, phrase_stats=self.phrase_stats_, phrase_copy=self.phrase_copy_,
+        )
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez_compressed(f, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> HeadMotionDatabase:
+        """Read a database written by :meth:`save`.
+
+        Raises
+        ------
+        InputFileError
+            Missing file, not an ``.npz``, or not a head-motion database (naming the missing key).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+        if not zipfile.is_zipfile(path):
+            raise InputFileError(f"{path}: not an .npz archive (expected a head-motion database written by "
+                                 "'faceretarget headmotion build')")
+        need = ("format", "version", "config", "motion", "copy_offset", "copy_name", "copy_mirrored",
+                "copy_mean", "mean_pose", "seg_copy", "seg_base", "seg_frames", "seg_time", "seg_shape",
+                "seg_phrase", "seg_next", "phrase_stats", "phrase_copy")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                missing = [k for k in need if k not in z.files]
+                if missing:
+                    raise InputFileError(f"{path}: not a head-motion database (no '{missing[0]}'; build one "
+                                         "with 'faceretarget headmotion build')")
+                d = {k: z[k] for k in need}
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+            raise InputFileError(f"{path}: cannot read as a head-motion database .npz ({e})") from e
+        if str(d["format"]) != _FORMAT:
+            raise InputFileError(f"{path}: not a head-motion database (format {str(d['format'])!r})")
+        if int(d["version"]) > _VERSION:
+            raise InputFileError(f"{path}: database version {int(d['version'])} is newer than this "
+                                 f"faceretarget reads ({_VERSION})")
+        try:
+            cfg = json.loads(str(d["config"]))
+            weights = PathWeights(**cfg.pop("weights"))
+            db = cls(weights=weights, **cfg)
+        except (ValueError, TypeError, KeyError) as e:
+            raise InputFileError(f"{path}: malformed database configuration ({e})") from e
+        db.motion_ = np.asarray(d["motion"], np.float64)
+        db.copy_offset_ = d["copy_offset"].astype(int)
+        db.take_names_ = [str(s) for s in d["copy_name"]]
+        db.copy_mirrored_ = d["copy_mirrored"].astype(bool)
+        db.copy_mean_ = d["copy_mean"].astype(np.float64)
+        db.mean_pose_ = d["mean_pose"].astype(np.float64)
+        db.seg_copy_ = d["seg_copy"].astype(int)
+        db.seg_base_ = d["seg_base"].astype(int)
+        db.seg_frames_ = d["seg_frames"].astype(int)
+        db.seg_time_ = d["seg_time"].astype(np.float64)
+        db.seg_shape_ = d["seg_shape"].astype(np.float64)
+        db.seg_phrase_ = d["seg_phrase"].astype(int)
+        db.seg_next_ = d["seg_next"].astype(int)
+        db.phrase_stats_ = d["phrase_stats"].astype(np.float64)
+        db.phrase_copy_ = d["phrase_copy"].astype(int)
+        S = db.seg_copy_.size
+        F = db.motion_.shape[0]
+        if (db.motion_.ndim != 2 or db.motion_.shape[1] != 6 or db.seg_frames_.shape != (S, 2)
+                or S == 0 or db.seg_frames_.min() < 0 or db.seg_frames_.max() >= F
+                or (db.seg_frames_[:, 1] - db.seg_frames_[:, 0] < 2).any()
+                or db.seg_phrase_.max() >= db.phrase_stats_.shape[0]
+                or db.seg_shape_.shape != (S, db.n_shape)):
+            raise InputFileError(f"{path}: inconsistent head-motion database tables")
+        db._prepare()
+        return db
+
+    def summary(self) -> str:
+        """One line: takes, phrases, segments and minutes of motion."""
+        self._check_built()
+        mins = len(self.motion_) / self.fps / 60
+        return (f"{len(self.take_names_)} stored take(s) ({int((~self.copy_mirrored_).sum())} recorded"
+                f"{', mirrored' if self.copy_mirrored_.any() else ''}), {self.n_phrases_} phrases, "
+                f"{self.n_segments_} segments, {mins:.1f} min of head motion at {self.fps:g} fps")
+
+
+def rotation_matrices(head_rotation: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) from yaw, pitch, roll radians (Y-X-Z)."""
+    return Rotation.from_euler(EULER, np.asarray(head_rotation, np.float64)).as_matrix()
