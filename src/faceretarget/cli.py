@@ -1,5 +1,5 @@
 """Command line: ``faceretarget clone | retarget | keys compose | keys select | capture | appearance |
-headmotion build | headmotion synth | demo``.
+style fit | restyle | headmotion build | headmotion synth | demo``.
 
 Every error a user can act on is printed as one line (``faceretarget: error: ...``) naming the file,
 shape or frame, and the exit code is non-zero (2 for bad input, 1 otherwise).  Outputs are written to a
@@ -381,8 +381,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .capture.cli import register as _register_capture
     from .headmotion.cli import register as _register_headmotion
+    from .style.cli import register as _register_style
 
     _register_capture(sub)
+    _register_style(sub)
     _register_headmotion(sub)
 
     d = sub.add_parser("demo", help="run the main job end to end on the embedded demo characters")

@@ -1,0 +1,73 @@
+"""Emotion editing that keeps the lip sync: style/content models (Chuang 2004, Ch. 2 and 5).
+
+Takes of the same text in several emotions are aligned (dynamic time warping of speech or face
+features, :mod:`._align`), compressed by PCA and separated into *style* (the emotion) and
+*content* (what is said) by bilinear models (Tenenbaum & Freeman 2000; :mod:`._bilinear`).  A
+:class:`StyleModel` then changes the emotion of a new take whose emotion is known
+(:meth:`StyleModel.known`) or not (:meth:`StyleModel.unknown`), learns an untrained emotion from
+examples (:meth:`StyleModel.add_style`), and interpolates or exaggerates between emotions with a
+guard that reports when the result leaves the range of the training data.
+:class:`ExpressionSliders` blends per-emotion retargets over time (Ch. 5, Eq. 5.1).
+:func:`make_p3_takes` builds the evaluation data of protocol P3.  See ``docs/style.md``.
+"""
+
+from ._align import (
+    Alignment,
+    align_audio,
+    align_features,
+    align_performances,
+    dtw_path,
+    face_features,
+    frame_vectors,
+    path_to_times,
+    resample,
+    warp_performance,
+)
+from ._bilinear import (
+    AsymmetricBilinearModel,
+    InferResult,
+    SymmetricBilinearModel,
+    choose_dims,
+    load_bilinear,
+)
+from ._features import AUDIO_FEATURES, PiecewiseWarp, audio_features, read_wav, time_warp_audio
+from ._model import RangeReport, Restyled, StyleModel, StyleRangeWarning, bundle_frames, unbundle_frames
+from ._p3 import DEFAULT_WARPS, P3Takes, StyleWarp, content_channels, make_p3_takes
+from ._sliders import AlphaCurves, ExpressionSliders, alpha_curves
+
+__all__ = [
+    "StyleModel",
+    "Restyled",
+    "RangeReport",
+    "StyleRangeWarning",
+    "bundle_frames",
+    "unbundle_frames",
+    "AsymmetricBilinearModel",
+    "SymmetricBilinearModel",
+    "InferResult",
+    "choose_dims",
+    "load_bilinear",
+    "Alignment",
+    "align_performances",
+    "align_audio",
+    "align_features",
+    "dtw_path",
+    "path_to_times",
+    "face_features",
+    "frame_vectors",
+    "resample",
+    "warp_performance",
+    "read_wav",
+    "audio_features",
+    "time_warp_audio",
+    "PiecewiseWarp",
+    "AUDIO_FEATURES",
+    "ExpressionSliders",
+    "AlphaCurves",
+    "alpha_curves",
+    "make_p3_takes",
+    "P3Takes",
+    "StyleWarp",
+    "DEFAULT_WARPS",
+    "content_channels",
+]

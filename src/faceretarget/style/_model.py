@@ -1,0 +1,735 @@
+"""``StyleModel``: edit the emotion of a take, keeping what is said (Chuang 2004, Ch. 2).
+
+The pipeline from takes to edited takes:
+
+1. **Alignment** (:mod:`._align`): the takes (one per style, all saying the same text) are put on
+   the reference take's timeline by DTW, by audio when they have it, else by face features.
+2. **Facial configuration vectors**: every frame of any :class:`~faceretarget.performance.Performance`
+   (blendshape weights, feature points, mesh vertices, or appearance vectors stored as weights)
+   flattened to ``D`` numbers, compressed by PCA over all aligned training frames to the ``K``
+   components that keep a fraction ``variance`` of the variance, ``z = P'(x - mean)``.
+3. **Observation vectors** ``y = [c0, z]``: a constant first coordinate ``c0 = offset * rms(z)``
+   (``offset`` 10 by default) lets the bilinear models, which are linear in content, carry each
+   style's mean face: the model's first content component becomes (nearly) constant, it multiplies
+   every style's mean, and it is the component the unknown-expression iteration keeps in range
+   (:meth:`SymmetricBilinearModel.infer`).  The dimension rule skips it (``keep_first=1``).
+4. **n-frame bundles** (Sec. 2.3.4, Eq. 2.14): with ``bundle = n > 1`` the observation of frame
+   ``t`` is ``[y_t, ..., y_{t+n-1}]``, so style and content are learned from short motion snippets;
+   decoding averages the ``n`` estimates of every frame.
+5. **Models** (:mod:`._bilinear`): an asymmetric model (known-expression tasks, new styles) and a
+   symmetric model (unknown expression) on the same observations.
+
+Tasks (Sec. 2.3.3): :meth:`StyleModel.known` (input style given, Eq. 2.10, 2.11),
+:meth:`StyleModel.unknown` (style and content inferred, Eq. 2.12, 2.13, style constant over
+``window`` frames), :meth:`StyleModel.add_style` (an untrained expression fitted from examples of
+it next to the same text in a known style).  All take ``amount``: Eq. 2.15 interpolates
+(``0 < amount < 1``) or extrapolates (``amount > 1``, exaggeration) between the input's style and
+the target; every result carries a :class:`RangeReport` saying how far it left the range of the
+training data.
+
+File format (:meth:`StyleModel.save`, ``.npz``): ``format`` (1), ``kind`` ``"style-model"``,
+``params`` (JSON of the constructor arguments), ``meta`` (JSON: ``styles``, ``reference``,
+``take_kind`` (weights / points / vertices), ``frame_shape``, ``names``, ``labels``, ``unit``),
+arrays ``mean`` ``(D,)``, ``basis`` ``(D, K)``, ``offset`` (``c0``), ``coef_lo`` / ``coef_hi``
+``(K,)`` (training range of ``z``), the two models' arrays prefixed ``asym_`` and ``sym_`` (as
+:meth:`AsymmetricBilinearModel.save` names them, with their constructor arguments as JSON in
+``asym_params`` / ``sym_params``), and the paired training coefficients of the local correction,
+``pairs{i}_{j}`` ``(C_i, K)`` for style ``meta["pair_sets"][i][j]``.
+
+**Local correction** (our addition; ``local`` > 0, default 8): a bilinear model is linear in the
+content, but emotion and speech can interact nonlinearly (on the P3 data the composition keeps the
+lips' motion along the speech direction and only the perpendicular part of the emotion, so the
+effect of the emotion on the mouth depends on the mouth shape).  For a source -> target
+translation the model keeps its training residuals ``R = Y_target - render(content(Y_source))``
+over paired training frames; every input frame gets the mean residual of the ``local`` training
+frames nearest to it in the source style's observation space added to its rendering (for Eq. 2.15
+``(1 - alpha) R_source->source + alpha R_source->target``).  With ``local=0`` the output is the
+bilinear model's alone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputFileError, InvalidDataError
+from ..io._atomic import atomic_path
+from ..names import normalize_name
+from ..performance import Performance
+from ._align import Alignment, align_performances, frame_vectors, warp_performance
+from ._bilinear import AsymmetricBilinearModel, InferResult, SymmetricBilinearModel
+
+__all__ = ["StyleModel", "Restyled", "RangeReport", "StyleRangeWarning", "bundle_frames", "unbundle_frames"]
+
+_FORMAT = 1
+
+
+class StyleRangeWarning(UserWarning):
+    """A restyled take left the range of the training data (exaggeration went too far)."""
+
+
+@dataclass
+class RangeReport:
+    """How far a result lies outside the training data's range.
+
+    Attributes
+    ----------
+    score : float
+        Largest excess over all frames and PCA components beyond the training range
+        ``[lo_k, hi_k]``, in units of that range's width (0: inside everywhere).
+    outside : bool
+        ``score > margin``.
+    frames_outside : float
+        Share of frames whose excess is above ``margin``.
+    margin : float
+    """
+
+    score: float
+    outside: bool
+    frames_outside: float
+    margin: float
+
+
+@dataclass
+class Restyled:
+    """A restyled take.
+
+    Attributes
+    ----------
+    frames : (T, ...) float
+        In the input's frame layout.
+    range : RangeReport
+    inferred : InferResult or None
+        For the unknown-expression task: the inferred style and content (in bundle frames).
+    style_weights : (T, S) float or None
+        For the unknown-expression task: each frame's style vector expressed as an affine
+        combination of the training styles (least squares, summing to 1).
+    local : bool
+        Whether the local correction was applied (it needs paired training frames of the source
+        and target styles).
+    """
+
+    frames: np.ndarray
+    range: RangeReport
+    inferred: InferResult | None = None
+    style_weights: np.ndarray | None = None
+    local: bool = False
+
+
+def _amount(amount) -> float:
+    try:
+        a = float(amount)
+    except (TypeError, ValueError) as e:
+        raise InvalidDataError(f"amount must be a number, got {amount!r}") from e
+    if not np.isfinite(a):
+        raise InvalidDataError(f"amount must be finite, got {amount}")
+    return a
+
+
+def bundle_frames(Y: np.ndarray, n: int) -> np.ndarray:
+    """Eq. 2.14: stack ``n`` consecutive frames into one observation.
+
+    Parameters
+    ----------
+    Y : (T, K) or (S, T, K) float
+    n : int
+
+    Returns
+    -------
+    (T - n + 1, n K) or (S, T - n + 1, n K) float
+    """
+    Y = np.asarray(Y, np.float64)
+    T = Y.shape[-2]
+    if n < 1 or n > T:
+        raise InvalidDataError(f"bundle size must be in 1..{T} (frames), got {n}")
+    if n == 1:
+        return Y
+    return np.concatenate([Y[..., i:T - n + 1 + i, :] for i in range(n)], axis=-1)
+
+
+def unbundle_frames(Yb: np.ndarray, n: int) -> np.ndarray:
+    """Invert :func:`bundle_frames` by averaging every frame's ``n`` estimates: ``(T, K)``."""
+    Yb = np.asarray(Yb, np.float64)
+    if n == 1:
+        return Yb
+    Tb, nK = Yb.shape
+    K = nK // n
+    out = np.zeros((Tb + n - 1, K))
+    cnt = np.zeros(Tb + n - 1)
+    for i in range(n):
+        out[i:i + Tb] += Yb[:, i * K:(i + 1) * K]
+        cnt[i:i + Tb] += 1
+    return out / cnt[:, None]
+
+
+class StyleModel:
+    """Style (emotion) and content (speech) of facial takes, separated by bilinear models.
+
+    Parameters
+    ----------
+    variance : float
+        Retained variance of the PCA compression (0.9999: the left-out part is 1% of the RMS
+        variation, below the few-percent errors the P3 metrics measure).
+    energy : float
+        Retained energy of the style / content dimension rule (:func:`~._bilinear.choose_dims`),
+        0.9999 likewise; the content prior keeps the weak components from amplifying noise.
+    content_dims, style_dims : int, optional
+        Override the rule.
+    bundle : int
+        Frames per observation (Eq. 2.14); 1: single frames.
+    offset : float
+        Constant coordinate ``c0`` in units of the RMS norm of the PCA coefficients (0: none).
+    local : int
+        Local correction (0: off): add the mean training residual of the ``local`` training frames
+        nearest to each input frame (module docstring).
+    prior : bool
+        Solve for content under the content prior (:mod:`._bilinear`); ``False``: the thesis's
+        plain least squares.
+    detail : bool
+        Apply an edit as a change to the input (module docstring): the output is the input plus
+        the model's rendering in the new style minus its rendering in the input's own style, so
+        whatever of the input the model does not capture is kept and ``amount=0`` returns the
+        input unchanged.  ``False``: the output is the model's rendering alone (the thesis).
+    align : {"auto", "audio", "face"}
+        How :meth:`fit` aligns takes (audio when all have it, by default).
+    audio_features : {"mfcc", "rplp"}
+    window_s : float, optional
+        Sakoe-Chiba band of the alignment, seconds.
+
+    Attributes
+    ----------
+    styles_ : list of str
+    reference_ : str
+        The style whose timeline the training takes were aligned to.
+    mean_ : (D,) float
+    basis_ : (D, K) float
+    offset_ : float
+        ``c0``.
+    coef_lo_, coef_hi_ : (K,) float
+        Range of the training PCA coefficients.
+    asymmetric_ : AsymmetricBilinearModel
+    symmetric_ : SymmetricBilinearModel
+    alignments_ : dict of str to Alignment
+        From :meth:`fit` (not saved).
+    take_kind_ : str
+        ``"weights"``, ``"points"`` or ``"vertices"``.
+    frame_shape_ : tuple
+    names_ : list of str
+        Weight names (weight takes).
+    """
+
+    def __init__(self, variance: float = 0.9999, energy: float = 0.9999, content_dims: int | None = None,
+                 style_dims: int | None = None, bundle: int = 1, offset: float = 10.0, local: int = 8,
+                 prior: bool = True, detail: bool = True, align: str = "auto", audio_features: str = "mfcc",
+                 window_s: float | None = None):
+        self.variance = variance
+        self.energy = energy
+        self.content_dims = content_dims
+        self.style_dims = style_dims
+        self.bundle = bundle
+        self.offset = offset
+        self.local = local
+        self.prior = prior
+        self.detail = detail
+        self.align = align
+        self.audio_features = audio_features
+        self.window_s = window_s
+
+    # ------------------------------------------------------------------------------------ fitting
+    def fit(self, takes: Mapping[str, Performance], reference: str | None = None) -> StyleModel:
+        """Align takes of the same text in different styles and fit the models; returns self.
+
+        Parameters
+        ----------
+        takes : mapping of style name to Performance
+            At least two, of the same kind and frame size (weight takes: the same channel names).
+        reference : str, optional
+            The style whose timeline the others are aligned to (default: the first).
+        """
+        if len(takes) < 2:
+            raise InvalidDataError(f"a style model needs takes in at least 2 styles, got {len(takes)}")
+        names = list(takes)
+        ref = names[0] if reference is None else reference
+        if ref not in takes:
+            raise InvalidDataError(f"reference style '{ref}' is not among the takes ({', '.join(names)})")
+        base = takes[ref]
+        self._set_layout(base)
+        frames: dict[str, np.ndarray] = {}
+        self.alignments_: dict[str, Alignment] = {}
+        for s in names:
+            p = self._conform(takes[s], base)
+            if s == ref:
+                frames[s] = frame_vectors(p)
+                continue
+            al = align_performances(base, p, by=self.align, features=self.audio_features, window_s=self.window_s)
+            self.alignments_[s] = al
+            frames[s] = frame_vectors(warp_performance(p, al))
+        self.reference_ = ref
+        return self._fit_vectors({s: frames[s] for s in names})
+
+    def fit_frames(self, frames: Mapping[str, np.ndarray], template: Performance | None = None) -> StyleModel:
+        """Fit from takes already aligned frame by frame: ``frames[style]`` is ``(C, ...)``.
+
+        ``template`` (optional) gives the take layout (kind, names) that :meth:`restyle` expects.
+        """
+        if len(frames) < 2:
+            raise InvalidDataError(f"a style model needs at least 2 styles, got {len(frames)}")
+        arrs = {s: np.asarray(v, np.float64) for s, v in frames.items()}
+        shapes = {a.shape for a in arrs.values()}
+        if len(shapes) != 1:
+            raise InvalidDataError(f"aligned takes must all have the same shape, got {sorted(shapes)}")
+        first = next(iter(arrs.values()))
+        if template is not None:
+            self._set_layout(template)
+        else:
+            self.take_kind_, self.frame_shape_ = "points", tuple(first.shape[1:])
+            self.names_, self.labels_, self.unit_ = [], [], None
+        self.reference_ = next(iter(arrs))
+        self.alignments_ = {}
+        return self._fit_vectors({s: a.reshape(len(a), -1) for s, a in arrs.items()})
+
+    def _set_layout(self, p: Performance) -> None:
+        self.take_kind_ = p.kind
+        self.frame_shape_ = tuple(p.data().shape[1:])
+        self.names_ = [normalize_name(n) for n in p.names] if p.kind == "weights" else []
+        self.labels_ = list(p.labels)
+        self.unit_ = p.unit
+
+    def _conform(self, p: Performance, base: Performance | None = None) -> Performance:
+        """``p`` checked against the model's layout (weights reordered by name)."""
+        what = p.source
+        if p.kind != self.take_kind_:
+            raise InvalidDataError(f"{what}: a {p.kind} take, but the model works on {self.take_kind_}")
+        if p.kind == "weights":
+            idx = {normalize_name(n): j for j, n in enumerate(p.names)}
+            missing = [n for n in self.names_ if n not in idx]
+            if missing:
+                raise InvalidDataError(f"{what}: lacks {len(missing)} channel(s) the model uses: "
+                                       f"{', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}")
+            cols = [idx[n] for n in self.names_]
+            return Performance(p.times, p.fps, weights=p.weights[:, cols], names=list(self.names_),
+                               audio=p.audio, audio_rate=p.audio_rate, source=p.source)
+        if tuple(p.data().shape[1:]) != tuple(self.frame_shape_):
+            raise InvalidDataError(f"{what}: frames are {tuple(p.data().shape[1:])} but the model's are "
+                                   f"{tuple(self.frame_shape_)}")
+        return p
+
+    def _fit_vectors(self, X: dict[str, np.ndarray]) -> StyleModel:
+        styles = list(X)
+        C = {len(x) for x in X.values()}
+        if len(C) != 1:
+            raise InvalidDataError(f"aligned takes differ in length: {sorted(C)}")
+        C = C.pop()
+        if C < max(3, self.bundle + 1):
+            raise InvalidDataError(f"need at least {max(3, self.bundle + 1)} aligned frames, got {C}")
+        if not 0 < self.variance <= 1:
+            raise InvalidDataError(f"variance must be in (0, 1], got {self.variance}")
+        allx = np.concatenate([X[s] for s in styles])
+        self.mean_ = allx.mean(0)
+        _, sv, vt = np.linalg.svd(allx - self.mean_, full_matrices=False)
+        e = np.cumsum(sv**2) / max(float(np.sum(sv**2)), 1e-300)
+        K = int(min(np.searchsorted(e, self.variance * (1 - 1e-12)) + 1, len(sv)))
+        self.basis_ = vt[:K].T.copy()
+        Z = {s: (X[s] - self.mean_) @ self.basis_ for s in styles}
+        zall = np.concatenate(list(Z.values()))
+        self.coef_lo_, self.coef_hi_ = zall.min(0), zall.max(0)
+        rms = float(np.sqrt(np.mean(np.sum(zall**2, axis=1))))
+        self.offset_ = float(self.offset) * rms
+        Y = np.stack([self._observe(Z[s]) for s in styles])
+        keep = 1 if self.offset_ > 0 else 0
+        self.asymmetric_ = AsymmetricBilinearModel(self.content_dims, self.energy, keep, self.prior).fit(Y, styles)
+        self.symmetric_ = SymmetricBilinearModel(self.style_dims, self.content_dims, self.energy, keep,
+                                                 prior=self.prior).fit(Y, styles)
+        self.styles_ = styles
+        self.pair_sets_ = [dict(Z)]
+        self._local_cache = {}
+        return self
+
+    # ------------------------------------------------------------------------------------ encoding
+    @property
+    def n_components_(self) -> int:
+        return int(self.basis_.shape[1])
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "basis_"):
+            raise InvalidDataError("StyleModel is not fitted; call fit() first")
+
+    def _observe(self, Z: np.ndarray) -> np.ndarray:
+        Y = np.concatenate([np.full((len(Z), 1), self.offset_), Z], axis=1) if self.offset_ > 0 else Z
+        return bundle_frames(Y, self.bundle)
+
+    def encode(self, frames) -> np.ndarray:
+        """Observation vectors (bundled) of frames ``(T, ...)``: ``(T - bundle + 1, bundle * (K + 1))``."""
+        self._check_fitted()
+        x = self._flat(frames)
+        return self._observe((x - self.mean_) @ self.basis_)
+
+    def decode(self, Y: np.ndarray) -> np.ndarray:
+        """Frames ``(T, ...)`` of observation vectors (inverse of :meth:`encode`, up to the PCA)."""
+        Z = self._coefs(Y)
+        return (Z @ self.basis_.T + self.mean_).reshape((len(Z),) + tuple(self.frame_shape_))
+
+    def _coefs(self, Y: np.ndarray) -> np.ndarray:
+        y = unbundle_frames(Y, self.bundle)
+        return y[:, 1:] if self.offset_ > 0 else y
+
+    def _flat(self, frames) -> np.ndarray:
+        x = np.asarray(frames, np.float64)
+        D = self.mean_.size
+        x = x.reshape(len(x), -1)
+        if x.shape[1] != D:
+            raise InvalidDataError(f"frames have {x.shape[1]} values but the model's have {D}")
+        if len(x) < self.bundle:
+            raise InvalidDataError(f"need at least {self.bundle} frames (the bundle size), got {len(x)}")
+        if not np.isfinite(x).all():
+            raise InvalidDataError(f"frame {int(np.flatnonzero(~np.isfinite(x).all(1))[0])} is not finite")
+        return x
+
+    # ------------------------------------------------------------------------------------ guard
+    def range_report(self, frames, margin: float = 0.5, *, warn: bool = True) -> RangeReport:
+        """How far frames lie outside the training data's range (see :class:`RangeReport`).
+
+        Issues a :class:`StyleRangeWarning` when ``score > margin`` and ``warn``.
+        """
+        self._check_fitted()
+        z = (self._flat(frames) - self.mean_) @ self.basis_
+        return self._range(z, margin, warn)
+
+    def _range(self, z: np.ndarray, margin: float, warn: bool) -> RangeReport:
+        width = np.maximum(self.coef_hi_ - self.coef_lo_, 1e-12 * max(float(np.ptp(self.coef_hi_)), 1e-300))
+        ex = np.maximum(np.maximum(z - self.coef_hi_, self.coef_lo_ - z), 0.0) / width
+        per_frame = ex.max(axis=1) if ex.size else np.zeros(len(z))
+        score = float(per_frame.max(initial=0.0))
+        rep = RangeReport(score, score > margin, float(np.mean(per_frame > margin)) if len(z) else 0.0, margin)
+        if rep.outside and warn:
+            warnings.warn(f"the restyled take leaves the range of the training data by {score:.2f} of its width "
+                          f"({rep.frames_outside:.0%} of frames beyond {margin:g}); the face may be implausible "
+                          "(reduce the amount)", StyleRangeWarning, stacklevel=3)
+        return rep
+
+    # ------------------------------------------------------------------------------------ tasks
+    def content(self, frames, style) -> np.ndarray:
+        """Content vectors (asymmetric model, Eq. 2.10) of frames in a known style: ``(T_b, J)``."""
+        return self.asymmetric_.content(self.encode(frames), style)
+
+    def known(self, frames, source: str, target: str, amount: float = 1.0, *, margin: float = 0.5,
+              warn: bool = True) -> Restyled:
+        """Known expression: frames in style ``source`` re-rendered in ``target`` (Eq. 2.10, 2.11, 2.15).
+
+        Parameters
+        ----------
+        frames : (T, ...) float
+        source, target : str
+        amount : float
+            ``alpha`` of Eq. 2.15: 0 keeps the source style, 1 is the target, > 1 exaggerates.
+        margin : float
+            Threshold of the :class:`RangeReport`.
+        """
+        self._check_fitted()
+        amount = _amount(amount)
+        A = self.asymmetric_
+        for st in (source, target):
+            A.style_index(st)
+        x = self._flat(frames)
+        Yin = self.encode(x)
+        b = A.content(Yin, source)
+        Y = A.interpolate(b, source, target, amount)
+        Y0 = A.render(b, source) if self.detail else None
+        used = False
+        if self.local > 0:
+            src = np.zeros(len(Yin), int)
+            corr = self._local_correction("asym", Yin, src, [source], target, amount)
+            if corr is not None:
+                Y, used = Y + corr, True
+                if self.detail:
+                    Y0 = Y0 + self._local_correction("asym", Yin, src, [source], target, 0.0)
+        out = self._result(Y, margin, warn, x, Y0)
+        out.local = used
+        return out
+
+    def unknown(self, frames, target: str, amount: float = 1.0, *, window: int | None = None,
+                max_iter: int = 100, margin: float = 0.5, warn: bool = True) -> Restyled:
+        """Unknown expression: infer style and content (Eq. 2.12, 2.13), render in ``target``.
+
+        ``window``: frames over which the style is held constant (default: the whole input).
+        ``amount`` interpolates from the inferred style vector to the target's (Eq. 2.15).  The
+        local correction uses the training style nearest to each window's inferred style.
+        """
+        self._check_fitted()
+        amount = _amount(amount)
+        S = self.symmetric_
+        at = S.style_vector(target)
+        x = self._flat(frames)
+        Yin = self.encode(x)
+        anchor = None
+        if self.offset_ > 0:                                            # the constant coordinate of each bundle block
+            block = Yin.shape[1] // self.bundle
+            anchor = (np.arange(self.bundle) * block, self.offset_)
+        res = S.infer(Yin, window=window, max_iter=max_iter, anchor=anchor)
+        a = (1 - amount) * res.style + amount * at
+        Y = S.render(res.content, a)
+        Y0 = S.render(res.content, res.style) if self.detail else None
+        used = False
+        if self.local > 0:
+            corr = self._local_correction("sym", Yin, res.nearest, list(self.styles_), target, amount)
+            if corr is not None:
+                Y, used = Y + corr, True
+                if self.detail:
+                    Y0 = Y0 + self._local_correction("sym", Yin, res.nearest, list(self.styles_), target, 0.0)
+        out = self._result(Y, margin, warn, x, Y0)
+        out.local = used
+        out.inferred = res
+        out.style_weights = self._style_weights(res.style)
+        return out
+
+    # ------------------------------------------------------------------------------------ local correction
+    def _local_pairs(self, kind: str, source: str, target: str):
+        """``(tree over source observations, residual source->target, residual source->source)`` or None."""
+        key = (kind, source, target)
+        cache = self.__dict__.setdefault("_local_cache", {})
+        if key in cache:
+            return cache[key]
+        from scipy.spatial import cKDTree
+
+        found = None
+        for ps in self.pair_sets_:
+            if source in ps and target in ps and len(ps[source]) >= self.bundle:
+                Ys, Yt = self._observe(ps[source]), self._observe(ps[target])
+                if kind == "asym":
+                    M = self.asymmetric_
+                    b = M.content(Ys, source)
+                else:
+                    M = self.symmetric_
+                    b = M.content(Ys, source)
+                found = (cKDTree(Ys), Yt - M.render(b, target), Ys - M.render(b, source))
+                break
+        cache[key] = found
+        return found
+
+    def _local_correction(self, kind: str, Yin: np.ndarray, src_index: np.ndarray, sources: list[str],
+                          target: str, amount: float) -> np.ndarray | None:
+        """Mean residual of the ``local`` nearest training frames, ``(1 - a) R_ss + a R_st``."""
+        corr = np.zeros_like(Yin)
+        done = False
+        for si in np.unique(src_index):
+            pairs = self._local_pairs(kind, sources[si], target)
+            if pairs is None:
+                continue
+            tree, Rst, Rss = pairs
+            m = src_index == si
+            k = int(min(self.local, tree.n))
+            _, nb = tree.query(Yin[m], k=k)
+            nb = nb.reshape(int(m.sum()), k)
+            corr[m] = (1 - amount) * Rss[nb].mean(1) + amount * Rst[nb].mean(1)
+            done = True
+        return corr if done else None
+
+    def _style_weights(self, a: np.ndarray) -> np.ndarray:
+        """Per-frame affine weights (sum 1) of the training styles reproducing style vectors ``a``."""
+        V = self.symmetric_.style_vectors_[: len(self.styles_)]          # (S, I)
+        M = np.vstack([V.T, np.ones((1, len(V)))])                        # (I + 1, S)
+        rhs = np.vstack([a.T, np.ones((1, len(a)))])
+        w = np.linalg.lstsq(M, rhs, rcond=None)[0].T
+        return unbundle_frames(np.tile(w, self.bundle), self.bundle) if self.bundle > 1 else w
+
+    def add_style(self, name: str, frames, like: tuple[str, np.ndarray]) -> StyleModel:
+        """Untrained expression: fit a new style from examples of it (translation to a new style).
+
+        The examples' content is found from the same text in a known style (Eq. 2.10) and the new
+        style's matrix fitted to it (:meth:`AsymmetricBilinearModel.add_style`; in the symmetric
+        model the style gets a dimension of its own).  An untrained expression usually moves the
+        face where no training style did (sadness raises the inner brows): when the PCA basis
+        keeps less than ``variance`` of the examples' variation, the basis is extended by the
+        principal directions of what it misses (the training styles get 0 along them).
+
+        Parameters
+        ----------
+        name : str
+        frames : (T, ...) float
+            Frames in the new style.
+        like : (style, frames)
+            The same text in a known style, aligned frame by frame with ``frames`` (for example by
+            :func:`~._align.align_performances` and :func:`~._align.warp_performance`).
+        """
+        self._check_fitted()
+        known, kf = like
+        if name in self.styles_:
+            raise InvalidDataError(f"style '{name}' is already in the model")
+        if known not in self.styles_:
+            raise InvalidDataError(f"unknown style '{known}'; the model has {', '.join(self.styles_)}")
+        x_new, x_known = self._flat(frames), self._flat(kf)
+        if len(x_new) != len(x_known):
+            raise InvalidDataError(f"style '{name}': {len(x_new)} example frames but {len(x_known)} frames in "
+                                   f"'{known}'; align them first")
+        self._extend_basis(x_new - self.mean_)
+        z = (x_new - self.mean_) @ self.basis_
+        self.coef_lo_, self.coef_hi_ = np.minimum(self.coef_lo_, z.min(0)), np.maximum(self.coef_hi_, z.max(0))
+        y_new, y_known = self.encode(x_new), self.encode(x_known)
+        b = self.asymmetric_.content(y_known, known)
+        self.asymmetric_.add_style(name, y_new, b)
+        bs = self.symmetric_.content(y_known, known)
+        self.symmetric_.add_style(name, y_new, bs)
+        self.styles_ = [*self.styles_, str(name)]
+        self.pair_sets_.append({known: (x_known - self.mean_) @ self.basis_, name: z})
+        self._local_cache = {}
+        return self
+
+    def _extend_basis(self, d: np.ndarray) -> int:
+        """Grow the PCA basis until it keeps ``variance`` of the rows of ``d`` (about the mean)."""
+        z = d @ self.basis_
+        tot, kept = float(np.sum(d**2)), float(np.sum(z**2))
+        if tot <= 0 or kept >= self.variance * tot:
+            return 0
+        r = d - z @ self.basis_.T
+        _, s, vt = np.linalg.svd(r, full_matrices=False)
+        need = self.variance * tot - kept
+        k = int(min(np.searchsorted(np.cumsum(s**2), need * (1 - 1e-12)) + 1, len(s)))
+        E = vt[:k].T
+        E -= self.basis_ @ (self.basis_.T @ E)                         # orthogonal to the basis (rounding)
+        E, _ = np.linalg.qr(E)
+        K = self.n_components_
+        block = K + (1 if self.offset_ > 0 else 0)
+        pos = np.repeat(np.arange(1, self.bundle + 1) * block, k)
+        self.asymmetric_.insert_dims(pos)
+        self.symmetric_.insert_dims(pos)
+        self.basis_ = np.concatenate([self.basis_, E], axis=1)
+        self.pair_sets_ = [{st: np.pad(v, ((0, 0), (0, k))) for st, v in ps.items()} for ps in self.pair_sets_]
+        self.coef_lo_ = np.concatenate([self.coef_lo_, np.zeros(k)])
+        self.coef_hi_ = np.concatenate([self.coef_hi_, np.zeros(k)])
+        return k
+
+    def add_style_take(self, name: str, take: Performance, known: str, known_take: Performance) -> StyleModel:
+        """:meth:`add_style` from two takes of the same text: ``take`` is aligned to ``known_take`` first."""
+        self._check_fitted()
+        kt = self._conform(known_take)
+        tk = self._conform(take)
+        al = align_performances(kt, tk, by=self.align, features=self.audio_features, window_s=self.window_s)
+        return self.add_style(name, frame_vectors(warp_performance(tk, al)), like=(known, frame_vectors(kt)))
+
+    def _result(self, Y: np.ndarray, margin: float, warn: bool, x: np.ndarray | None = None,
+                Y0: np.ndarray | None = None) -> Restyled:
+        """Frames of rendered observations ``Y``; with ``Y0`` (the input's own rendering) the input
+        ``x`` plus the rendered change ``Y - Y0`` (``detail``)."""
+        z = self._coefs(Y)
+        if Y0 is None or x is None:
+            flat = z @ self.basis_.T + self.mean_
+        else:
+            dz = z - self._coefs(Y0)
+            flat = x + dz @ self.basis_.T
+            z = (x - self.mean_) @ self.basis_ + dz
+        return Restyled(flat.reshape((len(z),) + tuple(self.frame_shape_)), self._range(z, margin, warn))
+
+    # ------------------------------------------------------------------------------------ takes
+    def restyle(self, take: Performance, to: str, amount: float = 1.0, *, source: str | None = None,
+                window: int | None = None, margin: float = 0.5, warn: bool = True) -> tuple[Performance, Restyled]:
+        """A take with its emotion changed to ``to``: known expression when ``source`` is given, else unknown.
+
+        Weight takes come back with weights clipped at 0 (blendshape weights are not negative).
+
+        Returns
+        -------
+        Performance
+            Same times and kind as ``take``.
+        Restyled
+        """
+        self._check_fitted()
+        p = self._conform(take)
+        if to not in self.styles_:
+            raise InvalidDataError(f"unknown target style '{to}'; the model has {', '.join(self.styles_)}")
+        x = frame_vectors(p)
+        if source is not None:
+            if source not in self.styles_:
+                raise InvalidDataError(f"unknown source style '{source}'; the model has {', '.join(self.styles_)}")
+            r = self.known(x, source, to, amount, margin=margin, warn=warn)
+        else:
+            r = self.unknown(x, to, amount, window=window, margin=margin, warn=warn)
+        f = r.frames
+        if p.kind == "weights":
+            f = np.maximum(f, 0.0)
+            return take.with_weights(f, self.names_), r
+        if p.kind == "points":
+            return Performance(p.times, p.fps, points=f, labels=take.labels, unit=take.unit,
+                               head_rotation=take.head_rotation, head_translation=take.head_translation,
+                               source=take.source), r
+        return take.with_vertices(f, take.mesh, take.unit), r
+
+    # ------------------------------------------------------------------------------------ files
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the fitted model to ``.npz`` (layout in the module docstring), whole or not at all."""
+        self._check_fitted()
+        path = Path(path)
+        params = {k: getattr(self, k) for k in ("variance", "energy", "content_dims", "style_dims", "bundle",
+                                                "offset", "local", "prior", "detail", "align", "audio_features",
+                                                "window_s")}
+        meta = {"styles": self.styles_, "reference": self.reference_, "take_kind": self.take_kind_,
+                "frame_shape": list(self.frame_shape_), "names": self.names_, "labels": self.labels_,
+                "unit": self.unit_, "pair_sets": [list(ps) for ps in self.pair_sets_]}
+        arrays = {"mean": self.mean_, "basis": self.basis_, "offset": np.array(self.offset_),
+                  "coef_lo": self.coef_lo_, "coef_hi": self.coef_hi_}
+        for i, ps in enumerate(self.pair_sets_):
+            for j, st in enumerate(ps):
+                arrays[f"pairs{i}_{j}"] = ps[st]
+        for pre, m in (("asym_", self.asymmetric_), ("sym_", self.symmetric_)):
+            for k in m._arrays:
+                arrays[pre + k] = getattr(m, k + "_")
+            arrays[pre + "params"] = np.array(json.dumps({k: getattr(m, k) for k in m._params}))
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez_compressed(f, format=np.array(_FORMAT), kind=np.array("style-model"),
+                                    params=np.array(json.dumps(params)), meta=np.array(json.dumps(meta)), **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> StyleModel:
+        """Read a model written by :meth:`save`.
+
+        Raises
+        ------
+        InputFileError
+            Missing file or not a style model.
+        """
+        p = Path(path)
+        if not p.is_file():
+            raise InputFileError(f"{p}: not found")
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                if "kind" not in z.files or str(z["kind"]) != "style-model":
+                    raise InputFileError(f"{p}: not a faceretarget style model (.npz from 'style fit')")
+                d = {k: z[k] for k in z.files}
+            params, meta = json.loads(str(d["params"])), json.loads(str(d["meta"]))
+            m = cls(**params)
+            m.mean_, m.basis_ = d["mean"].astype(np.float64), d["basis"].astype(np.float64)
+            m.offset_ = float(d["offset"])
+            m.coef_lo_, m.coef_hi_ = d["coef_lo"], d["coef_hi"]
+            m.styles_ = list(meta["styles"])
+            m.reference_ = meta["reference"]
+            m.take_kind_ = meta["take_kind"]
+            m.frame_shape_ = tuple(meta["frame_shape"])
+            m.names_, m.labels_, m.unit_ = list(meta["names"]), list(meta["labels"]), meta["unit"]
+            m.alignments_ = {}
+            m.pair_sets_ = [{st: d[f"pairs{i}_{j}"].astype(np.float64) for j, st in enumerate(names)}
+                            for i, names in enumerate(meta.get("pair_sets", []))]
+            m._local_cache = {}
+            for pre, kls, attr in (("asym_", AsymmetricBilinearModel, "asymmetric_"),
+                                   ("sym_", SymmetricBilinearModel, "symmetric_")):
+                sub = kls(**json.loads(str(d[pre + "params"])))
+                for k in kls._arrays:
+                    setattr(sub, k + "_", np.asarray(d[pre + k], np.float64))
+                sub.styles_ = list(m.styles_)
+                if kls is AsymmetricBilinearModel:
+                    sub.content_dims_ = int(sub.style_matrices_.shape[2])
+                else:
+                    sub.style_dims_, sub.content_dims_ = int(sub.core_.shape[0]), int(sub.core_.shape[1])
+                    sub.n_iter_ = len(sub.objective_) - 1
+                setattr(m, attr, sub)
+        except InputFileError:
+            raise
+        except (KeyError, ValueError, OSError, TypeError) as e:
+            raise InputFileError(f"{p}: not a readable style model ({e})") from e
+        return m

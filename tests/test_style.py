@@ -1,0 +1,378 @@
+"""Style/content models, alignment and expression sliders (faceretarget.style, Chuang 2004 Ch. 2, 5)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from faceretarget.errors import InvalidDataError
+from faceretarget.style import (
+    AlphaCurves,
+    AsymmetricBilinearModel,
+    ExpressionSliders,
+    PiecewiseWarp,
+    StyleModel,
+    StyleRangeWarning,
+    SymmetricBilinearModel,
+    align_audio,
+    align_features,
+    bundle_frames,
+    choose_dims,
+    face_features,
+    load_bilinear,
+    read_wav,
+    time_warp_audio,
+    unbundle_frames,
+)
+
+
+# ------------------------------------------------------------------------------------------ helpers
+def _orth_angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest sine of the principal angles between the column spans of a and b."""
+    qa, qb = np.linalg.qr(a)[0], np.linalg.qr(b)[0]
+    s = np.linalg.svd(qa.T @ qb, compute_uv=False)
+    return float(np.sqrt(max(0.0, 1.0 - s.min() ** 2)))
+
+
+def _bilinear_frames(S=5, C=80, D=30, J=4, seed=0, C_test=40):
+    """Frames x_sc = M_s b_c with b_c = [1, random]: exactly bilinear (offsets included)."""
+    rng = np.random.default_rng(seed)
+    M = rng.standard_normal((S, D, J))
+    b = np.c_[np.ones(C + C_test), rng.standard_normal((C + C_test, J - 1))]
+    X = np.einsum("sdj,cj->scd", M, b)
+    return X[:, :C], X[:, C:], M, b
+
+
+# ------------------------------------------------------------------------------------------ models
+def test_asymmetric_reconstructs_exact_bilinear_data_with_right_J():
+    rng = np.random.default_rng(1)
+    S, K, J, C = 4, 10, 5, 60
+    A = rng.standard_normal((S, K, J))
+    B = rng.standard_normal((J, C))
+    Y = np.einsum("skj,jc->sck", A, B)
+    m = AsymmetricBilinearModel(energy=0.9999).fit(Y, ["a", "b", "c", "d"])
+    assert m.content_dims_ == J
+    rec = np.einsum("skj,cj->sck", m.style_matrices_, m.content_vectors_)
+    assert np.abs(rec - Y).max() < 1e-8
+    # Eq. 2.10 / 2.11 on new content: exact, with and without the content prior
+    bn = rng.standard_normal((7, J))
+    y0, y2 = bn @ A[0].T, bn @ A[2].T
+    for prior in (False, True):
+        assert np.abs(m.translate(y0, "a", "c", prior=prior) - y2).max() < 1e-6
+    assert choose_dims(np.array([3.0, 2.0, 1.0, 1e-9]), 0.999, 4) == 3
+    assert choose_dims(np.array([100.0, 2.0, 1.0, 1e-9]), 0.999, 4, keep_first=1) == 3
+
+
+def test_symmetric_recovers_factors_and_objective_decreases():
+    rng = np.random.default_rng(2)
+    S, C, K, I, J = 6, 50, 12, 3, 4
+    a = rng.standard_normal((S, I))
+    b = rng.standard_normal((C, J))
+    W = rng.standard_normal((I, J, K))
+    Y = np.einsum("si,ijk,cj->sck", a, W, b)
+    for init in ("svd", 0, 1):
+        m = SymmetricBilinearModel(energy=0.99999, tol=1e-15, max_iter=300, init=init).fit(Y)
+        assert (m.style_dims_, m.content_dims_) == (I, J)
+        obj = m.objective_
+        assert np.all(np.diff(obj) <= 1e-10 * np.sum(Y**2)), obj      # monotone non-increasing
+        assert obj[-1] < 1e-16 * np.sum(Y**2)
+        # factors up to the model's invariances (an invertible map of each factor space)
+        assert _orth_angle(m.style_vectors_, a) < 1e-6
+        assert _orth_angle(m.content_vectors_, b) < 1e-6
+        assert m.rmse_ < 1e-8
+    # from a random start the alternation takes several iterations, each lowering the error
+    m = SymmetricBilinearModel(style_dims=2, content_dims=3, tol=1e-14, max_iter=100, init=3).fit(Y)
+    assert m.n_iter_ >= 3 and np.all(np.diff(m.objective_) <= 1e-12 * np.sum(Y**2))
+
+
+def test_tasks_recover_truth_on_synthetic_bilinear_data():
+    train, test, M, b = _bilinear_frames()
+    styles = ["s0", "s1", "s2", "s3"]
+    model = StyleModel().fit_frames({s: train[i] for i, s in enumerate(styles)})
+    assert model.asymmetric_.content_dims_ == 4
+    scale = np.abs(test).max()
+    # known expression s0 -> s3
+    r = model.known(test[0], "s0", "s3", warn=False)
+    assert np.abs(r.frames - test[3]).max() < 1e-6 * scale and not r.range.outside
+    # unknown expression: input in s2 (not told), rendered in s1; the style is found
+    u = model.unknown(test[2], "s1", warn=False)
+    assert np.abs(u.frames - test[1]).max() < 1e-4 * scale
+    assert np.all(u.inferred.nearest == 2)
+    np.testing.assert_allclose(u.style_weights.mean(0), [0, 0, 1, 0], atol=1e-4)
+    # untrained expression s4 (moves the face outside the training PCA basis), fitted from examples
+    model.add_style("s4", train[4], like=("s0", train[0]))
+    assert model.n_components_ > 12
+    r4 = model.known(test[0], "s0", "s4", warn=False)
+    assert np.abs(r4.frames - test[4]).max() < 1e-5 * scale
+    # the symmetric model got a dimension of its own for the new style
+    assert model.symmetric_.style_dims_ == model.symmetric_.core_.shape[0] == 5
+
+
+def test_unknown_expression_windows_and_first_component_guard():
+    train, test, _, _ = _bilinear_frames(seed=3)
+    model = StyleModel(local=0).fit_frames({f"s{i}": train[i] for i in range(4)})
+    mixed = np.concatenate([test[1][:20], test[3][20:]])          # the style changes half way
+    u = model.unknown(mixed, "s0", window=10, warn=False)
+    assert list(u.inferred.nearest[:20]) == [1] * 20 and list(u.inferred.nearest[20:]) == [3] * 20
+    truth = np.concatenate([test[0][:20], test[0][20:]])
+    assert np.abs(u.frames - truth).max() < 1e-4 * np.abs(truth).max()
+    assert u.inferred.history[-1] <= u.inferred.history[0]
+
+
+def test_bundles_round_trip_and_bundled_model():
+    Y = np.random.default_rng(4).standard_normal((20, 3))
+    Yb = bundle_frames(Y, 4)
+    assert Yb.shape == (17, 12)
+    np.testing.assert_allclose(unbundle_frames(Yb, 4), Y)
+    train, test, _, _ = _bilinear_frames(seed=5)
+    model = StyleModel(bundle=3).fit_frames({f"s{i}": train[i] for i in range(3)})
+    r = model.known(test[0], "s0", "s2", warn=False)
+    assert r.frames.shape == test[0].shape
+    assert np.abs(r.frames - test[2]).max() < 1e-5 * np.abs(test).max()
+
+
+def test_interpolation_endpoints_and_range_guard():
+    train, test, _, _ = _bilinear_frames(seed=6)
+    model = StyleModel().fit_frames({f"s{i}": train[i] for i in range(4)})
+    x = test[0]
+    r0 = model.known(x, "s0", "s2", amount=0.0, warn=False)
+    r1 = model.known(x, "s0", "s2", amount=1.0, warn=False)
+    scale = np.abs(test).max()
+    assert np.abs(r0.frames - test[0]).max() < 1e-6 * scale
+    assert np.abs(r1.frames - test[2]).max() < 1e-6 * scale
+    half = model.known(x, "s0", "s2", amount=0.5, warn=False)
+    np.testing.assert_allclose(half.frames, 0.5 * (test[0] + test[2]), atol=1e-6 * scale)
+    assert not r1.range.outside
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        big = model.known(x, "s0", "s2", amount=6.0)
+    assert big.range.outside and big.range.score > big.range.margin
+    assert any(issubclass(c.category, StyleRangeWarning) for c in caught)
+    # the asymmetric model's Eq. 2.15 itself
+    A = model.asymmetric_
+    bq = A.content(model.encode(x), "s0")
+    np.testing.assert_allclose(A.interpolate(bq, "s0", "s2", 0.0), A.render(bq, "s0"))
+    np.testing.assert_allclose(A.interpolate(bq, "s0", "s2", 1.0), A.render(bq, "s2"))
+
+
+def test_save_load_round_trip(tmp_path):
+    train, test, _, _ = _bilinear_frames(seed=7)
+    model = StyleModel().fit_frames({f"s{i}": train[i] for i in range(4)})
+    model.add_style("s4", train[4], like=("s1", train[1]))
+    p = model.save(tmp_path / "m.npz")
+    back = StyleModel.load(p)
+    assert back.styles_ == model.styles_ and back.n_components_ == model.n_components_
+    for a, b in ((model.known(test[1], "s1", "s4", warn=False), back.known(test[1], "s1", "s4", warn=False)),
+                 (model.unknown(test[2], "s0", warn=False), back.unknown(test[2], "s0", warn=False))):
+        np.testing.assert_allclose(a.frames, b.frames, rtol=1e-10, atol=1e-10)
+        assert a.local == b.local
+    for cls, m in ((AsymmetricBilinearModel, model.asymmetric_), (SymmetricBilinearModel, model.symmetric_)):
+        q = m.save(tmp_path / f"{cls.kind}.npz")
+        m2 = cls.load(q)
+        for k in cls._arrays:
+            np.testing.assert_array_equal(getattr(m2, k + "_"), getattr(m, k + "_"))
+        assert type(load_bilinear(q)) is cls
+    with pytest.raises(Exception, match="not a faceretarget style model"):
+        StyleModel.load(q)
+    with pytest.raises(Exception, match="not found"):
+        StyleModel.load(tmp_path / "missing.npz")
+
+
+# ------------------------------------------------------------------------------------------ alignment
+def test_dtw_recovers_known_piecewise_warp_on_synthetic_signal():
+    fps = 30.0
+    t = np.arange(0, 12, 1 / fps)
+    rng = np.random.default_rng(8)
+    freqs, phases = rng.uniform(0.2, 1.5, (6, 4)), rng.uniform(0, 6.3, (6, 4))
+
+    def signal(tt):
+        return np.stack([np.sin(2 * np.pi * freqs[d] * tt[:, None] + phases[d]).sum(1) for d in range(6)], axis=1)
+
+    warp = PiecewiseWarp.from_rates(12.0, [1.0, 0.6, 1.5, 0.8, 1.25])
+    tt = np.arange(0, warp.duration, 1 / fps)
+    ref, take = signal(t), signal(warp.input_time(tt)) * 1.7 + 0.3        # other amplitude and offset
+    al = align_features(face_features(ref), face_features(take), t, tt)
+    e = al.errors_ms(warp.output_time(t))
+    assert np.median(e) < 1000 / fps and np.percentile(e, 95) < 2.5 * 1000 / fps
+    # a Sakoe-Chiba band that contains the truth gives the same answer
+    al2 = align_features(face_features(ref), face_features(take), t, tt, window_s=3.0)
+    assert np.median(al2.errors_ms(warp.output_time(t))) < 1000 / fps
+
+
+def test_mfcc_alignment_of_real_speech_retimed_by_known_warp(data_dir):
+    x, r = read_wav(sorted((data_dir / "speech" / "libritts").glob("*.wav"))[0])
+    warp = PiecewiseWarp.from_rates(len(x) / r, [1.0, 0.7, 1.35, 0.85, 1.2])
+    y = time_warp_audio(x, r, warp.input_time, warp.duration)
+    assert abs(len(y) / r - warp.duration) < 0.01
+    for feat in ("mfcc", "rplp"):
+        al = align_audio(x, r, y, r, features=feat)
+        e = al.errors_ms(warp.output_time(al.ref_times))
+        assert np.median(e) < 33.0, (feat, np.median(e))
+    # takes with audio are aligned by it, on their face frames' clock (times not starting at 0)
+    from faceretarget.performance import Performance
+    from faceretarget.style import align_performances, warp_performance
+
+    t_ref = np.arange(0, len(x) / r, 1 / 30)
+    t_take = np.arange(0, warp.duration, 1 / 30)
+    pts = lambda tt: np.stack([np.sin(tt), np.cos(2 * tt), tt], axis=1)[:, None, :]  # noqa: E731
+    ref = Performance.from_points(pts(t_ref), times=t_ref + 5.0, fps=30, audio=x, audio_rate=r)
+    take = Performance.from_points(pts(warp.input_time(t_take)), times=t_take + 2.0, fps=30, audio=y, audio_rate=r)
+    al = align_performances(ref, take)
+    assert al.by == "mfcc"
+    assert np.median(al.errors_ms(warp.output_time(t_ref) + 2.0)) < 33.0
+    w = warp_performance(take, al)
+    assert w.n_frames == ref.n_frames and np.median(np.abs(w.points - ref.points)) < 0.05
+
+
+def test_p3_face_alignment_and_known_expression(data_dir, ict_rig):
+    from faceretarget.evaluation import rel_motion_pct
+    from faceretarget.io import read_livelinkface
+    from faceretarget.style import align_performances, frame_vectors, make_p3_takes, warp_performance
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        perf = read_livelinkface(data_dir / "livelinkface" / "S07-001.csv")
+    p3 = make_p3_takes(ict_rig, perf, ("neutral", "happy", "angry"), duration=30.0)
+    ref = p3.takes["neutral"]
+    assert p3.takes["angry"].n_frames < ref.n_frames < p3.takes["happy"].n_frames + 200
+    aligned = {"neutral": ref.points}
+    for s in ("happy", "angry"):
+        al = align_performances(ref, p3.takes[s])
+        assert np.median(al.errors_ms(p3.true_take_time(s, "neutral", ref.times))) < 33.0
+        aligned[s] = frame_vectors(warp_performance(p3.takes[s], al)).reshape(ref.points.shape)
+    n = int(0.6 * ref.n_frames)
+    model = StyleModel().fit_frames({s: v[:n] for s, v in aligned.items()})
+    gt = p3.truth_on("angry", "neutral", ref.times[n:])
+    pred = model.known(ref.points[n:], "neutral", "angry", warn=False).frames
+    base = ref.points[n:] + (aligned["angry"][:n] - aligned["neutral"][:n]).mean(0)
+    assert rel_motion_pct(pred, gt, p3.neutral) < 0.7 * rel_motion_pct(base, gt, p3.neutral)
+
+
+# ------------------------------------------------------------------------------------------ sliders
+def test_sliders_reproduce_single_emotion_and_blend_linearly():
+    rng = np.random.default_rng(9)
+    N, P = 6, 15
+    src = rng.standard_normal((N + 1, P, 3))
+    targets = {e: rng.standard_normal((N + 1, 40, 3)) for e in ("neutral", "happy", "angry")}
+    sl = ExpressionSliders(upper=1.0).fit(src, targets)
+    W = rng.uniform(0, 1, (25, N))
+    frames = src[0] + np.einsum("tn,npk->tpk", W, src[1:] - src[0])
+    np.testing.assert_allclose(sl.weights(frames), W, atol=1e-8)
+    single = sl.retarget(frames, "happy")
+    np.testing.assert_allclose(sl.transform(frames, [0.0, 1.0, 0.0]), single, atol=1e-10)
+    np.testing.assert_allclose(single, targets["happy"][0] + np.einsum("tn,npk->tpk", W, targets["happy"][1:]
+                                                                      - targets["happy"][0]), atol=1e-7)
+    mix = sl.transform(frames, [0.0, 0.3, 0.7])
+    np.testing.assert_allclose(mix, 0.3 * single + 0.7 * sl.retarget(frames, "angry"), atol=1e-10)
+    # alpha curves: barycentric over time, keys interpolated
+    times = np.linspace(0, 2, 25)
+    curves = AlphaCurves(["neutral", "angry"], {"neutral": 1.0, "angry": [(0.0, 0.0), (2.0, 1.0)]})
+    a = curves(times)
+    np.testing.assert_allclose(a.sum(1), 1.0)
+    out = sl.transform(frames, curves, times)
+    w_ang = a[:, 1][:, None, None]
+    np.testing.assert_allclose(out, (1 - w_ang) * sl.retarget(frames, "neutral") + w_ang * sl.retarget(frames, "angry"),
+                               atol=1e-10)
+    with pytest.raises(InvalidDataError):
+        sl.transform(frames, [0.0, 0.0, 0.0])
+    with pytest.raises(InvalidDataError):
+        AlphaCurves(["neutral"], {"angry": 1.0})
+
+
+# ------------------------------------------------------------------------------------------ CLI
+def _cli_main():
+    """The main program when it has the style commands wired in, else the style module's own."""
+    import argparse
+
+    from faceretarget import cli
+
+    subs = [a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
+    if subs and "restyle" in subs[0].choices and "style" in subs[0].choices:
+        return cli.main
+    from faceretarget.style.cli import main
+
+    return main
+
+
+@pytest.fixture(scope="module")
+def takes(tmp_path_factory):
+    from faceretarget.cloning.tables import EMOTIONS, weight_vector
+    from faceretarget.demo_data import make_demo_character, make_demo_take
+    from faceretarget.io import save_rig_obj, write_livelinkface
+    from faceretarget.names import ARKIT_NAMES
+    from faceretarget.performance import Performance
+    from faceretarget.style import StyleWarp
+
+    d = tmp_path_factory.mktemp("style_cli")
+    base = make_demo_take(seconds=8.0, fps=30.0, seed=11)
+    names = list(base.names)
+    out = {}
+    for s, warp in (("neutral", StyleWarp(1.0, 0.0)), ("angry", StyleWarp(1.15, 0.2, 3.0)),
+                    ("happy", StyleWarp(0.9, 0.15, 4.0))):
+        tau = np.arange(0, warp.style_time(base.times[-1]), 1 / 30)
+        ct = warp.content_time(tau)
+        W = np.stack([np.interp(ct, base.times, base.weights[:, j]) for j in range(len(names))], axis=1)
+        e = weight_vector(EMOTIONS[s], ARKIT_NAMES)
+        W = np.clip(W + e[[ARKIT_NAMES.index(n) for n in names]], 0, 1)
+        write_livelinkface(d / f"{s}.csv", Performance.from_weights(W, names, times=tau))
+        out[s] = d / f"{s}.csv"
+    save_rig_obj(make_demo_character("ada"), d / "ada")
+    return d, out
+
+
+def test_cli_fit_and_restyle_end_to_end(takes, capsys):
+    from faceretarget.io import read_glb_weights, read_livelinkface
+
+    main = _cli_main()
+    d, f = takes
+    model = d / "m.npz"
+    rc = main(["style", "fit", "--take", f"neutral={f['neutral']}", "--take", f"angry={f['angry']}",
+               "--take", f"happy={f['happy']}", "--out", str(model)])
+    out = capsys.readouterr().out
+    assert rc == 0 and model.exists() and "aligned angry to neutral by face" in out
+    rc = main(["restyle", "--model", str(model), "--performance", str(f["neutral"]), "--to", "angry",
+               "--from", "neutral", "--out", str(d / "r.csv")])
+    assert rc == 0
+    r = read_livelinkface(d / "r.csv")
+    neutral = read_livelinkface(f["neutral"])
+    assert r.n_frames == neutral.n_frames
+    col = [n.lower() for n in r.names].index("browdownleft")
+    assert r.weights[:, col].mean() > 0.6 > neutral.weights[:, col].mean()       # angry brows
+    rc = main(["restyle", "--model", str(model), "--performance", str(f["neutral"]), "--to", "happy",
+               "--amount", "0.5", "--window", "1.0", "--rig", str(d / "ada"), "--out", str(d / "r.glb")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "inferred style" in out
+    names, times, w = read_glb_weights(d / "r.glb")
+    assert w.shape[0] == neutral.n_frames
+
+
+def test_cli_bad_input_is_one_line_exit_2(takes, capsys, tmp_path):
+    main = _cli_main()
+    d, f = takes
+    rc = main(["style", "fit", "--take", f"neutral={f['neutral']}", "--take", f"angry={tmp_path / 'nope.csv'}",
+               "--out", str(tmp_path / "m.npz")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "nope.csv" in err[0] and not (tmp_path / "m.npz").exists()
+    # mismatched takes: a point take next to weight takes
+    from faceretarget.io import write_npz
+
+    write_npz(tmp_path / "pts.npz", np.zeros((30, 5, 3)) + np.arange(30)[:, None, None], np.arange(30) / 30.0)
+    rc = main(["style", "fit", "--take", f"neutral={f['neutral']}", "--take", f"angry={tmp_path / 'pts.npz'}",
+               "--out", str(tmp_path / "m.npz")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "pts.npz" in err and "weights" in err
+    rc = main(["style", "fit", "--take", f"neutral={f['neutral']}", "--out", str(tmp_path / "m.npz")])
+    assert rc == 2 and "at least 2" in capsys.readouterr().err
+    rc = main(["style", "fit", "--take", f"neutral{f['neutral']}", "--take", f"angry={f['angry']}",
+               "--out", str(tmp_path / "m.npz")])
+    assert rc == 2 and "STYLE=PATH" in capsys.readouterr().err
+    rc = main(["restyle", "--model", str(tmp_path / "missing.npz"), "--performance", str(f["neutral"]),
+               "--to", "angry", "--out", str(tmp_path / "o.csv")])
+    assert rc == 2 and "missing.npz" in capsys.readouterr().err
+    # refusing to overwrite the input take
+    before = f["neutral"].read_bytes()
+    rc = main(["restyle", "--model", str(tmp_path / "missing.npz"), "--performance", str(f["neutral"]),
+               "--to", "angry", "--out", str(f["neutral"])])
+    assert rc == 2 and "input" in capsys.readouterr().err and f["neutral"].read_bytes() == before
