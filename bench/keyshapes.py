@@ -11,7 +11,7 @@ Protocol P2 of ../shared/EVALUATION.md.  Data sets:
   take's weights; the rig's neutral is the neutral.  Converted from cm to mm.
 
 Methods: every entry of :data:`faceretarget.retarget.selection.SELECTION_METHODS` (``pca-extrema``,
-``hull``, ``kmeans2``, ``kmeans3``, ``nnls-greedy``) plus ``nnls-greedy/noguard``, the new method
+``hull``, ``kmeans2``, ``kmeans3``, ``pivoted-qr``, ``nnls-greedy``) plus ``nnls-greedy/noguard``, the new method
 without its PCA-extrema guard, to show how it does on its own.  ``nnls-greedy`` grows its sets
 one key at a time, so its sets for every k come from one run (:func:`nnls_greedy_path`;
 ``nnls_greedy(X, k)`` returns exactly ``path[k - 1]``, as the tests check); the other methods are
@@ -52,7 +52,7 @@ from faceretarget.retarget.selection import SELECTION_METHODS, nnls_greedy_path,
 REPO = Path(__file__).resolve().parents[1]
 NEW = "nnls-greedy"
 SOLO = "nnls-greedy/noguard"
-METHODS = ["pca-extrema", "hull", "kmeans2", "kmeans3", NEW, SOLO]
+METHODS = ["pca-extrema", "hull", "kmeans2", "kmeans3", "pivoted-qr", NEW, SOLO]
 COLORS = {"pca-extrema": (214, 39, 40), "hull": (255, 127, 14), "kmeans2": (44, 160, 44),
           "kmeans3": (148, 103, 189), NEW: (31, 119, 180), SOLO: (23, 190, 207)}
 TOL = 1e-9   # relative tolerance of the comparisons (solver rounding)
@@ -96,7 +96,7 @@ def run_dataset(X: np.ndarray, ks: list[int]) -> tuple[dict, dict, dict]:
     kmax = max(ks)
     sets: dict[str, dict[int, np.ndarray]] = {}
     secs: dict[str, float] = {}
-    for m in METHODS[:4]:
+    for m in METHODS[:5]:
         t0 = time.perf_counter()
         sets[m] = {k: SELECTION_METHODS[m](X, k) for k in ks}
         secs[m] = time.perf_counter() - t0

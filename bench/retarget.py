@@ -119,13 +119,13 @@ def p1(ict: Rig, ark: Rig, rom, takes, quick: bool, log) -> tuple[list[dict], li
                     pred = _apply(models[m], pts, times)
                     base = dict(method=m, source="ict-face", keys=keys, selection=sel or "", features="landmarks",
                                 take=take, noise_mm=noise)
-                    met = metrics(pred, gtb, ark.neutral.vertices, ark.unit, target_keys=tk.deltas)
+                    met = metrics(pred, gtb, ark.neutral.vertices, ark.unit, target_keys=tk.deltas + tk.neutral.vertices)
                     rows.append(dict(base, target="arkit-face", kind="cross", **met))
                     if keys not in ("arkit", "rom-40"):
                         continue                  # round trips for the arkit and rom-40 sets only
                     mid = pred[:, ark.landmarks]
                     rt = _apply(back[m], mid, times)
-                    met = metrics(rt, src, ict.neutral.vertices, ict.unit, target_keys=sk.deltas)
+                    met = metrics(rt, src, ict.neutral.vertices, ict.unit, target_keys=sk.deltas + sk.neutral.vertices)
                     rows.append(dict(base, target="ict-face", kind="roundtrip", **met))
         cr = [r for r in rows if r["keys"] == keys and r["selection"] == (sel or "") and r["kind"] == "cross"
               and r["method"] == "retarget"]

@@ -271,3 +271,25 @@ def test_weight_take_without_rig_is_refused():
     perf = Performance.from_weights(np.zeros((3, 2)), ["a", "b"], fps=30)
     with pytest.raises(InvalidDataError, match="source rig"):
         BlendshapeRetargeter().fit(src, src).transform(perf)
+
+
+def test_2d_landmark_tracks_retarget_through_flat_keyshapes(tmp_path):
+    rng = np.random.default_rng(12)
+    P, T = 30, 200
+    rest = rng.uniform(-1, 1, (P, 2))
+    modes = rng.normal(size=(4, P, 2)) * 0.1
+    W = np.abs(np.sin(np.outer(np.arange(T) / 30.0, [0.7, 1.1, 1.9, 2.3])))
+    pts = rest + np.einsum("tk,kpd->tpd", W, modes)
+    perf = Performance.from_points(pts, [f"m{i}" for i in range(P)], fps=30)
+    keys = tmp_path / "keys"
+    from faceretarget.retarget import export_keyshapes, pivoted_qr
+
+    X = (pts - pts[0]).reshape(T, -1)
+    frames = sorted(pivoted_qr(X, 6).tolist())
+    flat0 = np.c_[pts[0], np.zeros(P)]
+    export_keyshapes(perf, frames, keys, neutral=flat0)
+    sk = read_target_keyshapes(keys)
+    rt = BlendshapeRetargeter(denoise=False).fit(sk, sk)
+    out = rt.blend(rt.transform(perf))
+    assert out.shape == (T, P, 3) and np.abs(out[..., 2]).max() == 0
+    assert np.abs(out[..., :2] - pts).max() < 1e-8             # the take lies in the keys' span: exact

@@ -265,3 +265,19 @@ def test_export_rejects_bad_input(tmp_path):
     with pytest.raises(InvalidDataError, match="weights"):
         export_keyshapes(w, [0], tmp_path / "a")
     assert not (tmp_path / "a").exists()
+
+
+def test_pivoted_qr_picks_one_frame_per_direction_and_skips_still_frames():
+    from faceretarget.retarget.selection import pivoted_qr
+
+    rng = np.random.default_rng(0)
+    dirs = np.eye(6)[:, :5].T * 10                                   # 5 orthogonal motions in 6-D
+    X = np.vstack([d * rng.uniform(0.5, 1.0, (20, 1)) + rng.normal(0, 0.05, (20, 6)) for d in dirs])
+    X = np.vstack([X, rng.normal(0, 0.01, (30, 6))])                 # still frames: noise only
+    sel = pivoted_qr(X, 5)
+    assert sorted(np.asarray(sel) // 20) == [0, 1, 2, 3, 4]          # one frame of each direction
+    assert (np.asarray(pivoted_qr(X, 8)) < 100).all()                # still frames never chosen
+    assert list(pivoted_qr(X, 3)) == list(pivoted_qr(X, 6))[:3]      # nested in k
+    # the chosen keys' directions are nearly orthogonal (well conditioned)
+    K = X[sel]
+    assert np.linalg.cond(K / np.linalg.norm(K, axis=1, keepdims=True)) < 1.5

@@ -133,9 +133,11 @@ def _geometry_take(perf, source_rig, log, *, align: bool = True, rigid_subset=No
     if perf.kind == "vertices":
         return perf.vertices, [], None, perf.mesh, None
     pts = perf.points
-    if pts.shape[2] != 3:
-        raise InvalidDataError(f"{perf.source}: keyshape selection needs 3-D points, the take has 2-D points")
     al = None
+    if pts.shape[2] == 2:                       # 2-D landmark tracks: keyshapes in the image plane (z = 0)
+        log(f"{perf.source}: 2-D points; keyshapes are exported with z = 0 and no head-motion removal")
+        pts = np.concatenate([pts, np.zeros(pts.shape[:2] + (1,))], axis=2)
+        return pts, list(perf.labels), None, None, None
     if align and pts.shape[1] >= 4:
         subset = [s.strip() for s in rigid_subset.split(",")] if rigid_subset else None
         al = RigidAligner(subset=subset)

@@ -209,11 +209,15 @@ class BlendshapeRetargeter:
             if perf.kind == "weights":
                 raise InvalidDataError(f"{src}: a weight take must be played on its source rig first "
                                        "(faceretarget retarget --source-rig, or Rig.evaluate)")
-            if perf.kind == "points" and perf.points.shape[2] != 3:
-                raise InvalidDataError(f"{src}: the take has 2-D points; the source keyshapes are 3-D")
-            if perf.kind == "points" and self.align and perf.points.shape[1] >= 4:
+            flat = perf.kind == "points" and perf.points.shape[2] == 2
+            if perf.kind == "points" and not flat and self.align and perf.points.shape[1] >= 4:
                 perf = self._aligned(perf)
             arr = perf.data()
+            if flat:                              # 2-D tracks: image-plane keyshapes (z = 0)
+                if np.abs(self.source_neutral_[:, 2]).max() > 0:
+                    raise InvalidDataError(f"{src}: the take has 2-D points but the source keyshapes are 3-D; "
+                                           "select keyshapes from a 2-D take (they are exported with z = 0)")
+                arr = np.concatenate([arr, np.zeros(arr.shape[:2] + (1,))], axis=2)
             labels = perf.labels if perf.kind == "points" else None
         else:
             arr = np.asarray(perf_or_array, dtype=np.float64)
