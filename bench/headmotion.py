@@ -15,12 +15,18 @@ Every synthesis is compared, in the same run, with two baselines for the same au
 ``random`` (a uniformly random database segment for every input segment, blended the same way)
 and ``noise`` (Perlin-style smooth noise, :func:`perlin_noise`, 0.8 Hz base, 3 octaves, with the
 per-axis standard deviation of the database's motion), and with the real held-out motion.
+Each baseline is drawn ``--draws`` (default 20) times per case and its beat counts are pooled over
+cases and draws: one draw's F1 scatters by about +-0.02 (LOPO), as much as the differences
+between methods, so a single draw (the definition before, still reported as ``random_1draw``)
+could rank the methods either way by luck.
 
 Metrics
 -------
-* ``beat_align``: symmetric F1 of pitch-accent onsets against motion beats (minima of angular
+* ``beat_align``: symmetric F1 of pitch-accent onsets against motion beats (maxima of angular
   speed) within +-100 ms (definitions in :mod:`faceretarget.headmotion._metrics`), counts pooled
   over all held-out phrases; the same function for synthesized, baseline and real motion.
+* ``beat_align_margin_ci95``: paired 95 % bootstrap interval (resampling held-out cases) of
+  synth F1 minus each baseline's F1.
 * ``join_jump_ratio``: the largest frame-to-frame angular change across a join (over every LOPO
   and LOSO synthesis) divided by the 99th percentile of frame-to-frame change of the database's
   own motion at the output rate; ``join_accel_ratio`` the same for the second difference.
@@ -32,7 +38,8 @@ Metrics
 
 Usage::
 
-    python bench/headmotion.py [--data ../shared/data] [--json] [--preview out/headmotion_preview.png]
+    python bench/headmotion.py [--data ../shared/data] [--json] [--draws 20]
+        [--preview out/headmotion_preview.png] [--plot out/headmotion_speed.png]
 """
 
 from __future__ import annotations
@@ -63,7 +70,7 @@ REPO = Path(__file__).resolve().parents[1]
 TAKES = ("beat_2_scott_0_1_1", "zeggs_067_Speech_2_x_1_0")
 FPS = 30.0
 MIN_PHRASE = 1.0  # s, shortest held-out phrase (with its pause)
-METHODS = ("synth", "random", "noise", "real")
+METHODS = ("synth", "random", "noise", "real", "random_1draw")
 ACCENTS = ("onsets", "peaks")
 
 
@@ -80,6 +87,7 @@ class Pool:
 
     def __init__(self) -> None:
         self.counts = {d: {m: [] for m in METHODS} for d in ACCENTS}
+        self.per_draw: dict = {}
         self.speed = {m: [] for m in METHODS}
         self.ranges = {m: [] for m in METHODS}
 
@@ -95,13 +103,41 @@ class Pool:
     def beat(self, method: str, d: str = "onsets") -> dict:
         return summarize_alignment(*np.sum(self.counts[d][method], axis=0).tolist())
 
-    def beat_ci(self, method: str, d: str = "onsets", n: int = 1000) -> tuple[float, float]:
-        """95 % bootstrap interval of the pooled F1, resampling held-out cases."""
+    def add_draws(self, method: str, rots: list, accents: dict) -> None:
+        """Several draws of a baseline for one case: counts summed over draws, motion statistics
+        of the first draw (``per_draw`` keeps each draw's counts)."""
+        for d, acc in accents.items():
+            c = []
+            for rot in rots:
+                r = beat_alignment(acc, motion_beats(rot, FPS))
+                c.append([r["accents"], r["beats"], r["accent_hits"], r["beat_hits"]])
+            self.counts[d][method].append(np.sum(c, axis=0).tolist())
+            self.per_draw.setdefault((d, method), []).append(c)
+        self.speed[method].append(angular_speed(rots[0], FPS))
+        deg = np.degrees(rots[0])
+        self.ranges[method].append(np.percentile(deg, 95, axis=0) - np.percentile(deg, 5, axis=0))
+
+    def draw_spread(self, method: str, d: str = "onsets") -> float:
+        """Standard deviation over draws of one draw's pooled F1."""
+        c = np.asarray(self.per_draw[(d, method)])  # (cases, draws, 4)
+        return float(np.std([summarize_alignment(*c[:, k].sum(axis=0).tolist())["f1"] for k in range(c.shape[1])]))
+
+    def beat_ci(self, method: str, d: str = "onsets", n: int = 1000, minus: str | None = None
+                ) -> tuple[float, float]:
+        """95 % bootstrap interval of the pooled F1 (or of its difference from method ``minus``,
+        paired), resampling held-out cases."""
         c = np.asarray(self.counts[d][method])
+        c2 = None if minus is None else np.asarray(self.counts[d][minus])
         if len(c) < 5:  # too few cases to resample (LOSO has 2)
             return float("nan"), float("nan")
         rng = np.random.default_rng(1)
-        f = [summarize_alignment(*c[rng.integers(0, len(c), len(c))].sum(axis=0).tolist())["f1"] for _ in range(n)]
+        f = []
+        for _ in range(n):
+            k = rng.integers(0, len(c), len(c))
+            v = summarize_alignment(*c[k].sum(axis=0).tolist())["f1"]
+            if c2 is not None:
+                v -= summarize_alignment(*c2[k].sum(axis=0).tolist())["f1"]
+            f.append(v)
         return float(np.percentile(f, 2.5)), float(np.percentile(f, 97.5))
 
     def w1(self, method: str) -> float:
@@ -141,7 +177,8 @@ def _data_p99(rots: list[np.ndarray]) -> np.ndarray:
                      np.percentile(np.concatenate([o[2] for o in out]), 99)])
 
 
-def run_case(db: HeadMotionDatabase, audio, rate, pitch, real: np.ndarray, pool: Pool, rng, jumps: list):
+def run_case(db: HeadMotionDatabase, audio, rate, pitch, real: np.ndarray, pool: Pool, rng, jumps: list,
+             draws: int = 20):
     perf = db.synthesize(audio, rate, pitch=pitch, fps=FPS)
     info = db.last_synthesis_
     n = perf.n_frames
@@ -149,13 +186,16 @@ def run_case(db: HeadMotionDatabase, audio, rate, pitch, real: np.ndarray, pool:
     accents = {"onsets": accent_onsets(info.segmentation), "peaks": pitch_peaks(pitch)}
     pool.add("synth", perf.head_rotation, accents)
     jumps["synth"].append(_join_measures(perf.head_rotation, info.joins))
-    rand_path = rng.integers(0, db.n_segments_, size=info.path.size)
-    pr = db.synthesize(audio, rate, pitch=pitch, fps=FPS, path=rand_path)
-    pool.add("random", pr.head_rotation, accents)
-    jumps["random"].append(_join_measures(pr.head_rotation, db.last_synthesis_.joins))
+    rand = []
+    for k in range(draws):
+        rand_path = rng.integers(0, db.n_segments_, size=info.path.size)
+        rand.append(db.synthesize(audio, rate, pitch=pitch, fps=FPS, path=rand_path).head_rotation)
+        if k == 0:
+            jumps["random"].append(_join_measures(rand[0], db.last_synthesis_.joins))
+    pool.add_draws("random", rand, accents)
+    pool.add("random_1draw", rand[0], accents)
     sd = db.motion_[:, :3].std(axis=0)
-    noise = db.mean_pose_[:3] + perlin_noise(n, FPS, rng) * sd
-    pool.add("noise", noise, accents)
+    pool.add_draws("noise", [db.mean_pose_[:3] + perlin_noise(n, FPS, rng) * sd for _ in range(draws)], accents)
     pool.add("real", real, accents)
     return perf, info
 
@@ -165,6 +205,9 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--preview", default=str(REPO / "out" / "headmotion_preview.png"))
+    ap.add_argument("--plot", default=str(REPO / "out" / "headmotion_speed.png"),
+                    help="angular speed against accent onsets for one held-out phrase ('' = none)")
+    ap.add_argument("--draws", type=int, default=20, help="draws of each baseline per case")
     args = ap.parse_args(argv)
     root = Path(args.data) / "headmotion"
     if not root.is_dir():
@@ -184,6 +227,7 @@ def main(argv=None) -> int:
     lopo = Pool()
     jumps: dict = {"synth": [], "random": []}
     n_cases = 0
+    plot_case = None
     for tk in takes:
         seg = segment_speech(tk.pitch, pause=db0.pause)
         p_end = np.r_[seg.phrase_start[1:], min(seg.duration, tk.duration)]
@@ -198,8 +242,11 @@ def main(argv=None) -> int:
             if not np.isfinite(pitch.f0).any():
                 continue
             n = int(np.floor((a1 - a0) / tk.rate * FPS + 1e-9)) + 1
-            run_case(db, audio, tk.rate, pitch, _real_motion(tk, t0, n), lopo, rng, jumps)
+            perf, info = run_case(db, audio, tk.rate, pitch, _real_motion(tk, t0, n), lopo, rng, jumps,
+                                  args.draws)
             n_cases += 1
+            if plot_case is None or (perf.n_frames > plot_case[1].n_frames and tk is takes[0]):
+                plot_case = (tk, perf, info, db, _real_motion(tk, t0, n), t0)
 
     # ---------------------------------------------------------------- leave one speaker out
     loso = Pool()
@@ -209,7 +256,8 @@ def main(argv=None) -> int:
         other = [t for j, t in enumerate(takes) if j != i]
         db = HeadMotionDatabase(fps=FPS).build(other)
         n = int(np.floor(tk.audio.size / tk.rate * FPS + 1e-9)) + 1
-        perf, info = run_case(db, tk.audio, tk.rate, tk.pitch, _real_motion(tk, 0.0, n), loso, rng, jumps)
+        perf, info = run_case(db, tk.audio, tk.rate, tk.pitch, _real_motion(tk, 0.0, n), loso, rng, jumps,
+                              args.draws)
         runs = []
         for _ in range(3):
             db.synthesize(tk.audio, tk.rate, pitch=tk.pitch, fps=FPS)
@@ -229,7 +277,11 @@ def main(argv=None) -> int:
         "beat_align_random": round(lopo.beat("random")["f1"], 4),
         "beat_align_noise": round(lopo.beat("noise")["f1"], 4),
         "beat_align_real": round(lopo.beat("real")["f1"], 4),
+        "beat_align_random_1draw": round(lopo.beat("random_1draw")["f1"], 4),
+        "beat_align_draw_sd": {m: round(lopo.draw_spread(m), 4) for m in ("random", "noise")},
         "beat_align_ci95": {m: [round(x, 4) for x in lopo.beat_ci(m)] for m in METHODS},
+        "beat_align_margin_ci95": {m: [round(x, 4) for x in lopo.beat_ci("synth", minus=m)]
+                                   for m in ("random", "noise")},
         "beat_align_peaks": {m: round(lopo.beat(m, "peaks")["f1"], 4) for m in METHODS},
         "join_jump_ratio": round(float(jm["synth"][1]), 4),
         "join_step_ratio": round(float(jm["synth"][0]), 4),
@@ -250,6 +302,8 @@ def main(argv=None) -> int:
             "beat_align_random": round(loso.beat("random")["f1"], 4),
             "beat_align_noise": round(loso.beat("noise")["f1"], 4),
             "beat_align_real": round(loso.beat("real")["f1"], 4),
+            "beat_align_random_1draw": round(loso.beat("random_1draw")["f1"], 4),
+            "beat_align_draw_sd": {m: round(loso.draw_spread(m), 4) for m in ("random", "noise")},
             "beat_align_peaks": {m: round(loso.beat(m, "peaks")["f1"], 4) for m in METHODS},
             "velocity_w1": round(loso.w1("synth"), 3),
             "velocity_w1_random": round(loso.w1("random"), 3),
@@ -263,7 +317,9 @@ def main(argv=None) -> int:
     print(f"P5 head motion from audio: {n_cases} held-out phrases (LOPO), 2 held-out speakers (LOSO)")
     print("beat F1 (95% bootstrap interval over held-out cases): accents = onsets of accented voiced runs;"
           " 'peaks' = interior pitch peaks")
-    print(f"{'':5s} {'method':7s} {'beat F1':>7s} {'interval':>13s} {'recall':>6s} {'prec':>6s} {'peaks F1':>8s} "
+    print(f"baselines: {args.draws} draws per case, counts pooled over cases and draws; 'random_1draw' = the first"
+          " draw alone (the definition before)")
+    print(f"{'':5s} {'method':12s} {'beat F1':>7s} {'interval':>13s} {'recall':>6s} {'prec':>6s} {'peaks F1':>8s} "
           f"{'W1 deg/s':>8s} {'yaw rng':>7s} {'pitch rng':>9s} {'roll rng':>8s}")
     for name, pool in (("LOPO", lopo), ("LOSO", loso)):
         for m in METHODS:
@@ -272,9 +328,13 @@ def main(argv=None) -> int:
             w = pool.w1(m) if m != "real" else 0.0
             r = pool.range(m)
             ci = f"[{lo:.3f}, {hi:.3f}]" if np.isfinite(lo) else "-"
-            print(f"{name:5s} {m:7s} {b['f1']:7.3f} {ci:>13s} {b['recall']:6.3f} "
+            print(f"{name:5s} {m:12s} {b['f1']:7.3f} {ci:>13s} {b['recall']:6.3f} "
                   f"{b['precision']:6.3f} {pool.beat(m, 'peaks')['f1']:8.3f} {w:8.2f} {r[0]:7.2f} {r[1]:9.2f} "
                   f"{r[2]:8.2f}")
+    for m in ("random", "noise"):
+        lo, hi = lopo.beat_ci("synth", minus=m)
+        print(f"LOPO synth - {m}: {lopo.beat('synth')['f1'] - lopo.beat(m)['f1']:+.3f} (paired 95% interval "
+              f"[{lo:+.3f}, {hi:+.3f}]); one draw of {m} scatters by +-{lopo.draw_spread(m):.3f} (sd)")
     names = ("step", "jump", "velocity jump", "acceleration jump")
     print(f"joins ({n_joins} synthesized): largest / data p99 = "
           + ", ".join(f"{nm} {jm['synth'][k]:.3f}" for k, nm in enumerate(names))
@@ -286,6 +346,9 @@ def main(argv=None) -> int:
     if args.preview:
         _preview(Path(args.preview), *last)
         print(f"preview: {args.preview}")
+    if args.plot and plot_case is not None:
+        _speed_plot(Path(args.plot), *plot_case)
+        print(f"speed plot: {args.plot}")
     if args.json:
         print(json.dumps(res))
     return 0
@@ -312,6 +375,57 @@ def _preview(path: Path, take, perf, info, db) -> None:
     labels = [f"t={f / perf.fps:.2f}s y{d[0]:+.0f} p{d[1]:+.0f} r{d[2]:+.0f}" for f, d in zip(frames, deg, strict=True)]
     path.parent.mkdir(parents=True, exist_ok=True)
     save_png(path, render_grid(imgs, labels, cols=4, font_size=13))
+
+
+def _speed_plot(path: Path, take, perf, info, db, real: np.ndarray, t0: float) -> None:
+    """Angular speed (deg/s) of the synthesized yaw and pitch, and the total angular speed of the
+    synthesized and the real motion, against the accent onsets (red) and joins (grey ticks), for one
+    held-out phrase (the longest of the first take)."""
+    from PIL import Image, ImageDraw
+
+    rot = perf.head_rotation
+    yaw = np.abs(np.diff(np.degrees(rot[:, 0]))) * FPS
+    pit = np.abs(np.diff(np.degrees(rot[:, 1]))) * FPS
+    tot = angular_speed(rot, FPS)
+    rs = angular_speed(real[: len(rot)], FPS)
+    acc = accent_onsets(info.segmentation)
+    beats_s, beats_r = motion_beats(rot, FPS), motion_beats(real[: len(rot)], FPS)
+    W, H, L, pad = 1200, 560, 60, 20
+    img = Image.new("RGB", (W, H), "white")
+    dr = ImageDraw.Draw(img)
+    t = (np.arange(tot.size) + 0.5) / FPS
+    T = max(t[-1], 1e-6)
+    ymax = float(np.percentile(np.r_[tot, rs], 99)) * 1.1 or 1.0
+    panels = [("synthesized: yaw (blue), pitch (green), total (black); dots = motion beats", [(yaw, "#1f5fbf"),
+               (pit, "#2a9d3a"), (tot, "black")], beats_s), ("real: total angular speed", [(rs, "black")], beats_r)]
+    ph = (H - 3 * pad) // 2
+    for pi, (title, curves, beats) in enumerate(panels):
+        top = pad + pi * (ph + pad)
+        bot = top + ph
+
+        def xy(tt, v, top=top, bot=bot):
+            return L + (W - L - pad) * tt / T, bot - (bot - top - 16) * min(v, ymax) / ymax
+
+        dr.rectangle([L, top, W - pad, bot], outline="#888888")
+        dr.text((L + 4, top + 2), f"{title}  (phrase at {t0:.2f} s of {take.name}; y max {ymax:.0f} deg/s)",
+                fill="black")
+        for a in acc:
+            x = xy(a, 0)[0]
+            dr.line([x, top + 14, x, bot], fill="#e03030", width=2)
+        if pi == 0:
+            for j in info.joins:
+                x = xy(j / FPS, 0)[0]
+                dr.line([x, bot - 8, x, bot], fill="#777777", width=2)
+        for v, col in curves:
+            dr.line([xy(tt, vv) for tt, vv in zip(t, v, strict=True)], fill=col, width=2)
+        for b in beats:
+            x, y = xy(b, float(np.interp(b, t, curves[-1][0])))
+            dr.ellipse([x - 4, y - 4, x + 4, y + 4], outline="#e08000", width=2)
+        for k in range(0, int(T) + 1):
+            x = xy(k, 0)[0]
+            dr.text((x - 3, bot + 2), f"{k}s", fill="black")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img.save(path)
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from faceretarget.headmotion import (
     PathWeights,
     angular_speed,
     beat_alignment,
+    blend_segments,
     extract_pitch,
     head_motion_from_bvh,
     head_motion_from_smplx,
@@ -404,6 +405,76 @@ def test_no_voice_and_save_load(synth_db, tmp_path):
     assert HeadMotionDatabase(weights=weights).weights.reuse == 5.0
 
 
+def test_energy_regression_and_centred_join_costs(synth_db):
+    """Segment energy = log mean frame speed over the take's median; the join-cost blocks are
+    double-centred (row and column means 0) so a candidate's calmness drops out."""
+    db, _ = synth_db
+    rot = db.motion_[:, :3]
+    c0, c1 = db.copy_offset_[0], db.copy_offset_[1]
+    med = np.median(np.linalg.norm(np.diff(rot[c0:c1], axis=0), axis=1))
+    s = int(np.flatnonzero(db.seg_copy_ == 0)[3])
+    f0, f1 = db.seg_frames_[s]
+    mean_speed = np.linalg.norm(np.diff(rot[f0:f1 + 1], axis=0), axis=1).mean()
+    assert db.seg_energy_[s] == pytest.approx(np.log(mean_speed / med), rel=1e-9)
+    assert db.energy_coef_.shape == (5,) and np.isfinite(db.energy_coef_).all()
+    assert 0 < db.energy_scale_ <= db.seg_energy_.std() + 1e-12  # a fit never does worse than the mean
+    new = _speech(_syllables(5.0, seed=13), duration=5.0, seed=13)
+    seg, a, n_out = db._input_segments(db.pitch(new, SR), FPS)
+    cands, costs = db._candidates(seg)
+    in_len = (np.r_[a[1:], n_out] - a) / FPS
+    for centre in (True, False):
+        db2 = HeadMotionDatabase(fps=FPS, weights=PathWeights(consecutive=0.0), center_continuity=centre)
+        db2.__dict__.update({k: v for k, v in db.__dict__.items() if k.endswith("_") or k.startswith("_phrase")})
+        _, pair, _ = db2._trellis(seg, cands, costs, in_len, None)
+        P = pair[0]
+        assert P.shape == (len(cands[0]), len(cands[1]))
+        if centre:
+            np.testing.assert_allclose(P.mean(axis=0), 0, atol=1e-12)
+            np.testing.assert_allclose(P.mean(axis=1), 0, atol=1e-12)
+        else:
+            assert P.min() >= 0 and P.mean() > 0.1
+
+
+def test_blend_unwarped_head_and_transition_before():
+    """The head of a segment plays at the recorded speed and only its tail is warped; with
+    transition='before' the velocity mismatch is absorbed before the join, so the new segment's
+    frames keep their recorded shape.  (The drift correction adds a linear ramp here, which second
+    differences do not see.)"""
+    t = np.arange(200, dtype=np.float64)
+    motion = np.stack([np.sin(t / 7.0), 0.01 * t, np.cos(t / 11.0)], axis=1)
+    f0, f1 = np.array([10.0, 100.0]), np.array([40.0, 160.0])  # 30 and 60 database frames
+    a = np.array([0, 20])  # played over 20 and 40 output frames: warped by 1.5
+    n_out = 60
+    head = np.array([6.0, 6.0])
+    y, joins = blend_segments(motion, f0, f1, a, n_out, fps=30.0, head=head, transition="before")
+    assert joins.tolist() == [20]
+
+    def d2(x):
+        return np.diff(x, 2, axis=0)
+
+    def played(u):
+        return np.stack([np.interp(u, t, motion[:, c]) for c in range(3)], axis=1)
+
+    # new segment, head: output frames 20..26 are database frames 100..106 (not warped)
+    np.testing.assert_allclose(d2(y[20:27]), d2(motion[100:107]), atol=1e-12)
+    # tail: the other 34 output frames cover database frames 106..160
+    k = np.arange(6, 40)
+    np.testing.assert_allclose(d2(y[20 + k]), d2(played(106 + 54 * (k - 6) / 34)), atol=1e-12)
+    # default ('after'): the new segment's first frames are bent instead
+    y_after, _ = blend_segments(motion, f0, f1, a, n_out, fps=30.0, head=head)
+    assert np.abs(d2(y_after[20:27]) - d2(motion[100:107])).max() > 1e-3
+    # both are smooth across the join, relative to the raw velocity mismatch there
+    prev_last = played(np.array([10 + 6 + 24 * 13 / 14, 40.0]))  # previous segment's last step
+    mismatch = np.linalg.norm((prev_last[1] - prev_last[0]) - (motion[101] - motion[100]))
+    for yy in (y, y_after):
+        assert np.linalg.norm((yy[21] - yy[20]) - (yy[20] - yy[19])) < 0.5 * mismatch
+    # no head: the whole segment is warped linearly (the previous behaviour)
+    y0, _ = blend_segments(motion, f0, f1, a, n_out, fps=30.0, transition="before")
+    np.testing.assert_allclose(d2(y0[22:40]), d2(played(100 + 1.5 * np.arange(2, 20))), atol=1e-12)
+    with pytest.raises(ValueError, match="transition"):
+        blend_segments(motion, f0, f1, a, n_out, fps=30.0, transition="sideways")
+
+
 def test_beat_alignment_counts():
     r = beat_alignment(np.array([0.5, 1.0, 2.0, 3.0]), np.array([0.45, 1.2, 2.09, 5.0]))
     assert (r["accent_hits"], r["beat_hits"]) == (2, 2)
@@ -514,7 +585,8 @@ def test_cli_build_and_synth(data_dir, tmp_path, capsys):
     assert b.n_frames == n and b.joints[0].channels[:3] == ("Xposition", "Yposition", "Zposition")
     rad = np.radians(b.motion[:, 3:])
     llf = read_livelinkface(outs["csv"])
-    np.testing.assert_allclose(llf.head_rotation, rad, atol=1e-6)  # the CSV holds radians
+    # the CSV holds radians, with Live Link Face's chin-up-positive HeadPitch (as capture writes it)
+    np.testing.assert_allclose(llf.head_rotation, rad * [1, -1, 1], atol=1e-6)
     from faceretarget.io.gltf import read_glb_head
 
     _, q, tr = read_glb_head(outs["glb"])

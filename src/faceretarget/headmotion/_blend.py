@@ -7,12 +7,16 @@ frames ``[f0_i, f1_i]`` (inclusive, so consecutive database segments share their
    ``max_warp`` of :class:`HeadMotionDatabase`) is resampled (linear interpolation) to ``n_i + 1``
    points ``r_i``, with ``n_i = b_i - a_i``: frames ``a_i..b_i - 1`` take
    ``r_i[:n_i]`` and ``r_i[n_i]`` is where the segment would continue, the anchor of the next one.
+   With ``head``, the first ``head_i`` output frames play the database at its own speed and only
+   the rest is resampled onto ``f1_i``.
 2. **Chain.**  Each segment is offset so it starts where the previous one would have continued
    (``offset_i = placed_{i-1}[n_{i-1}] - r_i[0]``): positions are continuous and the step across
    the join is the previous segment's own last step.  The velocity mismatch at the join,
    ``dv = v_prev_end - v_next_start`` (per frame), is absorbed by adding ``dv * k * exp(-k / tau)``
    to the new segment's ``k``-th frame: its first step then moves like the previous segment's
-   last, and the correction fades within a few ``tau`` (``tau_velocity`` seconds).
+   last, and the correction fades within a few ``tau`` (``tau_velocity`` seconds).  With
+   ``transition="before"`` the mirror-image correction is added to the frames before the join
+   instead (their last step then moves like the new segment's first), ``"split"`` does half each.
 3. **No drift.**  Chaining accumulates offsets.  The output is cut into sub-sequences (at phrase
    starts and at least every ``max_subsequence`` seconds); at each sub-sequence boundary the chained
    pose's distance from the database's own (unchained) pose there is measured, and a smooth
@@ -34,12 +38,23 @@ from scipy.ndimage import gaussian_filter1d
 __all__ = ["blend_segments"]
 
 
-def _resample(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, n: np.ndarray) -> list[np.ndarray]:
-    """For each segment the (n_i + 1, D) linear resampling of ``motion[f0_i..f1_i]``."""
+def _resample(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, n: np.ndarray,
+              head: np.ndarray | None = None, step: float = 1.0) -> list[np.ndarray]:
+    """For each segment the (n_i + 1, D) linear resampling of ``motion[f0_i..f1_i]``.
+
+    With ``head``, the first ``head_i`` output frames play the database at its own speed (``step``
+    database frames per output frame) and only the rest is warped to end on ``f1_i``.
+    """
     counts = n + 1
     seg = np.repeat(np.arange(n.size), counts)
-    k = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    u = f0[seg] + (f1[seg] - f0[seg]) * k / n[seg]
+    k = (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)).astype(np.float64)
+    if head is None:
+        u = f0[seg] + (f1[seg] - f0[seg]) * k / n[seg]
+    else:
+        h = np.asarray(head, np.float64)[seg]
+        uh = f0[seg] + step * h  # database frame reached at the end of the head
+        tail = np.where(n[seg] > h, (k - h) / np.maximum(n[seg] - h, 1e-9), 0.0)
+        u = np.where(k <= h, f0[seg] + step * k, uh + (f1[seg] - uh) * tail)
     i0 = np.clip(np.floor(u).astype(int), 0, len(motion) - 1)
     i1 = np.minimum(i0 + 1, len(motion) - 1)
     w = (u - i0)[:, None]
@@ -49,7 +64,8 @@ def _resample(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, n: np.ndarray)
 
 def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.ndarray, n_out: int, *,
                    fps: float, knots: np.ndarray | None = None, tau_velocity: float = 0.1,
-                   smooth: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                   smooth: float = 0.0, head: np.ndarray | None = None, step: float = 1.0,
+                   transition: str = "after") -> tuple[np.ndarray, np.ndarray]:
     """Chain, warp and smooth database segments into one trajectory (module docstring).
 
     Parameters
@@ -72,6 +88,15 @@ def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.nda
         Fade time of the velocity correction at joins, seconds.
     smooth : float
         Gaussian sigma around joins, seconds (0 = off).
+    head : (N,) float, optional
+        Output frames at the start of each segment played at the database's own speed (not
+        warped); only the rest of the segment is warped to end on ``f1`` (module docstring).
+    step : float
+        Database frames per output frame (database fps / output fps), for ``head``.
+    transition : {"after", "before", "split"}
+        Where the velocity mismatch at a join is absorbed: in the new segment's first frames
+        (``"after"``), in the frames before the join (``"before"``: the previous segment's
+        voiceless end, so the stroke after the onset is untouched), or half each.
 
     Returns
     -------
@@ -89,10 +114,14 @@ def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.nda
     n = b - a
     if N == 0:
         return np.zeros((n_out, D)), np.zeros(0, int)
-    r = _resample(motion, f0, f1, n)
+    if transition not in ("after", "before", "split"):
+        raise ValueError(f"transition must be 'after', 'before' or 'split', got {transition!r}")
+    share_after = {"after": 1.0, "before": 0.0, "split": 0.5}[transition]
+    r = _resample(motion, f0, f1, n, head, step)
     chain = np.zeros((n_out, D))
     raw = np.zeros((n_out, D))
     tau = max(tau_velocity * fps, 1e-6)
+    reach = int(np.ceil(6 * tau))  # k exp(-k / tau) < 0.015 tau beyond 6 tau
     prev_next = None  # where the previous segment would continue
     prev_v = None  # its last step
     for i in range(N):
@@ -103,8 +132,12 @@ def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.nda
             placed = ri + (prev_next - ri[0])
             if n[i] >= 1 and ri.shape[0] >= 2:
                 dv = prev_v - (ri[1] - ri[0])
-                k = np.arange(ri.shape[0], dtype=np.float64)[:, None]
-                placed = placed + dv * k * np.exp(-k / tau)
+                if share_after > 0:  # the new segment's first frames move like the previous last step
+                    k = np.arange(ri.shape[0], dtype=np.float64)[:, None]
+                    placed = placed + share_after * dv * k * np.exp(-k / tau)
+                if share_after < 1:  # the previous frames already move like the new first step
+                    m = np.arange(1, min(reach, a[i] - a[0]) + 1, dtype=np.float64)[:, None]
+                    chain[a[i] - m[:, 0].astype(int)] += (1.0 - share_after) * dv * m * np.exp(-m / tau)
         chain[a[i]:b[i]] = placed[: n[i]]
         raw[a[i]:b[i]] = ri[: n[i]]
         prev_next = placed[n[i]]
@@ -113,7 +146,7 @@ def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.nda
         chain[: a[0]] = chain[a[0]]
         raw[: a[0]] = raw[a[0]]
     # 3. drift: warp each sub-sequence to end on database poses
-    k = np.unique(np.r_[0, [] if knots is None else np.asarray(knots, int), n_out - 1])
+    k = np.unique(np.r_[0, [] if knots is None else np.asarray(knots, int), n_out - 1]).astype(int)
     k = k[(k >= 0) & (k < n_out)]
     err = chain[k] - raw[k]
     err[0] = 0.0

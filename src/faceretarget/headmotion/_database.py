@@ -33,6 +33,21 @@ Synthesize
    slow segments are not preferred merely for being slow; ``- consecutive`` when the two are
    consecutive in a database take; ``+ reuse`` when the same database segment (or its mirror) was
    used within the last ``reuse_window`` segments.
+
+   **Centring** (``center_continuity``, default on).  Even so, calm segments fit any neighbour
+   better than lively ones (small velocities differ little in absolute terms), so the search chose
+   calm motion: the chosen segments' mean log speed was 0.10 above their takes' median against
+   0.19 for the database.  Each ``K x K`` block of position/velocity/acceleration costs is therefore
+   double-centred (its row means and column means subtracted, its grand mean added back): a
+   candidate's general calmness adds the same to all of its transitions and drops out, and only how
+   well this pair fits remains.  The consecutive bonus is applied after centring.
+
+   **Motion energy** (unary, ``energy`` weight).  ``e_j`` = log of segment ``j``'s mean angular
+   speed over its take's median frame speed (speaker-normalised, like pitch).  A least-squares fit
+   on the database (ridge ``1e-3 * S`` on the slopes) predicts ``e`` from the segment's pitch peak,
+   peak above its phrase's mean pitch, pitch range and log voiced length (:func:`_energy_features`);
+   the input segment gets the prediction ``e_hat_i`` and the candidate pays
+   ``|e_j - e_hat_i| / s_e`` (``s_e`` the fit's residual standard deviation).
 5. **Blending** (:func:`blend_segments`): time warp (by at most ``max_warp``: a database segment
    much longer than the input segment is cut short, a much shorter one runs on into the motion
    that follows it in its take), chain, drift correction, optional smoothing; then
@@ -116,6 +131,11 @@ class PathWeights:
     reuse : float
         Penalty for using a database segment (or its mirror) again within ``reuse_window`` segments.
     reuse_window : int
+    energy : float
+        Motion energy match: ``|e_j - e_hat_i| / s_e``, with ``e_j`` the candidate's log mean angular
+        speed relative to its take's median, ``e_hat_i`` the value the database's own regression on
+        pitch features predicts for the input segment and ``s_e`` the regression's residual
+        standard deviation (:meth:`HeadMotionDatabase._prepare`).
     """
 
     pitch: float = 1.0
@@ -126,6 +146,7 @@ class PathWeights:
     consecutive: float = 0.5
     reuse: float = 2.0
     reuse_window: int = 8
+    energy: float = 1.0
 
 
 @dataclass
@@ -172,6 +193,14 @@ def _rel_diff(x: np.ndarray, y: np.ndarray, scale: float) -> np.ndarray:
     return d / (scale + m)
 
 
+def _energy_features(shape: np.ndarray, voiced: np.ndarray, phrase_mean: np.ndarray) -> np.ndarray:
+    """(S, 5) regressors of a segment's motion energy: 1, pitch peak (semitones re the take's median),
+    peak above the phrase's mean pitch, pitch range within the voiced run, log voiced length."""
+    peak = shape.max(axis=1)
+    return np.stack([np.ones(len(shape)), peak, peak - phrase_mean, peak - shape.min(axis=1),
+                     np.log(np.maximum(voiced, 1e-3))], axis=1)
+
+
 class HeadMotionDatabase:
     """Synthesize head motion for new speech from a database of recorded phrases.
 
@@ -211,6 +240,16 @@ class HeadMotionDatabase:
         i.e. at the joins).
     temperature : float
         Scale of the perturbation that ``seed`` applies (relative to the spread of the costs).
+    unwarped_head : float
+        Seconds at the start of each segment played at the recorded speed; only the rest is
+        time-warped (0 = warp the whole segment; tried, not the default: ``docs/headmotion.md``).
+    transition : {"after", "before", "split"}
+        Where :func:`blend_segments` absorbs the velocity mismatch at a join: in the new segment's
+        first frames, in the frames before the join, or half each.
+    center_continuity : bool
+        Double-centre each block of join costs over the candidate pairs (subtract row and column
+        means): the search then weighs how well two segments fit each other, not how calm each is.
+        Without it the continuity costs select calm segments (module docstring).
 
     Attributes
     ----------
@@ -228,7 +267,8 @@ class HeadMotionDatabase:
                  pitch_step: float = 0.01, pause: float = 0.3, n_shape: int = 16, mirror: bool = True,
                  n_phrases: int = 10, n_candidates: int = 12, length_weight: float = 1.0,
                  weights: PathWeights | None = None, max_subsequence: float = 4.0, max_warp: float = 1.5,
-                 tau_velocity: float = 0.1, smooth: float = 0.0, temperature: float = 0.3) -> None:
+                 tau_velocity: float = 0.1, smooth: float = 0.0, temperature: float = 0.3,
+                 unwarped_head: float = 0.0, transition: str = "after", center_continuity: bool = True) -> None:
         self.fps = fps
         self.f0_min = f0_min
         self.f0_max = f0_max
@@ -245,12 +285,15 @@ class HeadMotionDatabase:
         self.tau_velocity = tau_velocity
         self.smooth = smooth
         self.temperature = temperature
+        self.unwarped_head = unwarped_head
+        self.transition = transition
+        self.center_continuity = center_continuity
 
     # ------------------------------------------------------------------------------ configuration
     def _config(self) -> dict:
         keys = ("fps", "f0_min", "f0_max", "pitch_step", "pause", "n_shape", "mirror", "n_phrases",
                 "n_candidates", "length_weight", "max_subsequence", "max_warp", "tau_velocity", "smooth",
-                "temperature")
+                "temperature", "unwarped_head", "transition", "center_continuity")
         cfg = {k: getattr(self, k) for k in keys}
         cfg["weights"] = asdict(self.weights)
         return cfg
@@ -398,6 +441,21 @@ class HeadMotionDatabase:
         self._phrase_ptr = np.r_[0, np.cumsum(counts)]
         # per-frame rotation speed (deg/s) of the data, for continuity reports
         self.frame_step_ = np.degrees(np.linalg.norm(d1, axis=1)) / F
+        # motion energy of each segment and its regression on pitch features
+        speed = np.r_[np.linalg.norm(np.diff(rot, axis=0), axis=1), 0.0]
+        speed[~inner] = np.nan  # no speed across take boundaries
+        copy_of_row = np.repeat(np.arange(len(self.take_names_)), np.diff(self.copy_offset_))
+        med = np.array([np.nanmedian(speed[copy_of_row == c]) for c in range(len(self.take_names_))])
+        csum = np.r_[0.0, np.cumsum(np.nan_to_num(speed))]
+        f1 = self.seg_frames_[:, 1]
+        seg_speed = (csum[f1] - csum[f0]) / np.maximum(f1 - f0, 1)
+        self.seg_energy_ = np.log(np.maximum(seg_speed, 1e-9) / np.maximum(med[self.seg_copy_], 1e-9))
+        X = _energy_features(self.seg_shape_, self.seg_voiced_, self.phrase_stats_[self.seg_phrase_, 5])
+        ridge = 1e-3 * len(X) * np.eye(X.shape[1])
+        ridge[0, 0] = 0.0
+        self.energy_coef_ = np.linalg.solve(X.T @ X + ridge, X.T @ self.seg_energy_)
+        res = self.seg_energy_ - X @ self.energy_coef_
+        self.energy_scale_ = float(res.std()) or 1.0
 
     @property
     def n_segments_(self) -> int:
@@ -449,20 +507,37 @@ class HeadMotionDatabase:
                 costs.append(c[r, sel])
         return cands, costs
 
-    def _warp(self, segs: np.ndarray, in_len: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """End frame (float) of each database segment played over ``in_len`` seconds, and the speed-up.
+    def _warp(self, segs: np.ndarray, in_len: float | np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """How each database segment is played over ``in_len`` seconds of input.
 
-        The time warp is limited to ``max_warp``: a longer database segment is cut short, a shorter
-        one runs on into the motion that follows it in its take (up to the take's end).
+        Returns
+        -------
+        end : (n,) float
+            Database frame reached at the end of the input segment (where the motion would
+            continue).
+        head : (n,) float
+            Database frames at the start played at their own speed (``unwarped_head``).
+        start_scale, end_scale : (n,) float
+            Speed-up of the database motion at the start and at the end of the input segment.
+
+        Only the part after the head is warped, and by at most ``max_warp``: a longer database
+        segment is cut short, a shorter one runs on into the motion that follows it in its take (up
+        to the take's end).
         """
         F = float(self.fps)
         f0 = self.seg_frames_[segs, 0].astype(np.float64)
         L = self.seg_frames_[segs, 1] - f0
         Lin = np.maximum(np.asarray(in_len, np.float64) * F, 1e-9)
-        rho = np.clip(L / Lin, 1.0 / self.max_warp, self.max_warp)
-        end = np.minimum(f0 + rho * Lin, self.seg_last_[segs])
+        h = np.minimum(np.minimum(self.unwarped_head * F, Lin), L)
+        rest = Lin - h
+        rho = np.clip((L - h) / np.maximum(rest, 1e-9), 1.0 / self.max_warp, self.max_warp)
+        end = np.minimum(f0 + h + rho * rest, self.seg_last_[segs])
         end = np.maximum(end, f0 + 2)
-        return end, (end - f0) / Lin
+        h = np.minimum(h, end - f0)
+        tail = np.where(rest > 1e-9, (end - f0 - h) / np.maximum(rest, 1e-9), 1.0)
+        start = np.where(h > 0, 1.0, tail)
+        return end, h, start, tail
 
     def _end_state(self, end: np.ndarray) -> np.ndarray:
         """(n, 3, 3) rotation, velocity (/s), acceleration (/s^2) at (float) database frames."""
@@ -477,9 +552,13 @@ class HeadMotionDatabase:
         w = self.weights
         gap_in = seg.gap_len
         unary = []
+        e_hat = _energy_features(seg.shape, seg.voiced_len, seg.phrase_stats[seg.phrase, 5]) @ self.energy_coef_
         for i, (cj, cc) in enumerate(zip(cands, costs, strict=True)):
             g = np.abs(np.log((gap_in[i] + _GAP0) / (self.seg_gap_[cj] + _GAP0)))
-            unary.append(w.pitch * cc + w.gap * g)
+            u = w.pitch * cc + w.gap * g
+            if w.energy:
+                u = u + w.energy * np.abs(self.seg_energy_[cj] - e_hat[i]) / self.energy_scale_
+            unary.append(u)
         if rng is not None and self.temperature > 0:
             allu = np.concatenate(unary)
             spread = float(allu.std()) or 1.0
@@ -487,14 +566,17 @@ class HeadMotionDatabase:
         pair = []
         for i in range(1, len(cands)):
             A, B = cands[i - 1], cands[i]
-            endA, sa = self._warp(A, in_len[i - 1])  # where A ends and its time scale
+            endA, _, _, sa = self._warp(A, in_len[i - 1])  # where A ends and its time scale there
             sa = sa[:, None]
-            sb = self._warp(B, in_len[i])[1][:, None]
+            sb = self._warp(B, in_len[i])[2][:, None]
             ea, sbs = self._end_state(endA), self.seg_start_state_[B]
             dp = np.linalg.norm(ea[:, None, 0] - sbs[None, :, 0], axis=2) / self.pos_scale_
             dv = _rel_diff(ea[:, 1] * sa, sbs[:, 1] * sb, self.vel_scale_)
             da = _rel_diff(ea[:, 2] * sa**2, sbs[:, 2] * sb**2, self.acc_scale_)
             P = w.position * dp + w.velocity * dv + w.acceleration * da
+            if self.center_continuity and P.shape[0] > 1 and P.shape[1] > 1:
+                # keep only how well A fits B, not how calm A or B is in general (module docstring)
+                P = P - P.mean(axis=1, keepdims=True) - P.mean(axis=0, keepdims=True) + P.mean()
             P = P - w.consecutive * (self.seg_next_[A][:, None] == B[None, :])
             pair.append(P)
         labels = [self.seg_base_[c] for c in cands]
@@ -599,9 +681,11 @@ class HeadMotionDatabase:
                 last = a[i]
         knots = np.asarray(knots, int)
         f0 = self.seg_frames_[path, 0]
-        f1 = self._warp(path, in_len)[0]
+        f1, head = self._warp(path, in_len)[:2]
+        step = float(self.fps) / fps  # database frames per output frame
         y, joins = blend_segments(self.motion_, f0, f1, a, n_out, fps=fps, knots=knots,
-                                  tau_velocity=self.tau_velocity, smooth=self.smooth)
+                                  tau_velocity=self.tau_velocity, smooth=self.smooth,
+                                  head=head / step, step=step, transition=self.transition)
         return y, SynthesisInfo(seg, path, a, joins, knots, float(cost))
 
     # ------------------------------------------------------------------------------ save / load

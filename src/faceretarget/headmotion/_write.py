@@ -9,8 +9,10 @@
             (:func:`faceretarget.io.gltf.write_glb_head`); combine it with a face by passing the
             same quaternions to ``write_glb(..., head_rotation=...)``.
 ``.csv``    Live Link Face columns (:func:`faceretarget.io.write_livelinkface`): ``HeadYaw``,
-            ``HeadPitch``, ``HeadRoll`` in **radians** (the unit Live Link Face writes), the 52
-            blendshape columns zero; no translation (the format has no column for it).
+            ``HeadPitch``, ``HeadRoll`` in **radians** (the unit Live Link Face writes) in Live Link
+            Face's sign convention, the one ``faceretarget capture`` writes: ``HeadPitch`` is
+            positive chin up, so it is the negated right-hand pitch used everywhere else here;
+            the 52 blendshape columns zero; no translation (the format has no column for it).
 ==========  ==========================================================================================
 """
 
@@ -29,6 +31,8 @@ from ._takes import EULER
 __all__ = ["write_head_motion", "head_quaternions", "HEAD_FORMATS"]
 
 HEAD_FORMATS = (".bvh", ".glb", ".csv")
+# right-hand yaw, pitch, roll (Y-X-Z, +X the character's left) -> Live Link Face HeadYaw, HeadPitch, HeadRoll
+LLF_SIGNS = np.array([1.0, -1.0, 1.0])
 
 
 def head_quaternions(head_rotation: np.ndarray) -> np.ndarray:
@@ -69,7 +73,11 @@ def write_head_motion(path: str | os.PathLike, perf: Performance, protect: tuple
         return write_bvh(path, bvh)
     if ext == ".glb":
         return write_glb_head(path, perf.times, head_quaternions(rot), None if tr is None else tr / 100.0)
-    if perf.weights is None:
-        perf = Performance(perf.times, perf.fps, weights=np.zeros((perf.n_frames, 0)), names=[],
-                           head_rotation=rot, source=perf.source)
+    # Live Link Face's HeadPitch is positive chin up (Unreal's pitch), the opposite of the right-hand
+    # angle about +X used here; yaw and roll agree (see faceretarget.capture._pose, which reads the
+    # same columns)
+    llf = rot * LLF_SIGNS
+    perf = Performance(perf.times, perf.fps, weights=perf.weights if perf.weights is not None
+                       else np.zeros((perf.n_frames, 0)), names=list(perf.names or []),
+                       head_rotation=llf, source=perf.source)
     return write_livelinkface(path, perf)
