@@ -54,7 +54,7 @@ NEW = "nnls-greedy"
 SOLO = "nnls-greedy/noguard"
 METHODS = ["pca-extrema", "hull", "kmeans2", "kmeans3", "pivoted-qr", NEW, SOLO]
 COLORS = {"pca-extrema": (214, 39, 40), "hull": (255, 127, 14), "kmeans2": (44, 160, 44),
-          "kmeans3": (148, 103, 189), NEW: (31, 119, 180), SOLO: (23, 190, 207)}
+          "kmeans3": (148, 103, 189), "pivoted-qr": (140, 86, 75), NEW: (31, 119, 180), SOLO: (23, 190, 207)}
 TOL = 1e-9   # relative tolerance of the comparisons (solver rounding)
 
 
