@@ -81,6 +81,11 @@ REPO = Path(__file__).resolve().parents[1]
 TRAIN_STYLES = ["neutral", "happy", "angry"]
 P4_RATES = [1.0, 0.7, 1.35, 0.85, 1.2]           # the known piecewise re-timing (input speed-up per segment)
 EMOTION = {"01": "neutral", "03": "happy", "04": "sad", "05": "angry"}
+DEFAULT = "default (cross-validated)"
+PREVIOUS = "previous defaults (kNN 8)"
+PRIOR_ONLY = "previous, content prior only"
+#: The settings shipped before the cross-validated selection (picked by hand on S07-001).
+OLD = {"variance": 0.9999, "energy": 0.9999, "prior": 1.0, "local": 8}
 
 
 def log(*a) -> None:
@@ -279,6 +284,7 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
     def run_variant(name, frames, **kw):
         t0 = time.perf_counter()
         m = StyleModel(**kw).fit_frames({s: frames[s][tr] for s in TRAIN_STYLES})
+        st = m.settings_
         t_fit = time.perf_counter() - t0
         t0 = time.perf_counter()
         k = m.known(x_in, "neutral", "angry", warn=False)
@@ -302,6 +308,7 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
             "unknown_style_accuracy": float(np.mean(u.inferred.nearest == 0)),
             "from_happy_style_weights": [round(float(v), 3) for v in uh.style_weights.mean(0)[:3]],
             "from_happy_style_accuracy": float(np.mean(uh.inferred.nearest == 1)),
+            "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in st.items()},
             "fit_s": round(t_fit, 3), "known_ms_per_frame": 1000 * t_known / len(x_in),
             "unknown_ms_per_frame": 1000 * t_unknown / len(x_in),
         }
@@ -312,17 +319,21 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
         return m, u, uh
 
     log(f"P3 tasks, rel_motion_pct on the held-out {T - split} frames ({(T - split) / 30:.0f} s):")
-    m_def, u_def, uh_def = run_variant("default (prior + local)", aligned)
-    run_variant("content prior, no local", aligned, local=0)
-    run_variant("thesis (plain least squares)", aligned, prior=False, local=0)
+    m_def, u_def, uh_def = run_variant(DEFAULT, aligned)
+    chosen = dict(m_def.settings_)
+    log(f"  settings chosen by cross-validation on the training frames: {chosen}")
+    run_variant("CV settings, no correction", aligned, **{**chosen, "local": 0})
+    run_variant(PREVIOUS, aligned, **OLD)
+    run_variant(PRIOR_ONLY, aligned, **{**OLD, "local": 0})
+    run_variant("thesis (plain least squares)", aligned, **{**OLD, "prior": False, "local": 0})
     run_variant("thesis, 99.9% var/energy", aligned, prior=False, local=0, variance=0.999, energy=0.999)
-    run_variant("rendering only (no detail)", aligned, detail=False)
-    run_variant("bundles n=3", aligned, bundle=3)
+    run_variant("CV settings, rendering only", aligned, **chosen, detail=False)
+    run_variant("CV settings, bundles n=3", aligned, **chosen, bundle=3)
     run_variant("default, true alignment", gt)
 
     # ---------------------------------------------------------------- interpolation / extrapolation (Eq. 2.15)
     interp = []
-    m_i = StyleModel().fit_frames({s: aligned[s][tr] for s in TRAIN_STYLES})
+    m_i = StyleModel(**chosen).fit_frames({s: aligned[s][tr] for s in TRAIN_STYLES})
     content_te = p3.warps["neutral"].content_time(times_te)
     for a in (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 5.0):
         with warnings.catch_warnings(record=True) as caught:
@@ -344,12 +355,19 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
         sm = SymmetricBilinearModel(style_dims=I, content_dims=J, tol=1e-13, max_iter=60, init=init).fit(Yobs, TRAIN_STYLES)
         conv[f"I={I}, J={J}, {'SVD' if init == 'svd' else 'random'} init"] = sm.objective_ / float(np.sum(Yobs**2))
     sym_default_iters = int(m_i.symmetric_.n_iter_)
-    log(f"symmetric fit: {sym_default_iters} iteration(s) from the SVD start (I = {results['default (prior + local)']['I']}, "
+    log(f"symmetric fit: {sym_default_iters} iteration(s) from the SVD start (I = {results[DEFAULT]['I']}, "
         f"J = {Jd}); from random starts: "
         + ", ".join(f"{k.split(',')[0]},{k.split(',')[1]} {len(v) - 1}" for k, v in conv.items() if "random" in k))
 
-    d = results["default (prior + local)"]
+    d = results[DEFAULT]
+    sel = m_def.selection_
     summary = {
+        "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in chosen.items()},
+        "cv": None if sel is None else {"folds": sel.folds, "gap": sel.gap,
+                                         "best_stage1": sorted([r for r in sel.table if r["stage"] == 1],
+                                                               key=lambda r: r["score"])[:5],
+                                         "stage2": sorted([r for r in sel.table if r["stage"] == 2],
+                                                          key=lambda r: r["score"])[:8]},
         "content": content, "frames": T, "train_frames": split, "test_frames": T - split,
         "align_median_ms": {s: round(float(np.median(e)), 2) for s, e in align_err.items()},
         "align_p95_ms": {s: round(float(np.percentile(e, 95)), 2) for s, e in align_err.items()},
@@ -518,7 +536,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
     ap.add_argument("--out", default=str(REPO / "out" / "style"))
-    ap.add_argument("--content", default="S07-001,apfel",
+    ap.add_argument("--content", default="S07-001,apfel,MySlate_3_Jason_Millers_iPhone",
                     help="livelinkface take(s) for the P3 content, comma-separated; the first is the headline "
                          "(and gets the plots)")
     ap.add_argument("--train", type=float, default=0.6, help="share of the timeline used for training")
@@ -541,11 +559,26 @@ def main(argv=None) -> int:
             f"{'base':>7s}{'sad':>7s}{'base':>7s}{'align ms':>10s}")
         for q in p3_all:
             dq, bq = q["default"], q["baseline"]
-            log(f"{q['content']:<22s}{dq['known']['rel_motion_pct']:8.2f}{bq['known']['rel_motion_pct']:7.2f}"
+            log(f"{q['content'][:21]:<22s}{dq['known']['rel_motion_pct']:8.2f}{bq['known']['rel_motion_pct']:7.2f}"
                 f"{dq['known']['rel_motion_pct'] / bq['known']['rel_motion_pct']:7.2f}"
                 f"{dq['unknown']['rel_motion_pct']:9.2f}{dq['unknown_from_happy']['rel_motion_pct']:9.2f}"
                 f"{bq['unknown_from_happy']['rel_motion_pct']:7.2f}{dq['untrained']['rel_motion_pct']:7.2f}"
                 f"{bq['untrained']['rel_motion_pct']:7.2f}{q['align_pooled_median_ms']:10.1f}")
+        log("")
+        log(f"{'before (previous defaults)':<22s}{'known':>8s}{'ratio':>7s}{'unknown':>9s}{'happy->':>9s}{'sad':>7s}"
+            "   settings chosen now")
+        for q in p3_all:
+            pq, bq = q["variants"][PREVIOUS], q["baseline"]
+            log(f"{q['content'][:21]:<22s}{pq['known']['rel_motion_pct']:8.2f}"
+                f"{pq['known']['rel_motion_pct'] / bq['known']['rel_motion_pct']:7.2f}"
+                f"{pq['unknown']['rel_motion_pct']:9.2f}{pq['unknown_from_happy']['rel_motion_pct']:9.2f}"
+                f"{pq['untrained']['rel_motion_pct']:7.2f}   {q['settings']}")
+        log("")
+        for q in p3_all[1:]:
+            log(f"variants on {q['content']}")
+            for name, r in q["variants"].items():
+                log(f"  {name:<32s}{r['known']['rel_motion_pct']:8.2f}{r['unknown']['rel_motion_pct']:9.2f}"
+                    f"{r['unknown_from_happy']['rel_motion_pct']:9.2f}{r['untrained']['rel_motion_pct']:8.2f}")
         log("")
     log(f"P3 headline: content {p3['content']}")
     log(f"{'P3 task (rel_motion_pct %)':<40s}{'method':>10s}{'baseline':>10s}{'ratio':>8s}{'lve_mm':>9s}{'base lve':>9s}")
@@ -582,7 +615,8 @@ def main(argv=None) -> int:
         "untrained_err_pct": d["untrained"]["rel_motion_pct"],
         "untrained_baseline_err_pct": b["untrained"]["rel_motion_pct"],
         "known_thesis_err_pct": p3["variants"]["thesis (plain least squares)"]["known"]["rel_motion_pct"],
-        "known_prior_only_err_pct": p3["variants"]["content prior, no local"]["known"]["rel_motion_pct"],
+        "known_prior_only_err_pct": p3["variants"][PRIOR_ONLY]["known"]["rel_motion_pct"],
+        "known_previous_defaults_err_pct": p3["variants"][PREVIOUS]["known"]["rel_motion_pct"],
         "align_median_ms": p4["known_warp"]["mfcc"]["median_ms"],
         "align_p95_ms": p4["known_warp"]["mfcc"]["p95_ms"],
         "p3_align_median_ms": p3["align_pooled_median_ms"],
@@ -606,7 +640,11 @@ def main(argv=None) -> int:
                                     "unknown_from_happy_baseline_err_pct": q["baseline"]["unknown_from_happy"]["rel_motion_pct"],
                                     "untrained_err_pct": q["default"]["untrained"]["rel_motion_pct"],
                                     "untrained_baseline_err_pct": q["baseline"]["untrained"]["rel_motion_pct"],
-                                    "align_median_ms": q["align_pooled_median_ms"]} for q in p3_all},
+                                    "align_median_ms": q["align_pooled_median_ms"],
+                                    "settings": q["settings"],
+                                    "previous_defaults_known_err_pct": q["variants"][PREVIOUS]["known"]["rel_motion_pct"],
+                                    "previous_defaults_unknown_err_pct":
+                                        q["variants"][PREVIOUS]["unknown"]["rel_motion_pct"]} for q in p3_all},
         "p3": p3, "p3_other": p3_all[1:], "p4": p4, "seconds": round(total, 1),
     }
     if args.json:

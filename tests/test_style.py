@@ -376,3 +376,107 @@ def test_cli_bad_input_is_one_line_exit_2(takes, capsys, tmp_path):
     rc = main(["restyle", "--model", str(tmp_path / "missing.npz"), "--performance", str(f["neutral"]),
                "--to", "angry", "--out", str(f["neutral"])])
     assert rc == 2 and "input" in capsys.readouterr().err and f["neutral"].read_bytes() == before
+
+
+# ------------------------------------------------------------------------------------------ settings by cross-validation
+def _nonlinear_styles(C=240, D=6, S=3, seed=0, nonlin=1.0, noise=0.0):
+    """A Lissajous content trajectory ``b`` (2 dims, covering its square); style s:
+    ``x = M_s [1, b] + nonlin * G_s sin(W_s b)``.
+
+    Each style bends the content by its own functions (``W_s``), more of them in all than the ``D``
+    dimensions hold, so no bilinear model reproduces the styles when ``nonlin > 0``.
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(C) / 30.0
+    J = 2
+    b = np.stack([np.sin(2 * np.pi * 0.71 * t), np.sin(2 * np.pi * 0.43 * t + 1.0)], 1)
+    M = rng.standard_normal((S, D, J + 1))
+    G = 0.5 * rng.standard_normal((S, D, D))
+    W = rng.standard_normal((S, D, J))
+    X = {}
+    for s in range(S):
+        x = np.c_[np.ones(C), b] @ M[s].T + nonlin * np.sin(b @ W[s].T) @ G[s].T
+        X[f"s{s}"] = x + noise * rng.standard_normal(x.shape)
+    return X
+
+
+def _known_err(m, X, idx):
+    err = 0.0
+    for s in X:
+        for t in X:
+            if s != t:
+                err += float(np.sum((m.known(X[s][idx], s, t, warn=False).frames - X[t][idx]) ** 2))
+    return err
+
+
+def test_cv_folds_are_contiguous_blocks_with_a_gap():
+    from faceretarget.style import cv_folds
+
+    sp = cv_folds(100, 4, 3)
+    assert [len(v) for _, v in sp] == [25, 25, 25, 25]
+    tr, va = sp[1]
+    assert va[0] == 25 and va[-1] == 49 and np.all(np.diff(va) == 1)
+    assert not set(tr) & set(range(22, 53)) and set(tr) == set(range(0, 22)) | set(range(53, 100))
+
+
+def test_kernel_correction_interpolates_and_vanishes_far_away():
+    from faceretarget.style import kernel_fit, kernel_predict
+
+    rng = np.random.default_rng(3)
+    Y = rng.standard_normal((60, 4))
+    R = np.c_[np.sin(Y[:, 0]), Y[:, 1] ** 2]
+    km = kernel_fit(Y, R, bandwidth=3.0, ridge=1e-6)
+    assert np.abs(kernel_predict(km, Y) - R).max() < 1e-2                 # tiny ridge: reproduces training
+    assert np.abs(kernel_predict(km, Y + 1e3)).max() < 1e-12              # far from the data: no correction
+
+
+def test_cv_picks_the_known_best_local_correction():
+    """On non-bilinear synthetic styles, the kernel setting chosen by cross-validation on the training
+    part is (within 10 %) the one with the lowest error on held-out later content."""
+    X = _nonlinear_styles(C=400, nonlin=1.0, noise=0.01)
+    tr, te = slice(0, 300), slice(300, 400)
+    base = {"variance": 0.999999, "energy": 0.999999, "prior": 1.0}
+    m = StyleModel(**base).fit_frames({s: x[tr] for s, x in X.items()})
+    chosen = m.settings_["local"]
+    assert isinstance(chosen, tuple) and chosen[0] == "kernel"        # the model is not bilinear: a correction wins
+    held = {}
+    for spec in [0] + [("kernel", h, lam) for h in (3.0, 10.0, 30.0, 100.0) for lam in (1e-3, 1e-2, 1e-1, 1.0)]:
+        mm = StyleModel(**base, local=spec).fit_frames({s: x[tr] for s, x in X.items()})
+        held[spec] = _known_err(mm, X, te)
+    best = min(held.values())
+    assert held[chosen] <= 1.1 * best, (chosen, held[chosen], best)
+    assert held[chosen] < 0.5 * held[0]                                 # and it halves the bilinear model's error
+    # the scores are recorded, relative to leaving the input unchanged (< 1: better than no edit)
+    s2 = [r for r in m.selection_.table if r["stage"] == 2]
+    assert len(s2) == 17 and min(r["score"] for r in s2) < 0.1
+
+
+def test_cv_picks_the_held_out_best_prior_strength():
+    """Few noisy frames: the content prior's strength chosen by cross-validation on the training part is
+    (within 10 %) the best of the grid on held-out later frames."""
+    fix = {"variance": 0.999999, "energy": 0.999999, "local": 0}
+    Xn = _nonlinear_styles(C=400, D=12, nonlin=0.0, noise=0.3, seed=5)
+    tr, te = slice(0, 80), slice(80, 400)
+    m = StyleModel(**fix).fit_frames({s: x[tr] for s, x in Xn.items()})
+    held = {p: _known_err(StyleModel(**fix, prior=p).fit_frames({s: x[tr] for s, x in Xn.items()}), Xn, te)
+            for p in (0.1, 1.0, 10.0, 100.0, 1000.0)}
+    assert held[m.settings_["prior"]] <= 1.1 * min(held.values()), (m.settings_, held)
+    assert len([r for r in m.selection_.table if r["stage"] == 1]) == 5
+
+
+def test_selected_settings_survive_save_and_fallback_without_enough_frames(tmp_path):
+    X = _nonlinear_styles(C=150, nonlin=1.0, noise=0.01)
+    m = StyleModel().fit_frames(X)
+    assert m.selection_ is not None and set(m.settings_) == {"variance", "energy", "prior", "local"}
+    x = X["s0"][:40]
+    r1 = m.known(x, "s0", "s2", warn=False).frames
+    m2 = StyleModel.load(m.save(tmp_path / "m.npz"))
+    assert m2.settings_ == m.settings_
+    assert np.allclose(m2.known(x, "s0", "s2", warn=False).frames, r1, atol=1e-9)
+    small = StyleModel().fit_frames({s: v[:20] for s, v in X.items()})
+    assert small.selection_ is not None and small.selection_.table == []
+    assert small.settings_ == {"variance": 0.9999, "energy": 0.9999, "prior": 1.0, "local": 0}
+    fixed = StyleModel(variance=0.999, energy=0.999, prior=2.0, local=("kernel", 10.0, 0.1)).fit_frames(X)
+    assert fixed.selection_ is None and fixed.settings_["local"] == ("kernel", 10.0, 0.1)
+    with pytest.raises(InvalidDataError):
+        StyleModel(local="nearest").fit_frames(X)

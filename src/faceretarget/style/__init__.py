@@ -33,10 +33,17 @@ from ._bilinear import (
 from ._features import AUDIO_FEATURES, PiecewiseWarp, audio_features, read_wav, time_warp_audio
 from ._model import RangeReport, Restyled, StyleModel, StyleRangeWarning, bundle_frames, unbundle_frames
 from ._p3 import DEFAULT_WARPS, P3Takes, StyleWarp, content_channels, make_p3_takes
+from ._select import GRID, Selection, cv_folds, kernel_fit, kernel_predict, select_settings
 from ._sliders import AlphaCurves, ExpressionSliders, alpha_curves
 
 __all__ = [
     "StyleModel",
+    "Selection",
+    "select_settings",
+    "GRID",
+    "cv_folds",
+    "kernel_fit",
+    "kernel_predict",
     "Restyled",
     "RangeReport",
     "StyleRangeWarning",

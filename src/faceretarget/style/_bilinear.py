@@ -47,7 +47,11 @@ coordinate of every style, and solve for the most probable content under ``b ~ N
     b = (A_s' A_s + sigma^2 Sigma^-1)^-1 (A_s' y + sigma^2 Sigma^-1 mu)
 
 which is Eq. 2.10 where the data determine the content and the training mean where they do not;
-``A_t b`` is then the conditional expectation of the target-style observation.
+``A_t b`` is then the conditional expectation of the target-style observation.  ``prior`` may be a
+number ``p``, the prior's strength: ``sigma^2`` is replaced by ``p sigma^2`` (``True`` is 1, ``False``
+or 0 the plain solve; large ``p`` pulls every content to the training mean, so a translation
+tends to adding the mean style difference, the additive baseline).  :class:`~._model.StyleModel`
+chooses ``p`` by cross-validation on its training frames (:mod:`._select`).
 
 Files (``save`` / ``load``): ``.npz`` with ``kind`` (``"asymmetric"`` or ``"symmetric"``),
 ``styles`` (names), the learned arrays under their attribute names without the trailing
@@ -253,7 +257,7 @@ class AsymmetricBilinearModel(_Saveable):
     _params = ("content_dims", "energy", "keep_first", "prior")
 
     def __init__(self, content_dims: int | None = None, energy: float = 0.999, keep_first: int = 0,
-                 prior: bool = True):
+                 prior: bool | float = True):
         self.content_dims = content_dims
         self.energy = energy
         self.keep_first = keep_first
@@ -272,9 +276,16 @@ class AsymmetricBilinearModel(_Saveable):
         if not 1 <= J <= cap:
             raise InvalidDataError(f"content_dims must be in 1..{cap} (at most the {K} dimensions), got {J}")
         self.styles_ = _style_names(styles, S)
+        self.singular_values_ = s
+        self._svd = (M, U, s, Vt, S, K, C)
+        return self._set_rank(J)
+
+    def _set_rank(self, J: int) -> AsymmetricBilinearModel:
+        """Keep ``J`` components of the training SVD (right after :meth:`fit`; the selection tries several)."""
+        M, U, s, Vt, S, K, C = self._svd
+        self.__dict__.pop("_prior_cache", None)
         self.style_matrices_ = (U[:, :J] * s[:J]).reshape(S, K, J)
         self.content_vectors_ = Vt[:J].T.copy()
-        self.singular_values_ = s
         self.content_dims_ = J
         R = M - (U[:, :J] * s[:J]) @ Vt[:J]
         self.rmse_ = float(np.sqrt(np.mean(R**2)))
@@ -318,7 +329,7 @@ class AsymmetricBilinearModel(_Saveable):
         A = self.style_matrices_[i]
         if use:
             mu, prec = self._prior()
-            b = _solve_content(A.T, y, prec, mu, float(self.noise_var_[i]))
+            b = _solve_content(A.T, y, prec, mu, float(use) * float(self.noise_var_[i]))
         else:
             b = y @ np.linalg.pinv(A).T
         return b[0] if single else b
@@ -466,7 +477,7 @@ class SymmetricBilinearModel(_Saveable):
     _params = ("style_dims", "content_dims", "energy", "keep_first", "max_iter", "tol", "prior", "init")
 
     def __init__(self, style_dims: int | None = None, content_dims: int | None = None, energy: float = 0.999,
-                 keep_first: int = 0, max_iter: int = 200, tol: float = 1e-12, prior: bool = True,
+                 keep_first: int = 0, max_iter: int = 200, tol: float = 1e-12, prior: bool | float = True,
                  init: str | int = "svd"):
         self.init = init
         self.style_dims = style_dims
@@ -573,7 +584,7 @@ class SymmetricBilinearModel(_Saveable):
                 raise InvalidDataError(f"per-frame styles must be ({len(y)}, {self.style_dims_}), got {a.shape}")
             mu, prec = self._prior() if use else (None, None)
             Ma = np.einsum("ti,ijk->tjk", a, self.core_)
-            b = _solve_content(Ma, y, prec, mu, float(self.noise_var_))
+            b = _solve_content(Ma, y, prec, mu, float(use) * float(self.noise_var_))
         else:
             b = self._content(y, self.style_vector(a)[None], np.array([0, len(y)]), None, use)
         return b[0] if single else b
@@ -584,7 +595,7 @@ class SymmetricBilinearModel(_Saveable):
         ``fixed_first`` (T,): the first component where finite (solved for the others), else NaN.
         """
         mu, prec = self._prior() if prior else (None, None)
-        var = float(self.noise_var_)
+        var = float(prior) * float(self.noise_var_)
         J = self.content_dims_
         Ma = np.einsum("wi,ijk->wjk", aw, self.core_)                   # y_t = Ma_w' b_t
         G = Ma @ Ma.transpose(0, 2, 1)

@@ -36,7 +36,8 @@ arrays ``mean`` ``(D,)``, ``basis`` ``(D, K)``, ``offset`` (``c0``), ``coef_lo``
 ``asym_params`` / ``sym_params``), and the paired training coefficients of the local correction,
 ``pairs{i}_{j}`` ``(C_i, K)`` for style ``meta["pair_sets"][i][j]``.
 
-**Local correction** (our addition; ``local`` > 0, default 8): a bilinear model is linear in the
+**Local correction** (our addition; by default kernel ridge regression chosen by cross-validation,
+:mod:`._select`; ``local=k``: the mean of ``k`` nearest frames, as below): a bilinear model is linear in the
 content, but emotion and speech can interact nonlinearly (on the P3 data the composition keeps the
 lips' motion along the speech direction and only the perpendicular part of the emotion, so the
 effect of the emotion on the mouth depends on the mouth shape).  For a source -> target
@@ -64,6 +65,7 @@ from ..names import normalize_name
 from ..performance import Performance
 from ._align import Alignment, align_performances, frame_vectors, warp_performance
 from ._bilinear import AsymmetricBilinearModel, InferResult, SymmetricBilinearModel
+from ._select import kernel_fit, kernel_predict, pca_of, select_settings
 
 __all__ = ["StyleModel", "Restyled", "RangeReport", "StyleRangeWarning", "bundle_frames", "unbundle_frames"]
 
@@ -132,6 +134,24 @@ def _amount(amount) -> float:
     return a
 
 
+def _local_spec(local):
+    """``local`` normalised: ``"auto"``, ``0`` (off), an int ``k`` (nearest-frame mean) or
+    ``("kernel", bandwidth, ridge)``."""
+    if isinstance(local, str):
+        if local != "auto":
+            raise InvalidDataError(f"local must be 'auto', a number of frames or ('kernel', bandwidth, ridge), "
+                                   f"got {local!r}")
+        return local
+    if isinstance(local, (list, tuple)):
+        if len(local) != 3 or local[0] != "kernel" or not (float(local[1]) > 0 and float(local[2]) > 0):
+            raise InvalidDataError(f"a kernel correction is ('kernel', bandwidth > 0, ridge > 0), got {local!r}")
+        return ("kernel", float(local[1]), float(local[2]))
+    k = int(local)
+    if k < 0:
+        raise InvalidDataError(f"local must be >= 0, got {local}")
+    return k
+
+
 def bundle_frames(Y: np.ndarray, n: int) -> np.ndarray:
     """Eq. 2.14: stack ``n`` consecutive frames into one observation.
 
@@ -173,24 +193,26 @@ class StyleModel:
 
     Parameters
     ----------
-    variance : float
-        Retained variance of the PCA compression (0.9999: the left-out part is 1% of the RMS
-        variation, below the few-percent errors the P3 metrics measure).
-    energy : float
-        Retained energy of the style / content dimension rule (:func:`~._bilinear.choose_dims`),
-        0.9999 likewise; the content prior keeps the weak components from amplifying noise.
+    variance : float or "auto"
+        Retained variance of the PCA compression.  ``"auto"`` (default): chosen, with ``energy``,
+        ``prior`` and ``local``, by blocked cross-validation of the known-expression task on the
+        training frames (:mod:`._select`); the values used are in ``settings_``.
+    energy : float or "auto"
+        Retained energy of the style / content dimension rule (:func:`~._bilinear.choose_dims`).
     content_dims, style_dims : int, optional
         Override the rule.
     bundle : int
         Frames per observation (Eq. 2.14); 1: single frames.
     offset : float
         Constant coordinate ``c0`` in units of the RMS norm of the PCA coefficients (0: none).
-    local : int
-        Local correction (0: off): add the mean training residual of the ``local`` training frames
-        nearest to each input frame (module docstring).
-    prior : bool
-        Solve for content under the content prior (:mod:`._bilinear`); ``False``: the thesis's
-        plain least squares.
+    local : "auto", int or ("kernel", bandwidth, ridge)
+        Local correction: 0 off; ``k`` the mean training residual of the ``k`` nearest training
+        frames; ``("kernel", h, lam)`` kernel ridge regression of the training residuals on the
+        source observation (:func:`~._select.kernel_fit`; ``h`` in units of the median
+        nearest-neighbour distance, ``lam`` relative to the kernel's diagonal).
+    prior : bool, float or "auto"
+        Strength of the content prior (:mod:`._bilinear`); ``False`` / 0: the thesis's plain least
+        squares, ``True``: 1.
     detail : bool
         Apply an edit as a change to the input (module docstring): the output is the input plus
         the model's rendering in the new style minus its rendering in the input's own style, so
@@ -201,6 +223,8 @@ class StyleModel:
     audio_features : {"mfcc", "rplp"}
     window_s : float, optional
         Sakoe-Chiba band of the alignment, seconds.
+    cv_folds : int
+        Folds of the settings' cross-validation.
 
     Attributes
     ----------
@@ -215,6 +239,10 @@ class StyleModel:
         Range of the training PCA coefficients.
     asymmetric_ : AsymmetricBilinearModel
     symmetric_ : SymmetricBilinearModel
+    settings_ : dict
+        ``variance``, ``energy``, ``prior``, ``local`` used (chosen or given).
+    selection_ : Selection or None
+        The cross-validation's choice and scores (None when every setting was given, or loaded).
     alignments_ : dict of str to Alignment
         From :meth:`fit` (not saved).
     take_kind_ : str
@@ -224,12 +252,13 @@ class StyleModel:
         Weight names (weight takes).
     """
 
-    def __init__(self, variance: float = 0.9999, energy: float = 0.9999, content_dims: int | None = None,
-                 style_dims: int | None = None, bundle: int = 1, offset: float = 10.0, local: int = 8,
-                 prior: bool = True, detail: bool = True, align: str = "auto", audio_features: str = "mfcc",
-                 window_s: float | None = None):
+    def __init__(self, variance: float | str = "auto", energy: float | str = "auto", content_dims: int | None = None,
+                 style_dims: int | None = None, bundle: int = 1, offset: float = 10.0, local: int | tuple | str = "auto",
+                 prior: bool | float | str = "auto", detail: bool = True, align: str = "auto",
+                 audio_features: str = "mfcc", window_s: float | None = None, cv_folds: int = 5):
         self.variance = variance
         self.energy = energy
+        self.cv_folds = cv_folds
         self.content_dims = content_dims
         self.style_dims = style_dims
         self.bundle = bundle
@@ -321,20 +350,32 @@ class StyleModel:
         return p
 
     def _fit_vectors(self, X: dict[str, np.ndarray]) -> StyleModel:
-        styles = list(X)
         C = {len(x) for x in X.values()}
         if len(C) != 1:
             raise InvalidDataError(f"aligned takes differ in length: {sorted(C)}")
         C = C.pop()
         if C < max(3, self.bundle + 1):
             raise InvalidDataError(f"need at least {max(3, self.bundle + 1)} aligned frames, got {C}")
-        if not 0 < self.variance <= 1:
-            raise InvalidDataError(f"variance must be in (0, 1], got {self.variance}")
-        allx = np.concatenate([X[s] for s in styles])
-        self.mean_ = allx.mean(0)
-        _, sv, vt = np.linalg.svd(allx - self.mean_, full_matrices=False)
+        self._resolve_settings(X, C)
+        return self._fit_resolved(X, symmetric=True)
+
+    def _fit_resolved(self, X: dict[str, np.ndarray], symmetric: bool = True, pca=None) -> StyleModel:
+        """Fit with the settings in ``settings_`` (``symmetric=False``: the asymmetric model only;
+        ``pca``: ``(mean, singular values, Vt)`` of the frames, when already computed)."""
+        styles = list(X)
+        st = self.settings_
+        variance, energy, prior = float(st["variance"]), float(st["energy"]), float(st["prior"])
+        if not 0 < variance <= 1:
+            raise InvalidDataError(f"variance must be in (0, 1], got {variance}")
+        if not 0 < energy <= 1:
+            raise InvalidDataError(f"energy must be in (0, 1], got {energy}")
+        if prior < 0:
+            raise InvalidDataError(f"prior must be >= 0, got {prior}")
+        if pca is None:
+            pca = pca_of(X)
+        self.mean_, sv, vt = pca
         e = np.cumsum(sv**2) / max(float(np.sum(sv**2)), 1e-300)
-        K = int(min(np.searchsorted(e, self.variance * (1 - 1e-12)) + 1, len(sv)))
+        K = int(min(np.searchsorted(e, variance * (1 - 1e-12)) + 1, len(sv)))
         self.basis_ = vt[:K].T.copy()
         Z = {s: (X[s] - self.mean_) @ self.basis_ for s in styles}
         zall = np.concatenate(list(Z.values()))
@@ -343,13 +384,42 @@ class StyleModel:
         self.offset_ = float(self.offset) * rms
         Y = np.stack([self._observe(Z[s]) for s in styles])
         keep = 1 if self.offset_ > 0 else 0
-        self.asymmetric_ = AsymmetricBilinearModel(self.content_dims, self.energy, keep, self.prior).fit(Y, styles)
-        self.symmetric_ = SymmetricBilinearModel(self.style_dims, self.content_dims, self.energy, keep,
-                                                 prior=self.prior).fit(Y, styles)
+        self.asymmetric_ = AsymmetricBilinearModel(self.content_dims, energy, keep, prior).fit(Y, styles)
+        if symmetric:
+            self.symmetric_ = SymmetricBilinearModel(self.style_dims, self.content_dims, energy, keep,
+                                                     prior=prior).fit(Y, styles)
         self.styles_ = styles
         self.pair_sets_ = [dict(Z)]
         self._local_cache = {}
         return self
+
+    def _resolve_settings(self, X: dict[str, np.ndarray], C: int) -> None:
+        """``settings_``: the fixed settings as given, the ``"auto"`` ones by cross-validation (:mod:`._select`)."""
+        fixed = {}
+        for k in ("variance", "energy", "prior"):
+            v = getattr(self, k)
+            if isinstance(v, str):
+                if v != "auto":
+                    raise InvalidDataError(f"{k} must be a number or 'auto', got {v!r}")
+                continue
+            fixed[k] = float(v)
+        loc = _local_spec(self.local)
+        if loc != "auto":
+            fixed["local"] = loc
+        self.selection_ = None
+        if len(fixed) == 4:
+            self.settings_ = fixed
+            return
+
+        def make(variance, energy, prior):
+            m = StyleModel(variance, energy, self.content_dims, self.style_dims, self.bundle, self.offset, 0,
+                           prior, self.detail)
+            m.settings_ = {"variance": variance, "energy": energy, "prior": prior, "local": 0}
+            return m
+
+        sel = select_settings(make, X, fixed=fixed, folds=self.cv_folds)
+        self.selection_ = sel
+        self.settings_ = sel.settings()
 
     # ------------------------------------------------------------------------------------ encoding
     @property
@@ -442,7 +512,7 @@ class StyleModel:
         Y = A.interpolate(b, source, target, amount)
         Y0 = A.render(b, source) if self.detail else None
         used = False
-        if self.local > 0:
+        if self._local_on():
             src = np.zeros(len(Yin), int)
             corr = self._local_correction("asym", Yin, src, [source], target, amount)
             if corr is not None:
@@ -476,7 +546,7 @@ class StyleModel:
         Y = S.render(res.content, a)
         Y0 = S.render(res.content, res.style) if self.detail else None
         used = False
-        if self.local > 0:
+        if self._local_on():
             corr = self._local_correction("sym", Yin, res.nearest, list(self.styles_), target, amount)
             if corr is not None:
                 Y, used = Y + corr, True
@@ -507,28 +577,44 @@ class StyleModel:
                 else:
                     M = self.symmetric_
                     b = M.content(Ys, source)
-                found = (cKDTree(Ys), Yt - M.render(b, target), Ys - M.render(b, source))
+                Rst, Rss = Yt - M.render(b, target), Ys - M.render(b, source)
+                loc = self.settings_["local"]
+                if isinstance(loc, tuple):
+                    found = ("kernel", kernel_fit(Ys, np.concatenate([Rst, Rss], axis=1), loc[1], loc[2]))
+                else:
+                    found = (cKDTree(Ys), Rst, Rss)
                 break
         cache[key] = found
         return found
 
     def _local_correction(self, kind: str, Yin: np.ndarray, src_index: np.ndarray, sources: list[str],
                           target: str, amount: float) -> np.ndarray | None:
-        """Mean residual of the ``local`` nearest training frames, ``(1 - a) R_ss + a R_st``."""
+        """Regressed residual (kernel) or mean residual of the ``local`` nearest training frames,
+        ``(1 - a) R_ss + a R_st``."""
         corr = np.zeros_like(Yin)
         done = False
         for si in np.unique(src_index):
             pairs = self._local_pairs(kind, sources[si], target)
             if pairs is None:
                 continue
-            tree, Rst, Rss = pairs
             m = src_index == si
-            k = int(min(self.local, tree.n))
+            if isinstance(pairs[0], str):                               # kernel ridge regression
+                P = kernel_predict(pairs[1], Yin[m])
+                h = P.shape[1] // 2
+                corr[m] = (1 - amount) * P[:, h:] + amount * P[:, :h]
+                done = True
+                continue
+            tree, Rst, Rss = pairs
+            k = int(min(int(self.settings_["local"]), tree.n))
             _, nb = tree.query(Yin[m], k=k)
             nb = nb.reshape(int(m.sum()), k)
             corr[m] = (1 - amount) * Rss[nb].mean(1) + amount * Rst[nb].mean(1)
             done = True
         return corr if done else None
+
+    def _local_on(self) -> bool:
+        loc = self.settings_["local"]
+        return isinstance(loc, tuple) or int(loc) > 0
 
     def _style_weights(self, a: np.ndarray) -> np.ndarray:
         """Per-frame affine weights (sum 1) of the training styles reproducing style vectors ``a``."""
@@ -584,11 +670,12 @@ class StyleModel:
         """Grow the PCA basis until it keeps ``variance`` of the rows of ``d`` (about the mean)."""
         z = d @ self.basis_
         tot, kept = float(np.sum(d**2)), float(np.sum(z**2))
-        if tot <= 0 or kept >= self.variance * tot:
+        variance = float(self.settings_["variance"])
+        if tot <= 0 or kept >= variance * tot:
             return 0
         r = d - z @ self.basis_.T
         _, s, vt = np.linalg.svd(r, full_matrices=False)
-        need = self.variance * tot - kept
+        need = variance * tot - kept
         k = int(min(np.searchsorted(np.cumsum(s**2), need * (1 - 1e-12)) + 1, len(s)))
         E = vt[:k].T
         E -= self.basis_ @ (self.basis_.T @ E)                         # orthogonal to the basis (rounding)
@@ -666,10 +753,11 @@ class StyleModel:
         path = Path(path)
         params = {k: getattr(self, k) for k in ("variance", "energy", "content_dims", "style_dims", "bundle",
                                                 "offset", "local", "prior", "detail", "align", "audio_features",
-                                                "window_s")}
+                                                "window_s", "cv_folds")}
         meta = {"styles": self.styles_, "reference": self.reference_, "take_kind": self.take_kind_,
                 "frame_shape": list(self.frame_shape_), "names": self.names_, "labels": self.labels_,
-                "unit": self.unit_, "pair_sets": [list(ps) for ps in self.pair_sets_]}
+                "unit": self.unit_, "pair_sets": [list(ps) for ps in self.pair_sets_],
+                "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.settings_.items()}}
         arrays = {"mean": self.mean_, "basis": self.basis_, "offset": np.array(self.offset_),
                   "coef_lo": self.coef_lo_, "coef_hi": self.coef_hi_}
         for i, ps in enumerate(self.pair_sets_):
@@ -704,6 +792,12 @@ class StyleModel:
                 d = {k: z[k] for k in z.files}
             params, meta = json.loads(str(d["params"])), json.loads(str(d["meta"]))
             m = cls(**params)
+            st = meta.get("settings")
+            if st is None:                                             # format-1 files before the selection
+                st = {"variance": params["variance"], "energy": params["energy"], "prior": float(params["prior"]),
+                      "local": params["local"]}
+            st["local"] = _local_spec(st["local"])
+            m.settings_, m.selection_ = st, None
             m.mean_, m.basis_ = d["mean"].astype(np.float64), d["basis"].astype(np.float64)
             m.offset_ = float(d["offset"])
             m.coef_lo_, m.coef_hi_ = d["coef_lo"], d["coef_hi"]

@@ -29,6 +29,30 @@ from ..errors import InvalidDataError, OutputError
 __all__ = ["register", "cmd_style_fit", "cmd_restyle", "main"]
 
 
+
+def _auto_float(v: str):
+    if v == "auto":
+        return v
+    try:
+        return float(v)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {v!r}") from e
+
+
+def _local_arg(v: str):
+    if v == "auto":
+        return v
+    if v.startswith("kernel:"):
+        try:
+            _, h, lam = v.split(":")
+            return ("kernel", float(h), float(lam))
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(f"expected kernel:BANDWIDTH:RIDGE, got {v!r}") from e
+    try:
+        return int(v)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"expected auto, an integer or kernel:H:LAM, got {v!r}") from e
+
 def _pairs(items, what: str) -> dict[str, str]:
     out: dict[str, str] = {}
     for it in items or []:
@@ -81,10 +105,13 @@ def cmd_style_fit(args, log) -> int:
         log(f"{k}: {p.n_frames} frames ({p.kind}) from {takes[k]}" + (" with audio" if p.audio is not None else ""))
     ref = args.reference or next(iter(takes))
     model = StyleModel(variance=args.variance, energy=args.energy, content_dims=args.content_dims,
-                       style_dims=args.style_dims, bundle=args.bundle, local=args.local, align=args.align,
+                       style_dims=args.style_dims, bundle=args.bundle, local=args.local, prior=args.prior,
+                       align=args.align,
                        audio_features=args.audio_features, window_s=args.window_s)
     with warnings_to_log(log):
         model.fit(perfs, reference=ref)
+        log(f"settings: {model.settings_}" + (" (cross-validated on the training frames)"
+                                               if model.selection_ is not None else ""))
         for k, al in model.alignments_.items():
             rate = (al.take_times[-1] - al.take_times[0]) / max(al.ref_times[-1] - al.ref_times[0], 1e-9)
             log(f"aligned {k} to {ref} by {al.by}: {len(al.path)} path steps; {k} lasts {rate:.3f} times as long")
@@ -174,12 +201,18 @@ def register(subparsers) -> None:
     f.add_argument("--align", choices=["auto", "audio", "face"], default="auto", help="alignment features")
     f.add_argument("--audio-features", choices=["mfcc", "rplp"], default="mfcc", help="speech features")
     f.add_argument("--window-s", type=float, help="Sakoe-Chiba band of the alignment, seconds")
-    f.add_argument("--variance", type=float, default=0.9999, help="retained PCA variance (default 0.9999)")
-    f.add_argument("--energy", type=float, default=0.9999, help="retained energy for the style/content dimensions")
+    f.add_argument("--variance", type=_auto_float, default="auto",
+                   help="retained PCA variance (default auto: cross-validated on the training frames)")
+    f.add_argument("--energy", type=_auto_float, default="auto",
+                   help="retained energy for the style/content dimensions (default auto)")
+    f.add_argument("--prior", type=_auto_float, default="auto",
+                   help="strength of the content prior (0: the thesis's least squares; default auto)")
     f.add_argument("--content-dims", type=int, help="content dimensions J (default: from --energy)")
     f.add_argument("--style-dims", type=int, help="style dimensions I (default: from --energy)")
     f.add_argument("--bundle", type=int, default=1, help="frames per observation (n-frame bundles, default 1)")
-    f.add_argument("--local", type=int, default=8, help="training frames of the local correction (0: off)")
+    f.add_argument("--local", type=_local_arg, default="auto",
+                   help="local correction: auto (default, cross-validated), 0 (off), K (mean residual of the K "
+                        "nearest training frames) or kernel:H:LAM (kernel ridge regression)")
     f.add_argument("--fps", type=float, help="frame rate of takes without times")
     f.add_argument("--out", required=True, help="output model .npz")
     f.set_defaults(func=cmd_style_fit)

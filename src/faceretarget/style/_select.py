@@ -1,0 +1,283 @@
+"""A :class:`~._model.StyleModel` chooses its own settings by cross-validation on its training frames.
+
+The settings that decide how well a style model generalises (the PCA ``variance``, the dimension
+rule's ``energy``, the strength ``prior`` of the content prior, and the local correction) depend on
+the data: how many aligned frames there are, how noisy they are, how nonlinear the interaction of
+style and content is.  Instead of constants picked while looking at one evaluation, every model
+picks them from its own training frames, with the task it will be used for:
+
+* **Folds.**  The aligned training frames are cut into ``folds`` (5) contiguous blocks; for each,
+  the model is fitted on the other frames, leaving out ``gap`` frames on both sides of the block
+  (1 % of the frames, at least the bundle size: neighbouring frames are nearly equal, so without a
+  gap a local correction would be validated on frames it has all but seen), and validated on the
+  block.
+* **Task.**  The known-expression task (Eq. 2.10, 2.11, with the model's ``detail`` rule) for every
+  ordered pair of training styles: the block's frames in style ``s`` are translated to every other
+  style ``t`` and compared with the block's frames in ``t``.  The score is the summed squared error
+  over all pairs and folds, reported relative to that of leaving the input unchanged
+  (:attr:`Selection.table`; 1 = no better than no edit).
+* **Two stages.**  First ``variance`` x ``energy`` x ``prior`` on the bilinear model alone (no
+  local correction), every combination; then, with those, the local correction: off, or kernel
+  ridge regression of the training residuals with bandwidth ``h`` (a multiple of the median
+  nearest-neighbour distance between the source style's training observations) and ridge ``lam``
+  (relative to the kernel's diagonal, 1).  The setting with the lowest score wins (ties: the
+  earlier, simpler one in the grid order).  The model is then refitted on all training frames.
+* A setting the user fixes is not searched.  Fewer than ``min_frames`` (30) aligned frames: no
+  search; the fallback values (:data:`FALLBACK`) are used.
+
+**Kernel correction** (:func:`kernel_fit`, :func:`kernel_predict`): the residual of the bilinear
+model, ``R = Y_target - render(content(Y_source))`` over paired training frames, is regressed on
+the source observation with a Gaussian kernel, ``k(y, y') = exp(-|y - y'|^2 / (2 h^2))``,
+``alpha = (K + lam I)^-1 R``, and a new frame gets ``k(y, Y_train) alpha``.  Far from the training
+frames it tends to 0, that is to the bilinear model alone, where the mean residual of the nearest
+frames (the earlier ``local=k`` correction, still available) adds the residuals of dissimilar
+frames at any distance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.spatial import cKDTree
+
+from ._bilinear import choose_dims
+
+__all__ = ["Selection", "GRID", "FALLBACK", "select_settings", "kernel_fit", "kernel_predict", "cv_folds", "pca_of"]
+
+#: The searched values of every setting.
+GRID: dict[str, tuple] = {
+    "variance": (0.999, 0.9999, 0.99999, 0.999999),
+    "energy": (0.999, 0.9999, 0.99999, 0.999999),
+    "prior": (0.1, 1.0, 10.0, 100.0, 1000.0),
+    "bandwidth": (3.0, 10.0, 30.0, 100.0),
+    "ridge": (1e-3, 1e-2, 1e-1, 1.0),
+}
+
+#: Used when there are too few frames to cross-validate.
+FALLBACK: dict[str, object] = {"variance": 0.9999, "energy": 0.9999, "prior": 1.0, "local": 0}
+
+
+@dataclass
+class Selection:
+    """What the cross-validation chose, and the scores it chose from.
+
+    Attributes
+    ----------
+    variance, energy, prior : float
+    local : 0 or ("kernel", bandwidth, ridge)
+    folds, gap : int
+    table : list of dict
+        Every candidate (``stage`` 1 or 2, its settings, ``score``: validation squared error
+        relative to leaving the input unchanged), in the order evaluated.
+    """
+
+    variance: float
+    energy: float
+    prior: float
+    local: object
+    folds: int = 0
+    gap: int = 0
+    table: list = field(default_factory=list)
+
+    def settings(self) -> dict:
+        return {"variance": self.variance, "energy": self.energy, "prior": self.prior, "local": self.local}
+
+
+def cv_folds(n: int, folds: int, gap: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Contiguous validation blocks of ``range(n)`` and their training frames (``gap`` left out each side)."""
+    edges = np.linspace(0, n, folds + 1).round().astype(int)
+    out = []
+    for f in range(folds):
+        a, b = int(edges[f]), int(edges[f + 1])
+        keep = np.ones(n, bool)
+        keep[max(0, a - gap):min(n, b + gap)] = False
+        out.append((np.flatnonzero(keep), np.arange(a, b)))
+    return out
+
+
+# ------------------------------------------------------------------------------------------ kernel correction
+def pca_of(X: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(mean, singular values, Vt)`` of all styles' frames ``X[style]`` ``(C, D)`` together."""
+    allx = np.concatenate(list(X.values()))
+    mean = allx.mean(0)
+    _, sv, vt = np.linalg.svd(allx - mean, full_matrices=False)
+    return mean, sv, vt
+
+
+def _sqdist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    d = (a * a).sum(1)[:, None] + (b * b).sum(1)[None] - 2.0 * a @ b.T
+    return np.maximum(d, 0.0)
+
+
+def nn_scale(Y: np.ndarray) -> float:
+    """Median distance from every row of ``Y`` to its nearest other row (the kernel's length unit)."""
+    if len(Y) < 2:
+        return 1.0
+    d, _ = cKDTree(Y).query(Y, k=2)
+    s = float(np.median(d[:, 1]))
+    if s <= 0:
+        pos = d[:, 1][d[:, 1] > 0]
+        s = float(np.median(pos)) if pos.size else 1.0
+    return s
+
+
+def kernel_fit(Ys: np.ndarray, R: np.ndarray, bandwidth: float, ridge: float,
+               scale: float | None = None) -> tuple[np.ndarray, float, np.ndarray]:
+    """Kernel ridge regression of residuals ``R`` ``(n, m)`` on observations ``Ys`` ``(n, K)``.
+
+    ``bandwidth`` is in units of :func:`nn_scale` of ``Ys`` (or ``scale``).  Returns
+    ``(Ys, h, alpha)`` for :func:`kernel_predict`.
+    """
+    h = float(bandwidth) * (nn_scale(Ys) if scale is None else scale)
+    K = np.exp(-_sqdist(Ys, Ys) / (2 * h * h))
+    K[np.diag_indices_from(K)] += float(ridge)
+    alpha = cho_solve(cho_factor(K, lower=True, check_finite=False), R, check_finite=False)
+    return Ys, h, alpha
+
+
+def kernel_predict(model: tuple[np.ndarray, float, np.ndarray], Y: np.ndarray) -> np.ndarray:
+    """The regressed residual ``(T, m)`` at observations ``Y`` ``(T, K)``."""
+    Ys, h, alpha = model
+    return np.exp(-_sqdist(Y, Ys) / (2 * h * h)) @ alpha
+
+
+# ------------------------------------------------------------------------------------------ cross-validation
+def _sse_known(m, Xva: dict[str, np.ndarray], corr=None) -> float:
+    """Squared error of the known-expression task between every ordered pair of styles.
+
+    ``corr(source, Yin) -> {style: correction}`` adds a local correction (source style included).
+    """
+    A = m.asymmetric_
+    sse = 0.0
+    for s, x in Xva.items():
+        Yin = m.encode(x)
+        b = A.content(Yin, s)
+        Y0 = A.render(b, s)
+        c = corr(s, Yin) if corr is not None else None
+        if c is not None:
+            Y0 = Y0 + c[s]
+        for t, xt in Xva.items():
+            if t == s:
+                continue
+            Y = A.render(b, t)
+            if c is not None:
+                Y = Y + c[t]
+            if m.detail:
+                pred = x + m._coefs(Y - Y0) @ m.basis_.T
+            else:
+                pred = m._coefs(Y) @ m.basis_.T + m.mean_
+            sse += float(np.sum((pred - xt) ** 2))
+    return sse
+
+
+def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None = None, folds: int = 5,
+                    gap: int | None = None, grid: dict | None = None, min_frames: int = 30) -> Selection:
+    """Choose ``variance``, ``energy``, ``prior`` and the local correction by blocked cross-validation.
+
+    Parameters
+    ----------
+    make_model : callable
+        ``make_model(variance=, energy=, prior=)`` -> an unfitted :class:`~._model.StyleModel`
+        with the local correction off (its other settings: bundle, offset, dims, detail).
+    X : dict of str to (C, D) float
+        Aligned training frames of every style.
+    fixed : dict, optional
+        Settings not to search (``variance``, ``energy``, ``prior``, ``local``).
+    folds, gap, grid, min_frames
+        See the module docstring; ``grid`` overrides entries of :data:`GRID`.
+    """
+    fixed = dict(fixed or {})
+    g = dict(GRID)
+    g.update(grid or {})
+    styles = list(X)
+    C = len(X[styles[0]])
+    if C < min_frames:
+        d = {k: fixed.get(k, v) for k, v in FALLBACK.items()}
+        return Selection(d["variance"], d["energy"], d["prior"], d["local"])
+    probe = make_model(variance=0.9999, energy=0.9999, prior=1.0)
+    gap = max(int(probe.bundle), C // 100) if gap is None else int(gap)
+    folds = int(max(2, min(folds, C // max(10, 2 * gap + 2))))
+    splits = cv_folds(C, folds, gap)
+    base = 0.0                                                         # error of leaving the input unchanged
+    for _, va in splits:
+        for s in styles:
+            for t in styles:
+                if t != s:
+                    base += float(np.sum((X[s][va] - X[t][va]) ** 2))
+    base = max(base, 1e-300)
+    vs = [fixed["variance"]] if "variance" in fixed else list(g["variance"])
+    es = [fixed["energy"]] if "energy" in fixed else list(g["energy"])
+    ps = [float(fixed["prior"])] if "prior" in fixed else list(g["prior"])
+    table: list[dict] = []
+
+    # ---- stage 1: the bilinear model's settings
+    cand = [(v, e, p) for v in vs for e in es for p in ps]
+    score = dict.fromkeys(cand, 0.0)
+    if len(cand) > 1:
+        for tr, va in splits:
+            Xtr = {s: x[tr] for s, x in X.items()}
+            Xva = {s: x[va] for s, x in X.items()}
+            seen: dict[tuple, dict] = {}
+            pca = pca_of(Xtr)
+            for v in vs:
+                m = make_model(variance=v, energy=es[0], prior=ps[0])._fit_resolved(Xtr, symmetric=False, pca=pca)
+                A = m.asymmetric_
+                for e in es:
+                    A._set_rank(A.content_dims if A.content_dims is not None else
+                                choose_dims(A.singular_values_, e, min(A.n_dims, len(A.singular_values_)),
+                                            A.keep_first))
+                    key = (m.n_components_, A.content_dims_)
+                    if key in seen:                                     # same K and J: the same model
+                        for p in ps:
+                            score[(v, e, p)] += seen[key][p]
+                        continue
+                    seen[key] = {}
+                    for p in ps:
+                        m.asymmetric_.prior = p
+                        err = _sse_known(m, Xva)
+                        seen[key][p] = err
+                        score[(v, e, p)] += err
+        for c in cand:
+            table.append({"stage": 1, "variance": c[0], "energy": c[1], "prior": c[2], "score": score[c] / base})
+    v, e, p = min(cand, key=lambda c: score[c])
+
+    # ---- stage 2: the local correction
+    if "local" in fixed:
+        local = fixed["local"]
+    else:
+        specs = [0] + [("kernel", h, lam) for h in g["bandwidth"] for lam in g["ridge"]]
+        s2 = dict.fromkeys(specs, 0.0)
+        for tr, va in splits:
+            Xtr = {s: x[tr] for s, x in X.items()}
+            Xva = {s: x[va] for s, x in X.items()}
+            m = make_model(variance=v, energy=e, prior=p)._fit_resolved(Xtr, symmetric=False)
+            s2[0] += _sse_known(m, Xva)
+            A = m.asymmetric_
+            prep = {}
+            for s in styles:
+                Ys = m.encode(Xtr[s])
+                b = A.content(Ys, s)
+                R = np.concatenate([m.encode(Xtr[t]) - A.render(b, t) for t in styles], axis=1)
+                Yin = m.encode(Xva[s])
+                prep[s] = (Ys, R, _sqdist(Ys, Ys), _sqdist(Yin, Ys), nn_scale(Ys))
+            Kd = prep[styles[0]][0].shape[1]
+            for h in g["bandwidth"]:
+                for lam in g["ridge"]:
+                    preds = {}
+                    for s in styles:
+                        Ys, R, D2, Dq, sc = prep[s]
+                        hh = h * sc
+                        K = np.exp(-D2 / (2 * hh * hh))
+                        K[np.diag_indices_from(K)] += lam
+                        P = np.exp(-Dq / (2 * hh * hh)) @ cho_solve(cho_factor(K, lower=True, check_finite=False), R,
+                                                                     check_finite=False)
+                        preds[s] = {t: P[:, i * Kd:(i + 1) * Kd] for i, t in enumerate(styles)}
+
+                    s2[("kernel", h, lam)] += _sse_known(m, Xva, lambda s, _y, preds=preds: preds[s])
+        for c in specs:
+            table.append({"stage": 2, "variance": v, "energy": e, "prior": p,
+                          "local": list(c) if c else 0, "score": s2[c] / base})
+        local = min(specs, key=lambda c: s2[c])
+    return Selection(v, e, p, local, folds, gap, table)
