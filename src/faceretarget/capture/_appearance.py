@@ -439,7 +439,6 @@ class AppearanceModel:
         (Kc,), ``texture_scale`` (), ``names`` (D,).  The per-pixel triangle and barycentric map is
         recomputed from ``mean_shape``, ``triangles`` and ``canvas`` on load.
         """
-        from ..io._atomic import atomic_path
         from ..io.obj import check_output_path
 
         self._check()
@@ -454,23 +453,18 @@ class AppearanceModel:
         for ch, b, v in zip(_CHANNELS, self.texture_basis_, self.texture_var_, strict=True):
             arrays[f"texture_basis_{ch}"] = b.astype(np.float32)
             arrays[f"texture_var_{ch}"] = v
-        with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez_compressed(f, **arrays)
-        return path
+        from ..io.npz import save_npz_arrays
+
+        return save_npz_arrays(path, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> AppearanceModel:
         """Read a model written by :meth:`save`."""
-        import zipfile
+
+        from ..io.npz import load_npz_arrays
 
         path = Path(path)
-        if not path.is_file():
-            raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                d = {k: z[k] for k in z.files}
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-            raise InputFileError(f"{path}: not a readable .npz file ({e})") from e
+        d = load_npz_arrays(path)
         need = {"version", "mean_shape", "reference", "shape_basis", "triangles", "canvas", "texture_mean", "texture_basis_r"}
         if missing := sorted(need - set(d)):
             raise InputFileError(f"{path}: not an appearance model (missing {', '.join(missing)})")

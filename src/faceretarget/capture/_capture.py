@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import time
-import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -248,23 +247,19 @@ class Capture:
         if self.audio is not None:
             arrays["audio"] = self.audio.astype(np.float32)
             arrays["audio_rate"] = np.int64(self.audio_rate or 0)
-        with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez_compressed(f, **arrays)
-        return path
+        from ..io.npz import save_npz_arrays
+
+        return save_npz_arrays(path, arrays)
 
     @classmethod
     def load_npz(cls, path: str | os.PathLike) -> Capture:
         """Read a file written by :meth:`save_npz`."""
         import json
 
+        from ..io.npz import load_npz_arrays
+
         path = Path(path)
-        if not path.is_file():
-            raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                d = {k: z[k] for k in z.files}
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-            raise InputFileError(f"{path}: not a readable .npz file ({e})") from e
+        d = load_npz_arrays(path)
         need = {"landmarks", "times", "fps", "image_size", "blendshapes", "blendshape_names", "head_rotation",
                 "head_translation", "matrices", "detected", "interpolated"}
         if missing := sorted(need - set(d)):

@@ -99,6 +99,26 @@ def write_npz(path: str | os.PathLike, vertices: np.ndarray, times: np.ndarray,
     return path
 
 
+def load_npz_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file (no pickles), or an :class:`InputFileError` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+        raise InputFileError(f"{path}: not a readable .npz file ({e})") from e
+
+
+def save_npz_arrays(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> Path:
+    """Write arrays to a compressed ``.npz``, whole or not at all."""
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    return path
+
+
 def read_npz_performance(path: str | os.PathLike, fps: float | None = None) -> Performance:
     """Read a take from ``.npz``: ``vertices`` (T, V, 3) or ``weights`` (T, K) with ``names``.
 
@@ -115,13 +135,7 @@ def read_npz_performance(path: str | os.PathLike, fps: float | None = None) -> P
         Shapes that do not agree (named in the message).
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise InputFileError(f"{path}: not a readable .npz file ({e})") from e
+    data = load_npz_arrays(path)
     if "vertices" not in data and not ("weights" in data and "names" in data):
         raise InputFileError(f"{path}: holds neither 'vertices' nor 'weights' + 'names' (keys: "
                              f"{', '.join(sorted(data)) or 'none'})")
