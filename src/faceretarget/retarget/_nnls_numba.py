@@ -21,7 +21,7 @@ try:  # pragma: no cover - depends on the environment
 except ImportError:  # pragma: no cover
     numba = None
 
-__all__ = ["available", "lawson_hanson_frames"]
+__all__ = ["available", "lawson_hanson_frames", "free_set_solve"]
 
 
 def available() -> bool:
@@ -190,9 +190,36 @@ def _chol_solve_py(G, b, idx, k, L, z):  # pragma: no cover - compiled by numba
     return True
 
 
+def _free_solve_py(G, R, free):  # pragma: no cover - compiled by numba
+    T, N = R.shape
+    out = np.zeros((T, N))
+    idx = np.empty(N, dtype=np.int64)
+    L = np.empty((N, N))
+    z = np.empty(N)
+    for t in range(T):
+        k = 0
+        for i in range(N):
+            if free[t, i]:
+                idx[k] = i
+                k += 1
+        if k == 0:
+            continue
+        if _chol_solve(G, R[t], idx, k, L, z):
+            for a in range(k):
+                out[t, idx[a]] = z[a]
+    return out
+
+
 if numba is not None:  # pragma: no branch
     _chol_solve = numba.njit(cache=True, nogil=True)(_chol_solve_py)
     _lh_frames = numba.njit(cache=True, nogil=True)(_lh_frames_py)
+    _free_solve = numba.njit(cache=True, nogil=True)(_free_solve_py)
+
+
+def free_set_solve(G: np.ndarray, R: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """``d_t`` with ``G_FF d_F = r_F`` on each row's free set ``F`` (0 elsewhere); compiled."""
+    return _free_solve(np.ascontiguousarray(G, dtype=np.float64), np.ascontiguousarray(R, dtype=np.float64),
+                       np.ascontiguousarray(free, dtype=np.bool_))
 
 
 def lawson_hanson_frames(G: np.ndarray, B: np.ndarray, tol: float = 1e-10, max_iter: int = 500,

@@ -395,7 +395,7 @@ def _box_qp(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, tol: float, max
     if n == 0:
         return np.zeros((0, N)), np.zeros(0, dtype=np.int64)
     if _use_compiled(backend, ub):
-        from ._nnls_numba import lawson_hanson_frames
+        from ._nnls_numba import free_set_solve, lawson_hanson_frames
 
         # with cond(G) > 1e10 the kernel decides the active set at a tighter tolerance, its answers
         # are refined on the free set with gradients from K itself and checked against the exact
@@ -404,7 +404,7 @@ def _box_qp(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, tol: float, max
         bad = st.copy()
         if refine is not None:
             g = refine(X)                                       # exact b - G x
-            dX = _solve_fixed(G, None, np.where(free, g, 0.0), free)[0]
+            dX = free_set_solve(G, g, free)
             X += dX
             g -= dX @ G                                         # the correction is small: Gram form is exact enough
             xs = tol * np.maximum(np.abs(X).max(axis=1), 1.0)[:, None]
