@@ -293,3 +293,22 @@ def test_2d_landmark_tracks_retarget_through_flat_keyshapes(tmp_path):
     out = rt.blend(rt.transform(perf))
     assert out.shape == (T, P, 3) and np.abs(out[..., 2]).max() == 0
     assert np.abs(out[..., :2] - pts).max() < 1e-8             # the take lies in the keys' span: exact
+
+
+def test_cli_retarget_with_regions_writes_a_valid_glb(data_dir, tmp_path):
+    from faceretarget.io import read_glb_weights
+    from test_io_gltf import validate
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        take = read_livelinkface(data_dir / "livelinkface" / "apfel.csv").slice(0, 120)
+    short = tmp_path / "short.csv"
+    write_livelinkface(short, take)
+    out = tmp_path / "regions.glb"
+    rc = main(["-q", "retarget", "--performance", str(short), "--source-keys", str(data_dir / "ict-face"),
+               "--target-keys", str(data_dir / "arkit-face"), "--regions", "upper-lower", "--out", str(out)])
+    assert rc == 0
+    names, times, W = read_glb_weights(out)
+    assert W.shape == (120, len(names)) and len(names) % 2 == 0
+    assert any(n.endswith("@upper") for n in names) and any(n.endswith("@lower") for n in names)
+    assert validate(out)["issues"]["numErrors"] == 0
