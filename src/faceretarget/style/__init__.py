@@ -31,15 +31,34 @@ from ._bilinear import (
     load_bilinear,
 )
 from ._features import AUDIO_FEATURES, PiecewiseWarp, audio_features, read_wav, time_warp_audio
-from ._model import RangeReport, Restyled, StyleModel, StyleRangeWarning, bundle_frames, unbundle_frames
+from ._model import (
+    RangeReport,
+    Restyled,
+    StyleFitWarning,
+    StyleModel,
+    StyleRangeWarning,
+    bundle_frames,
+    unbundle_frames,
+)
 from ._p3 import DEFAULT_WARPS, P3Takes, StyleWarp, content_channels, make_p3_takes
-from ._select import GRID, Selection, cv_folds, kernel_fit, kernel_predict, select_settings
+from ._select import (
+    GRID,
+    STYLE_RIDGE_GRID,
+    Selection,
+    cv_folds,
+    kernel_fit,
+    kernel_predict,
+    select_settings,
+    select_style_ridge,
+)
 from ._sliders import AlphaCurves, ExpressionSliders, alpha_curves
 
 __all__ = [
     "StyleModel",
     "Selection",
     "select_settings",
+    "select_style_ridge",
+    "STYLE_RIDGE_GRID",
     "GRID",
     "cv_folds",
     "kernel_fit",
@@ -47,6 +66,7 @@ __all__ = [
     "Restyled",
     "RangeReport",
     "StyleRangeWarning",
+    "StyleFitWarning",
     "bundle_frames",
     "unbundle_frames",
     "AsymmetricBilinearModel",

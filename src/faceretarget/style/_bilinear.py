@@ -184,6 +184,17 @@ def _solve_content(M: np.ndarray, y: np.ndarray, prec: np.ndarray | None, mu: np
     return np.linalg.solve(G + eps[:, None, None] * np.eye(J), r[..., None])[..., 0]
 
 
+def _ridge_map(b: np.ndarray, y: np.ndarray, ridge: float, toward: np.ndarray | None) -> np.ndarray:
+    """``A`` ``(K, J)`` minimising ``||y - b A'||^2 + ridge tr(b'b) / J ||A - A0||^2`` (``A0 = toward`` or 0)."""
+    G = b.T @ b
+    J = len(G)
+    lam = max(float(ridge), 1e-12) * max(float(np.trace(G)) / J, 1e-300)
+    r = b.T @ y                                                        # (J, K)
+    if toward is not None:
+        r = r + lam * np.asarray(toward, np.float64).T
+    return np.linalg.solve(G + lam * np.eye(J), r).T
+
+
 class _Saveable:
     kind = ""
     _arrays: tuple[str, ...] = ()
@@ -356,7 +367,7 @@ class AsymmetricBilinearModel(_Saveable):
         y = (1 - al) * (b @ As.T) + al * (b @ At.T)
         return y[0] if single else y
 
-    def fit_style(self, y, b, *, ridge: float = 0.0) -> np.ndarray:
+    def fit_style(self, y, b, *, ridge: float = 0.0, toward: np.ndarray | None = None) -> np.ndarray:
         """A new style's matrix from examples with known content: ``A = argmin ||A b - y||``.
 
         Parameters
@@ -366,7 +377,10 @@ class AsymmetricBilinearModel(_Saveable):
         b : (T, J) float
             Their contents (for example :meth:`content` of the same frames in a known style).
         ridge : float
-            Tikhonov weight relative to the mean squared content (0: plain least squares).
+            Tikhonov weight relative to the mean squared content (0: plain least squares):
+            ``A = argmin ||A b - y||^2 + ridge tr(b'b) / J ||A - A0||^2``.
+        toward : (K, J) float, optional
+            ``A0``, the matrix the estimate is shrunk towards (default 0).
 
         Returns
         -------
@@ -377,11 +391,10 @@ class AsymmetricBilinearModel(_Saveable):
         b, _ = _frames(b, self.content_dims_, "content vectors")
         if len(y) != len(b):
             raise InvalidDataError(f"{len(y)} new-style frames but {len(b)} content vectors")
-        if len(y) < self.content_dims_:
-            raise InvalidDataError(f"a new style needs at least {self.content_dims_} example frames, got {len(y)}")
-        G = b.T @ b
-        G = G + ridge * np.trace(G) / len(G) * np.eye(len(G))
-        return np.linalg.solve(G, b.T @ y).T
+        if ridge <= 0 and len(y) < self.content_dims_:
+            raise InvalidDataError(f"a new style needs at least {self.content_dims_} example frames, got {len(y)} "
+                                   "(or a ridge > 0)")
+        return _ridge_map(b, y, ridge, toward)
 
     def insert_dims(self, positions) -> AsymmetricBilinearModel:
         """Insert zero observation coordinates before ``positions`` (as :func:`numpy.insert`); returns self.
@@ -393,11 +406,12 @@ class AsymmetricBilinearModel(_Saveable):
         self.style_matrices_ = np.insert(self.style_matrices_, positions, 0.0, axis=1)
         return self
 
-    def add_style(self, name: str, y, b, *, ridge: float = 0.0) -> AsymmetricBilinearModel:
+    def add_style(self, name: str, y, b, *, ridge: float = 0.0, toward: np.ndarray | None = None
+                  ) -> AsymmetricBilinearModel:
         """Fit (:meth:`fit_style`) and append a new style; returns self."""
         if name in self.styles_:
             raise InvalidDataError(f"style '{name}' is already in the model")
-        A = self.fit_style(y, b, ridge=ridge)
+        A = self.fit_style(y, b, ridge=ridge, toward=toward)
         y, _ = _frames(y, self.n_dims, "new-style observations")
         var = max(float(np.mean((y - np.asarray(b) @ A.T) ** 2)), 1e-300)
         self.style_matrices_ = np.concatenate([self.style_matrices_, A[None]])
@@ -765,7 +779,8 @@ class SymmetricBilinearModel(_Saveable):
         self.core_ = np.insert(self.core_, positions, 0.0, axis=2)
         return self
 
-    def add_style(self, name: str, y, b, *, extend: bool = True) -> SymmetricBilinearModel:
+    def add_style(self, name: str, y, b, *, extend: bool = True, ridge: float = 0.0,
+                  toward: np.ndarray | None = None) -> SymmetricBilinearModel:
         """Append a new style fitted from examples ``y`` ``(T, K)`` with known contents ``b`` ``(T, J)``.
 
         ``extend=True`` (default): the style gets a dimension of its own, a new core slice
@@ -782,12 +797,10 @@ class SymmetricBilinearModel(_Saveable):
             self._check_fitted()
             y, _ = _frames(y, self.n_dims, "new-style observations")
             b, _ = _frames(b, self.content_dims_, "content vectors")
-            if len(y) != len(b) or len(y) < self.content_dims_:
+            if len(y) != len(b) or (ridge <= 0 and len(y) < self.content_dims_):
                 raise InvalidDataError(f"a new style needs as many content vectors as frames and at least "
-                                       f"{self.content_dims_} frames, got {len(y)} and {len(b)}")
-            G = b.T @ b
-            G = G + 1e-12 * max(float(np.trace(G)) / len(G), 1e-300) * np.eye(len(G))
-            Wn = np.linalg.solve(G, b.T @ y)                            # (J, K)
+                                       f"{self.content_dims_} frames (or a ridge > 0), got {len(y)} and {len(b)}")
+            Wn = _ridge_map(b, y, ridge, None if toward is None else np.asarray(toward).T).T   # (J, K)
             self.core_ = np.concatenate([self.core_, Wn[None]], axis=0)
             S = len(self.style_vectors_)
             self.style_vectors_ = np.concatenate([np.c_[self.style_vectors_, np.zeros(S)],

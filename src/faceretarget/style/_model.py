@@ -65,15 +65,27 @@ from ..names import normalize_name
 from ..performance import Performance
 from ._align import Alignment, align_performances, frame_vectors, warp_performance
 from ._bilinear import AsymmetricBilinearModel, InferResult, SymmetricBilinearModel
-from ._select import kernel_fit, kernel_predict, pca_of, select_settings
+from ._select import (
+    STYLE_RIDGE_GRID,
+    kernel_fit,
+    kernel_predict,
+    ones_weights,
+    pca_of,
+    select_settings,
+    select_style_ridge,
+)
 
-__all__ = ["StyleModel", "Restyled", "RangeReport", "StyleRangeWarning", "bundle_frames", "unbundle_frames"]
+__all__ = ["StyleModel", "Restyled", "RangeReport", "StyleRangeWarning", "StyleFitWarning", "bundle_frames", "unbundle_frames"]
 
 _FORMAT = 1
 
 
 class StyleRangeWarning(UserWarning):
     """A restyled take left the range of the training data (exaggeration went too far)."""
+
+
+class StyleFitWarning(UserWarning):
+    """An untrained style's examples do not determine it: it was kept close to the additive offset."""
 
 
 @dataclass
@@ -624,7 +636,7 @@ class StyleModel:
         w = np.linalg.lstsq(M, rhs, rcond=None)[0].T
         return unbundle_frames(np.tile(w, self.bundle), self.bundle) if self.bundle > 1 else w
 
-    def add_style(self, name: str, frames, like: tuple[str, np.ndarray]) -> StyleModel:
+    def add_style(self, name: str, frames, like: tuple[str, np.ndarray], *, shrink: float | str = "auto") -> StyleModel:
         """Untrained expression: fit a new style from examples of it (translation to a new style).
 
         The examples' content is found from the same text in a known style (Eq. 2.10) and the new
@@ -642,6 +654,13 @@ class StyleModel:
         like : (style, frames)
             The same text in a known style, aligned frame by frame with ``frames`` (for example by
             :func:`~._align.align_performances` and :func:`~._align.warp_performance`).
+        shrink : float or "auto"
+            How strongly the new style's matrix is pulled towards the known style's matrix plus the
+            examples' mean offset (the additive edit), relative to the mean squared content
+            (:func:`~._select.select_style_ridge`); 0: plain least squares (the thesis).
+            ``"auto"`` (default): chosen by blocked cross-validation on the examples; the value
+            used and the scores are in ``added_[name]``.  A :class:`StyleFitWarning` says when the
+            examples leave the style at (or near) the additive offset.
         """
         self._check_fitted()
         known, kf = like
@@ -657,10 +676,35 @@ class StyleModel:
         z = (x_new - self.mean_) @ self.basis_
         self.coef_lo_, self.coef_hi_ = np.minimum(self.coef_lo_, z.min(0)), np.maximum(self.coef_hi_, z.max(0))
         y_new, y_known = self.encode(x_new), self.encode(x_known)
-        b = self.asymmetric_.content(y_known, known)
-        self.asymmetric_.add_style(name, y_new, b)
-        bs = self.symmetric_.content(y_known, known)
-        self.symmetric_.add_style(name, y_new, bs)
+        A, S = self.asymmetric_, self.symmetric_
+        b = A.content(y_known, known)
+        Ak = A.style_matrix(known)
+        w = ones_weights(A.content_vectors_)
+        const = np.zeros(y_new.shape[1], bool)
+        if self.offset_ > 0:
+            const[np.arange(self.bundle) * (y_new.shape[1] // self.bundle)] = True
+        table: list = []
+        if isinstance(shrink, str):
+            if shrink != "auto":
+                raise InvalidDataError(f"shrink must be a number >= 0 or 'auto', got {shrink!r}")
+            ridge, table = select_style_ridge(b, y_new, y_known, Ak, w, score_cols=np.flatnonzero(~const),
+                                              detail=self.detail, local=self.settings_["local"], bundle=self.bundle)
+            if not table or ridge >= max(STYLE_RIDGE_GRID):
+                how = (f"{len(b)} example frames are too few to cross-validate" if not table else
+                       "cross-validation on the examples chose the strongest shrinkage")
+                warnings.warn(f"style '{name}': {how}; its matrix stays close to '{known}' plus the examples' mean "
+                              f"offset (shrink {ridge:.3g}, {len(b)} frames for {b.shape[1]} content dimensions)",
+                              StyleFitWarning, stacklevel=2)
+        else:
+            ridge = float(shrink)
+            if not ridge >= 0:
+                raise InvalidDataError(f"shrink must be >= 0, got {shrink}")
+        d = (y_new - y_known).mean(0)
+        A.add_style(name, y_new, b, ridge=ridge, toward=Ak + np.outer(d, w))
+        bs = S.content(y_known, known)
+        Mk = np.einsum("i,ijk->jk", S.style_vector(known), S.core_)
+        S.add_style(name, y_new, bs, ridge=ridge, toward=Mk + np.outer(ones_weights(S.content_vectors_), d))
+        self.added_ = {**getattr(self, "added_", {}), str(name): {"shrink": ridge, "table": table}}
         self.styles_ = [*self.styles_, str(name)]
         self.pair_sets_.append({known: (x_known - self.mean_) @ self.basis_, name: z})
         self._local_cache = {}

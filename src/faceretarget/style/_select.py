@@ -20,7 +20,9 @@ picks them from its own training frames, with the task it will be used for:
   local correction), every combination; then, with those, the local correction: off, or kernel
   ridge regression of the training residuals with bandwidth ``h`` (a multiple of the median
   nearest-neighbour distance between the source style's training observations) and ridge ``lam``
-  (relative to the kernel's diagonal, 1).  The setting with the lowest score wins (ties: the
+  (relative to the kernel's diagonal, 1), searched coordinate-wise over the bandwidth x ridge grid
+  (``search``; every fold's model and residuals computed once, every kernel once per bandwidth,
+  errors in PCA coefficients plus the fixed part outside the basis).  The setting with the lowest score wins (ties: the
   earlier, simpler one in the grid order).  The model is then refitted on all training frames.
 * A setting the user fixes is not searched.  Fewer than ``min_frames`` (30) aligned frames: no
   search; the fallback values (:data:`FALLBACK`) are used.
@@ -42,9 +44,10 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial import cKDTree
 
-from ._bilinear import choose_dims
+from ._bilinear import _ridge_map, choose_dims
 
-__all__ = ["Selection", "GRID", "FALLBACK", "select_settings", "kernel_fit", "kernel_predict", "cv_folds", "pca_of"]
+__all__ = ["Selection", "GRID", "FALLBACK", "STYLE_RIDGE_GRID", "select_settings", "select_style_ridge", "kernel_fit",
+           "kernel_predict", "cv_folds", "pca_of", "ones_weights"]
 
 #: The searched values of every setting.
 GRID: dict[str, tuple] = {
@@ -144,36 +147,61 @@ def kernel_predict(model: tuple[np.ndarray, float, np.ndarray], Y: np.ndarray) -
 
 
 # ------------------------------------------------------------------------------------------ cross-validation
-def _sse_known(m, Xva: dict[str, np.ndarray], corr=None) -> float:
+def _prep_val(m, Xva: dict[str, np.ndarray]) -> dict:
+    """What :func:`_sse_known` needs of the validation frames for one PCA basis: the observations,
+    the PCA coefficients and the squared error outside the basis (the same for every candidate
+    sharing the basis)."""
+    Yin, Z, out = {}, {}, {}
+    for s, x in Xva.items():
+        z = (x - m.mean_) @ m.basis_
+        Z[s], Yin[s] = z, m._observe(z)
+        r = x - m.mean_ - z @ m.basis_.T
+        out[s] = r
+    perp = {}
+    for s in Xva:
+        for t in Xva:
+            if t != s:
+                perp[(s, t)] = float(np.sum((out[s] - out[t]) ** 2)) if m.detail else float(np.sum(out[t] ** 2))
+    return {"Y": Yin, "Z": Z, "perp": perp}
+
+
+def _sse_known(m, Xva: dict[str, np.ndarray], corr=None, prep: dict | None = None) -> float:
     """Squared error of the known-expression task between every ordered pair of styles.
 
     ``corr(source, Yin) -> {style: correction}`` adds a local correction (source style included).
+    ``prep``: :func:`_prep_val` of ``Xva`` for ``m``'s basis.  The error is computed in PCA
+    coefficients plus the (fixed) part outside the basis, which equals the error of the frames.
     """
+    if prep is None:
+        prep = _prep_val(m, Xva)
     A = m.asymmetric_
     sse = 0.0
-    for s, x in Xva.items():
-        Yin = m.encode(x)
+    for s in Xva:
+        Yin = prep["Y"][s]
         b = A.content(Yin, s)
-        Y0 = A.render(b, s)
         c = corr(s, Yin) if corr is not None else None
-        if c is not None:
-            Y0 = Y0 + c[s]
-        for t, xt in Xva.items():
+        if m.detail:
+            Y0 = A.render(b, s)
+            if c is not None:
+                Y0 = Y0 + c[s]
+            z0 = m._coefs(Y0)
+        for t in Xva:
             if t == s:
                 continue
             Y = A.render(b, t)
             if c is not None:
                 Y = Y + c[t]
-            if m.detail:
-                pred = x + m._coefs(Y - Y0) @ m.basis_.T
-            else:
-                pred = m._coefs(Y) @ m.basis_.T + m.mean_
-            sse += float(np.sum((pred - xt) ** 2))
+            if m.detail:                                                # x_s + dz B' - x_t
+                d = prep["Z"][s] - prep["Z"][t] + m._coefs(Y) - z0
+            else:                                                       # z B' + mean - x_t
+                d = m._coefs(Y) - prep["Z"][t]
+            sse += float(np.sum(d * d)) + prep["perp"][(s, t)]
     return sse
 
 
 def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None = None, folds: int = 5,
-                    gap: int | None = None, grid: dict | None = None, min_frames: int = 30) -> Selection:
+                    gap: int | None = None, grid: dict | None = None, min_frames: int = 30,
+                    search: str = "coordinate") -> Selection:
     """Choose ``variance``, ``energy``, ``prior`` and the local correction by blocked cross-validation.
 
     Parameters
@@ -187,6 +215,11 @@ def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None 
         Settings not to search (``variance``, ``energy``, ``prior``, ``local``).
     folds, gap, grid, min_frames
         See the module docstring; ``grid`` overrides entries of :data:`GRID`.
+    search : {"coordinate", "full"}
+        Stage 2 over bandwidth x ridge: ``"full"`` scores the whole grid; ``"coordinate"``
+        (default) starts in its middle and alternately scores a whole row (every bandwidth at the
+        current ridge) and a whole column (every ridge at the current bandwidth), moving to the best
+        candidate scored so far, until a row and a column in turn leave it in place.
     """
     fixed = dict(fixed or {})
     g = dict(GRID)
@@ -215,15 +248,17 @@ def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None 
     # ---- stage 1: the bilinear model's settings
     cand = [(v, e, p) for v in vs for e in es for p in ps]
     score = dict.fromkeys(cand, 0.0)
+    pcas: dict = {}
     if len(cand) > 1:
-        for tr, va in splits:
+        for f, (tr, va) in enumerate(splits):
             Xtr = {s: x[tr] for s, x in X.items()}
             Xva = {s: x[va] for s, x in X.items()}
             seen: dict[tuple, dict] = {}
-            pca = pca_of(Xtr)
+            pca = pcas[f] = pca_of(Xtr)
             for v in vs:
                 m = make_model(variance=v, energy=es[0], prior=ps[0])._fit_resolved(Xtr, symmetric=False, pca=pca)
                 A = m.asymmetric_
+                prep = _prep_val(m, Xva)
                 for e in es:
                     A._set_rank(A.content_dims if A.content_dims is not None else
                                 choose_dims(A.singular_values_, e, min(A.n_dims, len(A.singular_values_)),
@@ -236,7 +271,7 @@ def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None 
                     seen[key] = {}
                     for p in ps:
                         m.asymmetric_.prior = p
-                        err = _sse_known(m, Xva)
+                        err = _sse_known(m, Xva, prep=prep)
                         seen[key][p] = err
                         score[(v, e, p)] += err
         for c in cand:
@@ -247,37 +282,141 @@ def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None 
     if "local" in fixed:
         local = fixed["local"]
     else:
-        specs = [0] + [("kernel", h, lam) for h in g["bandwidth"] for lam in g["ridge"]]
-        s2 = dict.fromkeys(specs, 0.0)
-        for tr, va in splits:
-            Xtr = {s: x[tr] for s, x in X.items()}
-            Xva = {s: x[va] for s, x in X.items()}
-            m = make_model(variance=v, energy=e, prior=p)._fit_resolved(Xtr, symmetric=False)
-            s2[0] += _sse_known(m, Xva)
-            A = m.asymmetric_
-            prep = {}
-            for s in styles:
-                Ys = m.encode(Xtr[s])
-                b = A.content(Ys, s)
-                R = np.concatenate([m.encode(Xtr[t]) - A.render(b, t) for t in styles], axis=1)
-                Yin = m.encode(Xva[s])
-                prep[s] = (Ys, R, _sqdist(Ys, Ys), _sqdist(Yin, Ys), nn_scale(Ys))
-            Kd = prep[styles[0]][0].shape[1]
-            for h in g["bandwidth"]:
-                for lam in g["ridge"]:
-                    preds = {}
-                    for s in styles:
-                        Ys, R, D2, Dq, sc = prep[s]
-                        hh = h * sc
-                        K = np.exp(-D2 / (2 * hh * hh))
-                        K[np.diag_indices_from(K)] += lam
-                        P = np.exp(-Dq / (2 * hh * hh)) @ cho_solve(cho_factor(K, lower=True, check_finite=False), R,
-                                                                     check_finite=False)
-                        preds[s] = {t: P[:, i * Kd:(i + 1) * Kd] for i, t in enumerate(styles)}
+        H, L = list(g["bandwidth"]), list(g["ridge"])
+        s2: dict = {}
+        fold_fits: dict = {}
 
-                    s2[("kernel", h, lam)] += _sse_known(m, Xva, lambda s, _y, preds=preds: preds[s])
+        def evaluate(cands):                                          # fold-summed scores of new (h, lam)
+            cands = [c for c in cands if ("kernel", *c) not in s2]
+            if not cands and 0 in s2:
+                return
+            for c in cands:
+                s2[("kernel", *c)] = 0.0
+            first = 0 not in s2
+            if first:
+                s2[0] = 0.0
+            for f, (tr, va) in enumerate(splits):
+                Xva = {s: x[va] for s, x in X.items()}
+                if f not in fold_fits:                                   # the fold's model and residuals, once
+                    Xtr = {s: x[tr] for s, x in X.items()}
+                    m = make_model(variance=v, energy=e, prior=p)._fit_resolved(Xtr, symmetric=False,
+                                                                                  pca=pcas.get(f))
+                    pv = _prep_val(m, Xva)
+                    A = m.asymmetric_
+                    res = {}
+                    for s in styles:
+                        Ys = m.encode(Xtr[s])
+                        b = A.content(Ys, s)
+                        R = np.concatenate([m.encode(Xtr[t]) - A.render(b, t) for t in styles], axis=1)
+                        res[s] = (Ys, R, nn_scale(Ys))
+                    fold_fits[f] = (m, pv, res)
+                m, pv, res = fold_fits[f]
+                if first:
+                    s2[0] += _sse_known(m, Xva, prep=pv)
+                prep = {s: (Ys, R, _sqdist(Ys, Ys), _sqdist(pv["Y"][s], Ys), sc) for s, (Ys, R, sc) in res.items()}
+                Kd = prep[styles[0]][0].shape[1]
+                for h in dict.fromkeys(c[0] for c in cands):
+                    kern = {}
+                    for s in styles:                                    # the kernels, once per bandwidth
+                        _, _, D2, Dq, sc = prep[s]
+                        hh = h * sc
+                        kern[s] = (np.exp(-D2 / (2 * hh * hh)), np.exp(-Dq / (2 * hh * hh)))
+                    for lam in [c[1] for c in cands if c[0] == h]:
+                        preds = {}
+                        for s in styles:
+                            K0, Kq = kern[s]
+                            K = K0.copy()
+                            K[np.diag_indices_from(K)] += lam
+                            P = Kq @ cho_solve(cho_factor(K, lower=True, overwrite_a=True, check_finite=False),
+                                               prep[s][1], check_finite=False)
+                            preds[s] = {t: P[:, i * Kd:(i + 1) * Kd] for i, t in enumerate(styles)}
+                        s2[("kernel", h, lam)] += _sse_known(m, Xva, lambda s, _y, preds=preds: preds[s], prep=pv)
+
+        if search == "full":
+            evaluate([(h, lam) for h in H for lam in L])
+        else:                                                           # coordinate search from the middle
+            h, lam = H[(len(H) - 1) // 2], L[(len(L) - 1) // 2]
+            axis = 0
+            while True:
+                evaluate([(x, lam) for x in H] if axis == 0 else [(h, x) for x in L])
+                best = min(((c[1], c[2]) for c in s2 if c != 0), key=lambda c: s2[("kernel", *c)])
+                if best == (h, lam) and axis == 1:
+                    break
+                moved = best != (h, lam)
+                h, lam = best
+                if not moved and axis == 0:
+                    axis = 1
+                    continue
+                if not moved:
+                    break
+                axis = 1 - axis
+        specs = [0] + [("kernel", h, lam) for h in H for lam in L if ("kernel", h, lam) in s2]
         for c in specs:
             table.append({"stage": 2, "variance": v, "energy": e, "prior": p,
                           "local": list(c) if c else 0, "score": s2[c] / base})
         local = min(specs, key=lambda c: s2[c])
     return Selection(v, e, p, local, folds, gap, table)
+
+
+# ------------------------------------------------------------------------------------------ untrained styles
+#: Searched shrinkage of a new style's matrix (:func:`select_style_ridge`), relative to the mean squared content.
+STYLE_RIDGE_GRID: tuple[float, ...] = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0)
+
+
+def ones_weights(B: np.ndarray) -> np.ndarray:
+    """``w`` ``(J,)`` with ``B w ~ 1`` (least squares over the rows of ``B``): ``d w'`` adds a constant ``d``."""
+    w, *_ = np.linalg.lstsq(B, np.ones(len(B)), rcond=None)
+    return w
+
+
+def select_style_ridge(b: np.ndarray, Yn: np.ndarray, Yk: np.ndarray, Ak: np.ndarray, w: np.ndarray, *,
+                       score_cols: np.ndarray, detail: bool = True, local=0, bundle: int = 1, folds: int = 5,
+                       grid: tuple[float, ...] = STYLE_RIDGE_GRID, min_frames: int = 30) -> tuple[float, list]:
+    """Shrinkage of an untrained style's matrix, by blocked cross-validation on its own examples.
+
+    The new matrix is ``A = argmin ||Yn - b A'||^2 + ridge tr(b'b)/J ||A - A0||^2`` with
+    ``A0 = Ak + d w'``: the known style's matrix plus the mean difference ``d`` of the examples
+    (``b w ~ 1``), so ``ridge -> inf`` is the additive offset and ``ridge = 0`` the plain least
+    squares.  Every ``ridge`` of ``grid`` is scored on the known-expression task ``known -> new``
+    over contiguous folds of the examples (gap as in :func:`select_settings`; ``d`` and the kernel
+    correction, when ``local`` is one, from the fold's training frames), on the coordinates
+    ``score_cols`` (not the constant ones); lowest error wins (ties: the smaller ridge).
+
+    Fewer than ``min_frames`` examples: no search; ``ridge = J / T`` (stronger the fewer frames
+    there are per content dimension).  Returns ``(ridge, table)``.
+    """
+    T, J = b.shape
+    if T < min_frames:
+        return float(J) / max(T, 1), []
+    gap = max(int(bundle), T // 100)
+    nf = int(max(2, min(folds, T // max(10, 2 * gap + 2))))
+    grid = tuple(float(r) for r in grid)
+    err = np.zeros(len(grid))
+    kern = isinstance(local, tuple)
+    for tr, va in cv_folds(T, nf, gap):
+        btr, bva = b[tr], b[va]
+        d = (Yn[tr] - Yk[tr]).mean(0)
+        A0 = Ak + np.outer(d, w)
+        As = [_ridge_map(btr, Yn[tr], r, A0) for r in grid]
+        if kern:
+            Ys = Yk[tr]
+            h = float(local[1]) * nn_scale(Ys)
+            Km = np.exp(-_sqdist(Ys, Ys) / (2 * h * h))
+            Km[np.diag_indices_from(Km)] += float(local[2])
+            Kq = np.exp(-_sqdist(Yk[va], Ys) / (2 * h * h))
+            Rss = Ys - btr @ Ak.T
+            R = np.concatenate([Rss] + [Yn[tr] - btr @ A.T for A in As], axis=1)
+            P = Kq @ cho_solve(cho_factor(Km, lower=True, check_finite=False), R, check_finite=False)
+            n = Ys.shape[1]
+            Pss = P[:, :n]
+        for i, A in enumerate(As):
+            if detail:
+                pred = Yk[va] + bva @ (A - Ak).T
+            else:
+                pred = bva @ A.T
+            if kern:
+                pred = pred + P[:, (i + 1) * n:(i + 2) * n] - (Pss if detail else 0.0)
+            err[i] += float(np.sum((Yn[va][:, score_cols] - pred[:, score_cols]) ** 2))
+    table = [{"ridge": r, "score": float(e)} for r, e in zip(grid, err, strict=True)]
+    return grid[int(np.argmin(err))], table
+
