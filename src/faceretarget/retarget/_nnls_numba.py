@@ -60,11 +60,7 @@ def _lh_frames_py(G, B, tol, max_iter, warm):  # pragma: no cover - compiled by 
             if first and warm:
                 # warm start: prune the previous free set until its solution is positive
                 while True:
-                    k = 0
-                    for i in range(N):
-                        if P[i]:
-                            idx[k] = i
-                            k += 1
+                    k = _gather(P, idx)
                     if k == 0:
                         break
                     ok = _chol_solve(G, b, idx, k, L, z)
@@ -104,11 +100,7 @@ def _lh_frames_py(G, B, tol, max_iter, warm):  # pragma: no cover - compiled by 
             P[jbest] = True
             # inner loop: keep the point feasible
             while True:
-                k = 0
-                for i in range(N):
-                    if P[i]:
-                        idx[k] = i
-                        k += 1
+                k = _gather(P, idx)
                 ok = _chol_solve(G, b, idx, k, L, z)
                 if not ok:                      # the entering key is dependent on the free ones
                     P[jbest] = False
@@ -160,6 +152,16 @@ def _lh_frames_py(G, B, tol, max_iter, warm):  # pragma: no cover - compiled by 
     return X, free_out, stuck
 
 
+def _gather_py(mask, idx):  # pragma: no cover - compiled by numba
+    """Indices of the true entries of ``mask`` into ``idx``; returns their count."""
+    k = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            idx[k] = i
+            k += 1
+    return k
+
+
 def _chol_solve_py(G, b, idx, k, L, z):  # pragma: no cover - compiled by numba
     """Solve ``G[idx, idx] z = b[idx]`` by Cholesky into ``z[:k]``; False when not positive definite."""
     for j in range(k):
@@ -197,11 +199,7 @@ def _free_solve_py(G, R, free):  # pragma: no cover - compiled by numba
     L = np.empty((N, N))
     z = np.empty(N)
     for t in range(T):
-        k = 0
-        for i in range(N):
-            if free[t, i]:
-                idx[k] = i
-                k += 1
+        k = _gather(free[t], idx)
         if k == 0:
             continue
         if _chol_solve(G, R[t], idx, k, L, z):
@@ -211,6 +209,7 @@ def _free_solve_py(G, R, free):  # pragma: no cover - compiled by numba
 
 
 if numba is not None:  # pragma: no branch
+    _gather = numba.njit(cache=True, nogil=True)(_gather_py)
     _chol_solve = numba.njit(cache=True, nogil=True)(_chol_solve_py)
     _lh_frames = numba.njit(cache=True, nogil=True)(_lh_frames_py)
     _free_solve = numba.njit(cache=True, nogil=True)(_free_solve_py)
