@@ -39,11 +39,12 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import nnls
 
+from cloning import TAKES, _animate, _load  # the P1 loader of bench/cloning.py (same folder)
 from faceretarget.cloning import ExpressionCloner
 from faceretarget.cloning.keysets import keymodel_rig, keyset_weights
 from faceretarget.errors import SingularKeysError
 from faceretarget.evaluation import add_capture_noise, metrics
-from faceretarget.io import load_rig, read_c3d, read_livelinkface
+from faceretarget.io import read_c3d
 from faceretarget.retarget import (
     SELECTION_METHODS,
     BlendshapeRetargeter,
@@ -54,23 +55,8 @@ from faceretarget.retarget import (
 from faceretarget.rig import Rig
 
 REPO = Path(__file__).resolve().parents[1]
-TAKES = ("S07-001", "apfel", "MySlate_3_Jason_Millers_iPhone")
 METHODS = ("retarget", "retarget-nnls", "clone")
 REPEAT = 3
-
-
-def _load(data: Path):
-    ict = load_rig(data / "ict-face")
-    ark = load_rig(data / "arkit-face")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        rom = read_livelinkface(data / "livelinkface" / "alex_rom_3.csv")
-        takes = {t: read_livelinkface(data / "livelinkface" / f"{t}.csv") for t in TAKES}
-    return ict, ark, rom, takes
-
-
-def _animate(rig, take):
-    return rig.evaluate(rig.map_weights(take.names, take.weights, warn=False))
 
 
 def _model(method, sk, tk):
@@ -273,7 +259,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     data = Path(args.data)
     log = print
-    ict, ark, rom, takes = _load(data)
+    rigs, rom, takes = _load(data)
+    ict, ark = rigs["ict-face"], rigs["arkit-face"]
     log("P1 retargeting ICT -> ARKit (cross and round trip), out of sample")
     if args.speed_only:
         problems = _speed_problems(ict, rom, takes)

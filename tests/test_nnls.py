@@ -9,6 +9,8 @@ import pytest
 from scipy.optimize import lsq_linear, nnls
 
 from faceretarget.errors import InvalidDataError
+from faceretarget.retarget._synthetic import keyshape_problem
+from faceretarget.retarget._synthetic import rom_problem as _rom_problem
 from faceretarget.retarget.nnls import extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
 
 
@@ -19,46 +21,8 @@ def random_problem(D, N, T, seed):
     return K, W @ K.T + 0.3 * rng.standard_normal((T, D))
 
 
-def keyshape_problem(D, N, T, seed, noise=0.02):
-    """Keyshapes like a face's: smooth, localised marker displacements, several keys per facial region
-    moving in similar directions (correlated columns), a take of smooth, often-zero weight curves plus
-    capture noise."""
-    rng = np.random.default_rng(seed)
-    P = D // 3
-    pts = rng.uniform(-1, 1, (P, 3))
-    regions = max(3, N // 5)
-    centre = pts[rng.choice(P, regions, replace=False)]
-    direction = rng.standard_normal((regions, 3))
-    K = np.zeros((D, N))
-    for j in range(N):
-        r = j % regions
-        c = centre[r] + 0.1 * rng.standard_normal(3)
-        d = direction[r] + 0.25 * rng.standard_normal(3)
-        bump = np.exp(-np.sum((pts - c) ** 2, axis=1) / (2 * rng.uniform(0.3, 0.8) ** 2))
-        K[:, j] = (bump[:, None] * (d + 0.05 * rng.standard_normal((P, 3)))).ravel()
-    K /= np.linalg.norm(K, axis=0)
-    t = np.arange(T) / 60.0
-    phase = 2 * np.pi * rng.uniform(0.1, 2, (N, 1)) * t + rng.uniform(0, 6, (N, 1))
-    W = np.maximum(0.0, np.sin(phase) - 0.3).T
-    return K, W @ K.T + noise * rng.standard_normal((T, D))
-
-
 def rom_problem(D, N, T, seed, n_basis=51, noise=0.002):
-    """Keyshapes chosen among the frames of a range-of-motion take (PCA extrema, like P1's rom-K key
-    sets): strongly correlated keys and sparse weights; dependent keys when N > n_basis."""
-    from faceretarget.retarget.selection import pca_extrema
-
-    rng = np.random.default_rng(seed)
-    basis, _ = keyshape_problem(D, n_basis, 2, seed)
-
-    def take(n):
-        t = np.arange(n) / 60.0
-        f, ph, cut = (rng.uniform(0.05, 0.8, (n_basis, 1)), rng.uniform(0, 6, (n_basis, 1)),
-                      rng.uniform(0.2, 0.8, (n_basis, 1)))
-        return np.maximum(0.0, np.sin(2 * np.pi * f * t + ph) - cut).T @ basis.T
-
-    rom = take(1500)
-    return rom[pca_extrema(rom, N)].T, take(T) + noise * rng.standard_normal((T, D))
+    return _rom_problem(D, N, T, seed, n_basis=n_basis, noise=noise, rom_frames=1500)
 
 
 def per_frame_nnls(K, F):

@@ -124,6 +124,18 @@ class _Builder:
         return len(self.accessors) - 1
 
 
+def _key_times(path, t: np.ndarray) -> np.ndarray:
+    """Keyframe times relative to the first, as float32 seconds, strictly increasing (or an error)."""
+    if not np.isfinite(t).all():
+        raise InvalidDataError(f"{path}: times are not all finite")
+    t32 = (t - t[0]).astype(np.float32)
+    if t.size > 1 and not (np.diff(t32) > 0).all():
+        k = int(np.flatnonzero(np.diff(t32) <= 0)[0]) + 1
+        raise InvalidDataError(f"{path}: frame {k} time {t[k]:.6f} s does not increase after "
+                               f"{t[k - 1]:.6f} s (in float32 seconds)")
+    return t32
+
+
 def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.ndarray,
               names: list[str] | None = None, node_name: str = "face", *,
               animation_name: str = "take", head_rotation: np.ndarray | None = None,
@@ -190,13 +202,7 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     if not np.isfinite(w).all():
         f, k = (int(x[0]) for x in np.nonzero(~np.isfinite(w)))
         raise InvalidDataError(f"{path}: frame {f} weight '{rig.names[k]}' is {w[f, k]}")
-    if not np.isfinite(t).all():
-        raise InvalidDataError(f"{path}: times are not all finite")
-    t32 = (t - t[0]).astype(np.float32)
-    if t.size > 1 and not (np.diff(t32) > 0).all():
-        k = int(np.flatnonzero(np.diff(t32) <= 0)[0]) + 1
-        raise InvalidDataError(f"{path}: frame {k} time {t[k]:.6f} s does not increase after "
-                               f"{t[k - 1]:.6f} s (in float32 seconds)")
+    t32 = _key_times(path, t)
 
     scale = rig.mm_per_unit / 1000.0
     mesh = rig.neutral
@@ -353,13 +359,7 @@ def write_glb_head(path: str | os.PathLike, times: np.ndarray, rotation: np.ndar
     t = np.asarray(times, dtype=np.float64).reshape(-1)
     if t.size == 0:
         raise InvalidDataError(f"{path}: no frames to write")
-    if not np.isfinite(t).all():
-        raise InvalidDataError(f"{path}: times are not all finite")
-    t32 = (t - t[0]).astype(np.float32)
-    if t.size > 1 and not (np.diff(t32) > 0).all():
-        k = int(np.flatnonzero(np.diff(t32) <= 0)[0]) + 1
-        raise InvalidDataError(f"{path}: frame {k} time {t[k]:.6f} s does not increase after "
-                               f"{t[k - 1]:.6f} s (in float32 seconds)")
+    t32 = _key_times(path, t)
     b = _Builder()
     t_acc = b.accessor(t32, "SCALAR")
     keys = _head_keys(path, b, t.size, rotation, translation, pivot)

@@ -64,13 +64,7 @@ def _lh_frames_py(G, B, tol, max_iter, warm):  # pragma: no cover - compiled by 
                     if k == 0:
                         break
                     ok = _chol_solve(G, b, idx, k, L, z)
-                    allpos = ok
-                    if ok:
-                        for a in range(k):
-                            if z[a] <= 0.0:
-                                allpos = False
-                                break
-                    if allpos:
+                    if ok and _all_positive(z, k):
                         for a in range(k):
                             x[idx[a]] = z[a]
                         break
@@ -106,12 +100,7 @@ def _lh_frames_py(G, B, tol, max_iter, warm):  # pragma: no cover - compiled by 
                     P[jbest] = False
                     banned[jbest] = True
                     break
-                allpos = True
-                for a in range(k):
-                    if z[a] <= 0.0:
-                        allpos = False
-                        break
-                if allpos:
+                if _all_positive(z, k):
                     for a in range(k):
                         x[idx[a]] = z[a]
                     break
@@ -162,6 +151,13 @@ def _gather_py(mask, idx):  # pragma: no cover - compiled by numba
     return k
 
 
+def _all_positive_py(z, k):  # pragma: no cover - compiled by numba
+    for a in range(k):
+        if z[a] <= 0.0:
+            return False
+    return True
+
+
 def _chol_solve_py(G, b, idx, k, L, z):  # pragma: no cover - compiled by numba
     """Solve ``G[idx, idx] z = b[idx]`` by Cholesky into ``z[:k]``; False when not positive definite."""
     for j in range(k):
@@ -210,6 +206,7 @@ def _free_solve_py(G, R, free):  # pragma: no cover - compiled by numba
 
 if numba is not None:  # pragma: no branch
     _gather = numba.njit(cache=True, nogil=True)(_gather_py)
+    _all_positive = numba.njit(cache=True, nogil=True)(_all_positive_py)
     _chol_solve = numba.njit(cache=True, nogil=True)(_chol_solve_py)
     _lh_frames = numba.njit(cache=True, nogil=True)(_lh_frames_py)
     _free_solve = numba.njit(cache=True, nogil=True)(_free_solve_py)
