@@ -8,7 +8,8 @@ another take of the same performer, reported beside it); the ``emotions6`` vecto
 angry and sad the styles; every styled take is the ``ict-face`` rig's 68 landmarks at the Pyun
 Sec. 2 composition of emotion and content, each style at its own known smooth tempo
 (:data:`faceretarget.style.DEFAULT_WARPS`).  The happy, angry and sad takes are aligned to the
-neutral one by DTW of face features (no audio), the error of the recovered warp is reported in
+neutral one by DTW of face features (no audio) and re-aligned by style (``realign_by_style``, as
+``StyleModel.fit`` does), the error of the recovered warp (and of the first pass) is reported in
 ms, and the models are trained on the first ``--train`` share (60 %) of the neutral timeline
 (neutral, happy, angry) and tested on the rest, against the rig's ground truth at the same
 content, with the P1 metrics (``faceretarget.evaluation.metrics``; ``rel_motion_pct`` is the
@@ -23,11 +24,13 @@ headline).  Tasks:
   driven at that share of the angry weights, with the range guard's score and flag.
 
 Baseline in the same run: adding the mean target-minus-source offset of the aligned training
-frames.  Variants: the shipped defaults (content prior, local correction, edits applied as a
-change to the input), the content prior alone, the thesis's plain least squares (neither; also
-with 99.9 % variance and energy), the model's rendering instead of the input plus the change,
-n-frame bundles (n = 3), and the default model trained on perfectly aligned frames (the
-alignment's cost).
+frames.  Variants: the shipped defaults (every setting cross-validated, including the choice
+between the bilinear translation with its correction and the point-local translation), the
+bilinear model with the correction its own stage of the selection preferred, the point-local
+translation with its best cross-validated setting (whether or not it won), the content prior
+alone, the thesis's plain least squares (neither; also with 99.9 % variance and energy), the
+bilinear model's rendering instead of the input plus the change, n-frame bundles (n = 3), and the
+default model trained on perfectly aligned frames (the alignment's cost).
 
 **P4**: known warp: shared speech clips (LibriTTS and RAVDESS) re-timed piecewise by a known
 function (pitch kept, WSOLA), aligned back by DTW of MFCC and of RASTA-PLP; median and 95th
@@ -73,6 +76,7 @@ from faceretarget.style import (
     frame_vectors,
     make_p3_takes,
     read_wav,
+    realign_by_style,
     time_warp_audio,
     warp_performance,
 )
@@ -82,6 +86,8 @@ TRAIN_STYLES = ["neutral", "happy", "angry"]
 P4_RATES = [1.0, 0.7, 1.35, 0.85, 1.2]           # the known piecewise re-timing (input speed-up per segment)
 EMOTION = {"01": "neutral", "03": "happy", "04": "sad", "05": "angry"}
 DEFAULT = "default (cross-validated)"
+BILINEAR = "bilinear + best correction"
+POINTS = "point-local translation"
 PREVIOUS = "previous defaults (kNN 8)"
 PRIOR_ONLY = "previous, content prior only"
 #: The settings shipped before the cross-validated selection (picked by hand on S07-001).
@@ -239,17 +245,22 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
 
     # ---------------------------------------------------------------- alignment (face features)
     t0 = time.perf_counter()
-    aligned, align_err = {"neutral": ref.points}, {}
+    aligned, align_err, first_err = {"neutral": ref.points}, {}, {}
     als = {}
     for s in ("happy", "angry", "sad"):
-        al = align_performances(ref, p3.takes[s])
+        al0 = align_performances(ref, p3.takes[s])
+        al = realign_by_style(ref, p3.takes[s], al0)                   # what StyleModel.fit does
         als[s] = al
         aligned[s] = frame_vectors(warp_performance(p3.takes[s], al)).reshape(T, -1, 3)
-        align_err[s] = al.errors_ms(p3.true_take_time(s, "neutral", ref.times))
+        truth_t = p3.true_take_time(s, "neutral", ref.times)
+        align_err[s], first_err[s] = al.errors_ms(truth_t), al0.errors_ms(truth_t)
     t_align = time.perf_counter() - t0
     pooled = np.concatenate(list(align_err.values()))
-    log(f"P3 alignment (DTW of face features, {t_align:.1f} s): "
-        + "; ".join(f"{s} median {np.median(e):.1f} ms p95 {np.percentile(e, 95):.0f} ms" for s, e in align_err.items()))
+    pooled0 = np.concatenate(list(first_err.values()))
+    log(f"P3 alignment (DTW of face features, then re-aligned by style; {t_align:.1f} s): "
+        + "; ".join(f"{s} median {np.median(e):.1f} ms p95 {np.percentile(e, 95):.0f} ms (first pass "
+                    f"{np.median(first_err[s]):.1f} / {np.percentile(first_err[s], 95):.0f})"
+                    for s, e in align_err.items()))
 
     split = int(round(train_frac * T))
     tr, te = slice(0, split), slice(split, T)
@@ -322,13 +333,22 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
     m_def, u_def, uh_def = run_variant(DEFAULT, aligned)
     chosen = dict(m_def.settings_)
     log(f"  settings chosen by cross-validation on the training frames: {chosen}")
+    # the bilinear model with the correction its own stage of the selection preferred (the default
+    # when the point-local translation did not win); rendering-only and bundles only apply to it
+    s2 = [r for r in m_def.selection_.table if r["stage"] == 2]
+    best2 = min(s2, key=lambda r: r["score"])["local"] if s2 else chosen["local"]
+    bil = {**chosen, "local": tuple(best2) if isinstance(best2, list) else best2}
+    run_variant(BILINEAR, aligned, **bil)
+    s3 = [r for r in m_def.selection_.table if r["stage"] == 3]
+    if s3:                                                              # the point-local translation's best
+        run_variant(POINTS, aligned, **{**chosen, "local": tuple(min(s3, key=lambda r: r["score"])["local"])})
     run_variant("CV settings, no correction", aligned, **{**chosen, "local": 0})
     run_variant(PREVIOUS, aligned, **OLD)
     run_variant(PRIOR_ONLY, aligned, **{**OLD, "local": 0})
     run_variant("thesis (plain least squares)", aligned, **{**OLD, "prior": False, "local": 0})
     run_variant("thesis, 99.9% var/energy", aligned, prior=False, local=0, variance=0.999, energy=0.999)
-    run_variant("CV settings, rendering only", aligned, **chosen, detail=False)
-    run_variant("CV settings, bundles n=3", aligned, **chosen, bundle=3)
+    run_variant("bilinear, rendering only", aligned, **bil, detail=False)
+    run_variant("bilinear, bundles n=3", aligned, **bil, bundle=3)
     run_variant("default, true alignment", gt)
 
     # ---------------------------------------------------------------- interpolation / extrapolation (Eq. 2.15)
@@ -367,12 +387,16 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
                                          "best_stage1": sorted([r for r in sel.table if r["stage"] == 1],
                                                                key=lambda r: r["score"])[:5],
                                          "stage2": sorted([r for r in sel.table if r["stage"] == 2],
-                                                          key=lambda r: r["score"])[:8]},
+                                                          key=lambda r: r["score"])[:8],
+                                         "stage3": sorted([r for r in sel.table if r["stage"] == 3],
+                                                          key=lambda r: r["score"])},
         "content": content, "frames": T, "train_frames": split, "test_frames": T - split,
         "align_median_ms": {s: round(float(np.median(e)), 2) for s, e in align_err.items()},
         "align_p95_ms": {s: round(float(np.percentile(e, 95)), 2) for s, e in align_err.items()},
         "align_pooled_median_ms": round(float(np.median(pooled)), 2),
         "align_pooled_p95_ms": round(float(np.percentile(pooled, 95)), 2),
+        "align_first_pass_median_ms": round(float(np.median(pooled0)), 2),
+        "align_first_pass_p95_ms": round(float(np.percentile(pooled0, 95)), 2),
         "align_s": round(t_align, 2), "baseline": base, "variants": results, "default": d,
         "interpolation": interp, "sym_convergence": {str(k): [float(x) for x in v] for k, v in conv.items()},
         "baseline_ms_per_frame": 1000 * t_base / len(x_in),
@@ -394,7 +418,7 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
                             uh_def.inferred.history, COL[1], False)],
                 "title": "P3 test frames, style constant over 30-frame windows", "xlabel": "iteration",
                 "ylabel": "mean sq. residual", "logy": True}], cols=1, pw=760)
-    figure(out / "p3_alignment.png", "P3: face-feature DTW alignment to the neutral take", [
+    figure(out / "p3_alignment.png", "P3: face-feature DTW alignment to the neutral take, re-aligned by style", [
         {"series": [(s, ref.times, als[s].take_times - p3.true_take_time(s, "neutral", ref.times) * 1.0,
                      COL[i], False) for i, s in enumerate(als)],
          "title": "recovered minus true warp (s)", "xlabel": "neutral take time (s)", "ylabel": "error (s)"},
@@ -409,7 +433,7 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
     kd = m_i.known(x_in, "neutral", "angry", warn=False)
     figure(out / "p3_trajectory.png", "P3 known expression neutral -> angry: lower-lip landmark height (cm)", [
         {"series": [("rig truth (angry)", times_te[sel], gt["angry"][te][sel, lip, 1], (0, 0, 0), False),
-                    ("bilinear (default)", times_te[sel], kd.frames[sel, lip, 1], COL[0], False),
+                    ("default model", times_te[sel], kd.frames[sel, lip, 1], COL[0], False),
                     ("additive baseline", times_te[sel], base_known[sel, lip, 1], COL[1], True),
                     ("input (neutral)", times_te[sel], x_in[sel, lip, 1], (150, 150, 150), True)],
          "title": "first 8 s of the held-out part", "xlabel": "time (s)", "ylabel": "y (cm)",
@@ -600,7 +624,8 @@ def main(argv=None) -> int:
     for it in p3["interpolation"]:
         log(f"{it['amount']:<26g}{it['rel_motion_pct']:8.2f}{it['range_score']:8.2f}{str(it['outside']):>6s}")
     log("")
-    log(f"alignment: P3 faces median {p3['align_pooled_median_ms']:.1f} ms p95 {p3['align_pooled_p95_ms']:.0f} ms; "
+    log(f"alignment: P3 faces median {p3['align_pooled_median_ms']:.1f} ms p95 {p3['align_pooled_p95_ms']:.0f} ms "
+        f"(first pass {p3['align_first_pass_median_ms']:.1f} / {p3['align_first_pass_p95_ms']:.0f} ms); "
         f"P4 speech MFCC median {p4['known_warp']['mfcc']['median_ms']:.1f} ms p95 {p4['known_warp']['mfcc']['p95_ms']:.1f} ms, "
         f"RASTA-PLP median {p4['known_warp']['rplp']['median_ms']:.1f} ms p95 {p4['known_warp']['rplp']['p95_ms']:.1f} ms")
     log(f"speed: known expression {d['known_ms_per_frame']:.3f} ms/frame = "
@@ -614,12 +639,16 @@ def main(argv=None) -> int:
         "unknown_from_happy_baseline_err_pct": b["unknown_from_happy"]["rel_motion_pct"],
         "untrained_err_pct": d["untrained"]["rel_motion_pct"],
         "untrained_baseline_err_pct": b["untrained"]["rel_motion_pct"],
+        "known_bilinear_err_pct": p3["variants"][BILINEAR]["known"]["rel_motion_pct"],
+        "known_point_local_err_pct": p3["variants"].get(POINTS, {}).get("known", {}).get("rel_motion_pct"),
         "known_thesis_err_pct": p3["variants"]["thesis (plain least squares)"]["known"]["rel_motion_pct"],
         "known_prior_only_err_pct": p3["variants"][PRIOR_ONLY]["known"]["rel_motion_pct"],
         "known_previous_defaults_err_pct": p3["variants"][PREVIOUS]["known"]["rel_motion_pct"],
         "align_median_ms": p4["known_warp"]["mfcc"]["median_ms"],
         "align_p95_ms": p4["known_warp"]["mfcc"]["p95_ms"],
         "p3_align_median_ms": p3["align_pooled_median_ms"],
+        "p3_align_first_pass_median_ms": p3["align_first_pass_median_ms"],
+        "p3_align_first_pass_p95_ms": p3["align_first_pass_p95_ms"],
         "p3_align_p95_ms": p3["align_pooled_p95_ms"],
         "sym_iters": d["sym_iters"],
         "unknown_iters": d["unknown_iters"],
@@ -642,6 +671,9 @@ def main(argv=None) -> int:
                                     "untrained_baseline_err_pct": q["baseline"]["untrained"]["rel_motion_pct"],
                                     "align_median_ms": q["align_pooled_median_ms"],
                                     "settings": q["settings"],
+                                    "bilinear_known_err_pct": q["variants"][BILINEAR]["known"]["rel_motion_pct"],
+                                    "point_local_known_err_pct":
+                                        q["variants"].get(POINTS, {}).get("known", {}).get("rel_motion_pct"),
                                     "previous_defaults_known_err_pct": q["variants"][PREVIOUS]["known"]["rel_motion_pct"],
                                     "previous_defaults_unknown_err_pct":
                                         q["variants"][PREVIOUS]["unknown"]["rel_motion_pct"]} for q in p3_all},

@@ -230,7 +230,13 @@ def test_mfcc_alignment_of_real_speech_retimed_by_known_warp(data_dir):
 def test_p3_face_alignment_and_known_expression(data_dir, ict_rig):
     from faceretarget.evaluation import rel_motion_pct
     from faceretarget.io import read_livelinkface
-    from faceretarget.style import align_performances, frame_vectors, make_p3_takes, warp_performance
+    from faceretarget.style import (
+        align_performances,
+        frame_vectors,
+        make_p3_takes,
+        realign_by_style,
+        warp_performance,
+    )
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -241,14 +247,105 @@ def test_p3_face_alignment_and_known_expression(data_dir, ict_rig):
     aligned = {"neutral": ref.points}
     for s in ("happy", "angry"):
         al = align_performances(ref, p3.takes[s])
-        assert np.median(al.errors_ms(p3.true_take_time(s, "neutral", ref.times))) < 33.0
-        aligned[s] = frame_vectors(warp_performance(p3.takes[s], al)).reshape(ref.points.shape)
+        truth = p3.true_take_time(s, "neutral", ref.times)
+        assert np.median(al.errors_ms(truth)) < 33.0
+        al2 = realign_by_style(ref, p3.takes[s], al)                        # what StyleModel.fit does
+        e1, e2 = al.errors_ms(truth), al2.errors_ms(truth)
+        assert al2.by == "face+style" and np.median(e2) < 33.0
+        assert np.percentile(e2, 95) < 0.8 * np.percentile(e1, 95), (s, np.percentile(e1, 95), np.percentile(e2, 95))
+        aligned[s] = frame_vectors(warp_performance(p3.takes[s], al2)).reshape(ref.points.shape)
     n = int(0.6 * ref.n_frames)
     model = StyleModel().fit_frames({s: v[:n] for s, v in aligned.items()})
     gt = p3.truth_on("angry", "neutral", ref.times[n:])
     pred = model.known(ref.points[n:], "neutral", "angry", warn=False).frames
     base = ref.points[n:] + (aligned["angry"][:n] - aligned["neutral"][:n]).mean(0)
+    assert any(r["stage"] == 3 for r in model.selection_.table)            # point-local candidates scored
     assert rel_motion_pct(pred, gt, p3.neutral) < 0.7 * rel_motion_pct(base, gt, p3.neutral)
+
+
+def _local_nonlinear_takes(P=12, C=700, seed=3):
+    """Points moving independently; the 'style' change at each point depends nonlinearly on that
+    point alone (a bend that only shows when the point is displaced), so no linear map of whole
+    frames reproduces it, and the point-local translation can."""
+    rng = np.random.default_rng(seed)
+    rest = rng.standard_normal((P, 3)) * 3.0
+    t = np.arange(C) / 30.0
+    f = rng.uniform(0.2, 1.5, (P, 3))
+    ph = rng.uniform(0, 2 * np.pi, (P, 3))
+    disp = np.sin(2 * np.pi * f[None] * t[:, None, None] + ph[None])          # (C, P, 3), |d| <= 1
+    x0 = rest[None] + disp
+    bend = np.stack([0.4 * disp[..., 1] ** 2, -0.3 * np.abs(disp[..., 0]), 0.5 * disp[..., 0] * disp[..., 2]], -1)
+    x1 = x0 + np.array([0.2, 0.1, -0.1]) + bend
+    return x0, x1
+
+
+def test_point_local_translation_learns_a_local_nonlinear_change(tmp_path):
+    from faceretarget.style._pointlocal import fit_point_map, neighbours
+
+    x0, x1 = _local_nonlinear_takes()
+    tr, te = slice(0, 500), slice(500, None)
+    rest = x0[tr].mean(0)
+    nb = neighbours(rest, 3)
+    assert nb.shape == (12, 3) and np.all(nb[:, 0] == np.arange(12))
+    truth = x1[te] - x0[te]
+    err = {}
+    for spec in (("points", 1, 0), ("points", 1, 8), ("points", 3, 8)):
+        pm = fit_point_map(x0[tr], x1[tr], rest, spec)
+        err[spec] = float(np.sqrt(np.mean((pm.predict(x0[te]) - truth) ** 2)))
+    additive = float(np.sqrt(np.mean((truth - (x1[tr] - x0[tr]).mean(0)) ** 2)))
+    # the bend is even in the displacement: no affine map (of the point or of the frame) sees it
+    assert err[("points", 1, 0)] < 1.05 * additive and err[("points", 1, 8)] < 0.3 * additive, (err, additive)
+    assert err[("points", 1, 8)] < 0.06
+
+    # the model's selection picks the point-local translation here, and it behaves like a translation
+    third = x0 + np.array([0.0, -0.15, 0.05])                                # a third, additive style
+    model = StyleModel().fit_frames({"a": x0[tr], "b": x1[tr], "c": third[tr]})
+    assert model.settings_["local"][0] == "points"
+    assert any(r["stage"] == 3 for r in model.selection_.table)
+    r = model.known(x0[te], "a", "b", warn=False)
+    assert r.local and r.frames.shape == x0[te].shape
+    # the guard sees the edit about as far out as the true frames (independent oscillators leave
+    # the training range of the PCA coefficients anyway), and an exaggeration much further
+    assert r.range.score < model.range_report(x1[te], warn=False).score + 0.2
+    assert model.known(x0[te], "a", "b", amount=4.0, warn=False).range.score > r.range.score + 1.0
+    assert np.sqrt(np.mean((r.frames - x1[te]) ** 2)) < 0.05
+    np.testing.assert_array_equal(model.known(x0[te], "a", "b", amount=0.0, warn=False).frames, x0[te])
+    half = model.known(x0[te], "a", "b", amount=0.5, warn=False).frames
+    np.testing.assert_allclose(half, 0.5 * (x0[te] + r.frames), atol=1e-12)
+    u = model.unknown(x0[te], "b", window=50, warn=False)
+    assert np.all(u.inferred.nearest == 0) and np.sqrt(np.mean((u.frames - x1[te]) ** 2)) < 0.05
+    back = StyleModel.load(model.save(tmp_path / "pl.npz"))
+    assert back.settings_["local"] == model.settings_["local"]
+    np.testing.assert_allclose(back.known(x0[te], "a", "b", warn=False).frames, r.frames, atol=1e-9)
+    # an added style is paired with 'a' only: d -> b goes through a
+    fourth = x0 + np.array([0.1, 0.0, 0.1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", StyleFitWarning)
+        model.add_style("d", fourth[tr], like=("a", x0[tr]))
+    assert model._point_path("d", "b") == ["d", "a", "b"]
+    assert np.sqrt(np.mean((model.known(fourth[te], "d", "b", warn=False).frames - x1[te]) ** 2)) < 0.06
+
+
+def test_point_local_spec_is_validated_and_weights_keep_the_bilinear_path():
+    from faceretarget.style._model import _local_spec
+    from faceretarget.style._pointlocal import point_count
+
+    assert _local_spec(["points", 3, 8]) == ("points", 3, 8)
+    for bad in (("points", 0, 8), ("points", 1, -1), ("points", 1.5, 3), ("points", "x", 3)):
+        with pytest.raises(InvalidDataError, match="point-local"):
+            _local_spec(bad)
+    assert point_count((68, 3)) == 68 and point_count((52,)) is None and point_count((5000, 3)) is None
+    from faceretarget.performance import Performance
+    from faceretarget.style import align_performances, realign_by_style
+
+    rng = np.random.default_rng(0)
+    w = Performance.from_weights(rng.random((40, 3)), ["jawOpen", "mouthClose", "browInnerUp"], fps=30.0,
+                                 source="w.csv")
+    with pytest.raises(InvalidDataError, match=r"w\.csv.*point takes"):
+        realign_by_style(w, w, align_performances(w, w))
+    train, test, _, _ = _bilinear_frames(seed=5)                           # flat (weights-like) frames
+    model = StyleModel().fit_frames({f"s{i}": train[i] for i in range(4)})
+    assert not (isinstance(model.settings_["local"], tuple) and model.settings_["local"][0] == "points")
 
 
 # ------------------------------------------------------------------------------------------ sliders
@@ -347,6 +444,28 @@ def test_cli_fit_and_restyle_end_to_end(takes, capsys):
     assert rc == 0 and "inferred style" in out
     names, times, w = read_glb_weights(d / "r.glb")
     assert w.shape[0] == neutral.n_frames
+
+
+def test_cli_point_takes_use_the_point_local_translation(tmp_path, capsys):
+    from faceretarget.io.npz import read_npz_performance, write_npz
+
+    main = _cli_main()
+    x0, x1 = _local_nonlinear_takes(C=600)
+    t = np.arange(len(x0)) / 30.0
+    write_npz(tmp_path / "a.npz", x0, t)
+    write_npz(tmp_path / "b.npz", x1, t)
+    rc = main(["style", "fit", "--take", f"a={tmp_path / 'a.npz'}", "--take", f"b={tmp_path / 'b.npz'}",
+               "--local", "points:1:8", "--out", str(tmp_path / "m.npz")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "aligned b to a by face+style" in out
+    rc = main(["restyle", "--model", str(tmp_path / "m.npz"), "--performance", str(tmp_path / "a.npz"),
+               "--from", "a", "--to", "b", "--out", str(tmp_path / "r.npz")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "by the point-local translation" in out
+    r = read_npz_performance(tmp_path / "r.npz")
+    assert r.vertices.shape == x0.shape
+    err = np.sqrt(np.mean((r.vertices[:500] - x1[:500]) ** 2))
+    assert err < 0.1 * np.sqrt(np.mean((x0[:500] - x1[:500]) ** 2)), err
 
 
 def test_cli_bad_input_is_one_line_exit_2(takes, capsys, tmp_path):

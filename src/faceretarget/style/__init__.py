@@ -20,6 +20,7 @@ from ._align import (
     face_features,
     frame_vectors,
     path_to_times,
+    realign_by_style,
     resample,
     warp_performance,
 )
@@ -76,6 +77,7 @@ __all__ = [
     "load_bilinear",
     "Alignment",
     "align_performances",
+    "realign_by_style",
     "align_audio",
     "align_features",
     "dtw_path",

@@ -13,7 +13,12 @@ model can pair their frames, every take is put on the reference take's timeline:
 3. **Warp**: every reference frame gets the take time at the middle of the take frames the path
    matches it to (:func:`path_to_times`), smoothed lightly and kept strictly increasing; feature
    frame times are converted to face frame times through the takes' clocks.
-4. **Resampling**: the take's face frames are interpolated linearly at those times
+4. **Re-alignment by style** (point takes aligned by face, :func:`realign_by_style`): the
+   emotion reshapes the lips' motion, so the take's velocities never quite match the reference's.
+   With the first alignment, the change from the reference's style to the take's is learned point
+   by point (:mod:`._pointlocal`), the reference is rendered in the take's style, and DTW runs
+   again between that rendering and the take, now in the same style; twice.
+5. **Resampling**: the take's face frames are interpolated linearly at those times
    (:func:`resample`, :func:`warp_performance`), so the result has the reference's frame count and
    times.
 """
@@ -27,6 +32,7 @@ import numpy as np
 from ..errors import InvalidDataError
 from ..performance import Performance
 from ._features import audio_features
+from ._pointlocal import fit_point_map, point_count
 
 __all__ = [
     "Alignment",
@@ -36,6 +42,7 @@ __all__ = [
     "align_features",
     "align_audio",
     "align_performances",
+    "realign_by_style",
     "resample",
     "warp_performance",
     "frame_vectors",
@@ -318,6 +325,54 @@ def align_performances(ref: Performance, take: Performance, *, by: str = "auto",
                                f"{xa.shape[1]}; takes of one model must have the same kind and size")
     return align_features(face_features(xa), face_features(xb), ref.times, take.times, window_s=window_s,
                           by="face")
+
+
+#: The point-local change used to re-align by style (``("points", neighbours, frames)``): each point
+#: alone, remainder averaged over 8 frames (the middle of the selection's grid).
+REALIGN_MAP = ("points", 1, 8)
+
+
+def realign_by_style(ref: Performance, take: Performance, alignment: Alignment, *, iterations: int = 2,
+                     window_s: float | None = None) -> Alignment:
+    """Refine a face-feature alignment by aligning ``take`` to ``ref`` rendered in the take's style.
+
+    Every iteration resamples the take on the current alignment, fits the point-local change from
+    the reference to the take over all paired frames (:func:`~._pointlocal.fit_point_map`,
+    :data:`REALIGN_MAP`), renders the reference with that change, and runs DTW of
+    :func:`face_features` between the rendering and the take.  On P3 this cuts the 95th
+    percentile of the warp error by a third to a half (``docs/style.md``).
+
+    Parameters
+    ----------
+    ref, take : Performance
+        Point takes (``(P, 3)`` frames) of the same text.
+    alignment : Alignment
+        The first alignment (:func:`align_performances` by face).
+    iterations : int
+    window_s : float, optional
+        Sakoe-Chiba band half-width in seconds.
+
+    Returns
+    -------
+    Alignment
+        ``by`` is ``"face+style"``.
+    """
+    P = point_count(ref.data().shape[1:])
+    if P is None or ref.data().shape[1:] != take.data().shape[1:]:
+        raise InvalidDataError(f"{take.source}: re-alignment by style needs point takes of the same (P, 3) shape "
+                               f"(P <= 512), got {tuple(ref.data().shape[1:])} and {tuple(take.data().shape[1:])}")
+    xa, xb = frame_vectors(ref), frame_vectors(take)
+    T = len(xa)
+    xa3 = xa.reshape(T, P, 3)
+    rest = xa3.mean(0)
+    cur = alignment
+    for _ in range(int(iterations)):
+        xw = resample(xb, take.times, cur(ref.times)).reshape(T, P, 3)
+        pm = fit_point_map(xa3, xw, rest, REALIGN_MAP)
+        pred = xa + pm.predict(xa3).reshape(T, -1)
+        cur = align_features(face_features(pred), face_features(xb), ref.times, take.times, window_s=window_s,
+                             by="face+style")
+    return cur
 
 
 # ------------------------------------------------------------------------------------------- resampling

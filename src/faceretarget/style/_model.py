@@ -46,6 +46,14 @@ over paired training frames; every input frame gets the mean residual of the ``l
 frames nearest to it in the source style's observation space added to its rendering (for Eq. 2.15
 ``(1 - alpha) R_source->source + alpha R_source->target``).  With ``local=0`` the output is the
 bilinear model's alone.
+
+**Point-local translation** (``local=("points", m, k)``, :mod:`._pointlocal`; chosen by the
+cross-validation when it predicts held-out training blocks better): for frames of points, the
+known- and unknown-expression edits are the input plus, at every point, the change learned from
+the paired training frames as a function of that point and its ``m - 1`` neighbours (affine, plus
+the mean remainder of the ``k`` nearest training frames), instead of the bilinear translation.
+Point takes aligned by face are re-aligned by style (:func:`~._align.realign_by_style`,
+``realign`` iterations) before the models are fitted.
 """
 
 from __future__ import annotations
@@ -63,8 +71,9 @@ from ..errors import InputFileError, InvalidDataError
 from ..io._atomic import atomic_path
 from ..names import normalize_name
 from ..performance import Performance
-from ._align import Alignment, align_performances, frame_vectors, warp_performance
+from ._align import Alignment, align_performances, frame_vectors, realign_by_style, warp_performance
 from ._bilinear import AsymmetricBilinearModel, InferResult, SymmetricBilinearModel
+from ._pointlocal import fit_point_map, point_count
 from ._select import (
     STYLE_RIDGE_GRID,
     kernel_fit,
@@ -78,6 +87,10 @@ from ._select import (
 __all__ = ["StyleModel", "Restyled", "RangeReport", "StyleRangeWarning", "StyleFitWarning", "bundle_frames", "unbundle_frames"]
 
 _FORMAT = 1
+#: The range guard measures each PCA component's excess in units of its training range, but at
+#: least this share of the widest component's range: components holding only noise-level variation
+#: (which the point-local translation does not reproduce exactly) do not decide plausibility.
+RANGE_FLOOR = 0.05
 
 
 class StyleRangeWarning(UserWarning):
@@ -96,7 +109,8 @@ class RangeReport:
     ----------
     score : float
         Largest excess over all frames and PCA components beyond the training range
-        ``[lo_k, hi_k]``, in units of that range's width (0: inside everywhere).
+        ``[lo_k, hi_k]``, in units of that range's width, or of :data:`RANGE_FLOOR` times the
+        widest component's when that is larger (0: inside everywhere).
     outside : bool
         ``score > margin``.
     frames_outside : float
@@ -147,13 +161,23 @@ def _amount(amount) -> float:
 
 
 def _local_spec(local):
-    """``local`` normalised: ``"auto"``, ``0`` (off), an int ``k`` (nearest-frame mean) or
-    ``("kernel", bandwidth, ridge)``."""
+    """``local`` normalised: ``"auto"``, ``0`` (off), an int ``k`` (nearest-frame mean),
+    ``("kernel", bandwidth, ridge)`` or ``("points", neighbours, frames)``."""
     if isinstance(local, str):
         if local != "auto":
-            raise InvalidDataError(f"local must be 'auto', a number of frames or ('kernel', bandwidth, ridge), "
-                                   f"got {local!r}")
+            raise InvalidDataError(f"local must be 'auto', a number of frames, ('kernel', bandwidth, ridge) or "
+                                   f"('points', neighbours, frames), got {local!r}")
         return local
+    if isinstance(local, (list, tuple)) and len(local) == 3 and local[0] == "points":
+        try:
+            m, k = int(local[1]), int(local[2])
+        except (TypeError, ValueError) as e:
+            raise InvalidDataError(f"a point-local translation is ('points', neighbours >= 1, frames >= 0), "
+                                   f"got {local!r}") from e
+        if m < 1 or k < 0 or m != float(local[1]) or k != float(local[2]):
+            raise InvalidDataError(f"a point-local translation is ('points', neighbours >= 1, frames >= 0), "
+                                   f"got {local!r}")
+        return ("points", m, k)
     if isinstance(local, (list, tuple)):
         if len(local) != 3 or local[0] != "kernel" or not (float(local[1]) > 0 and float(local[2]) > 0):
             raise InvalidDataError(f"a kernel correction is ('kernel', bandwidth > 0, ridge > 0), got {local!r}")
@@ -217,11 +241,16 @@ class StyleModel:
         Frames per observation (Eq. 2.14); 1: single frames.
     offset : float
         Constant coordinate ``c0`` in units of the RMS norm of the PCA coefficients (0: none).
-    local : "auto", int or ("kernel", bandwidth, ridge)
+    local : "auto", int, ("kernel", bandwidth, ridge) or ("points", neighbours, frames)
         Local correction: 0 off; ``k`` the mean training residual of the ``k`` nearest training
         frames; ``("kernel", h, lam)`` kernel ridge regression of the training residuals on the
         source observation (:func:`~._select.kernel_fit`; ``h`` in units of the median
         nearest-neighbour distance, ``lam`` relative to the kernel's diagonal).
+        ``("points", m, k)``: instead of the bilinear translation, the point-local one
+        (:mod:`._pointlocal`; frames of ``(P, 3)`` points only): every point's change from the
+        paired training frames, affine in the point and its ``m - 1`` neighbours plus the mean
+        remainder of the ``k`` nearest training frames.  ``"auto"`` considers all of these
+        (the point-local one when frames are points).
     prior : bool, float or "auto"
         Strength of the content prior (:mod:`._bilinear`); ``False`` / 0: the thesis's plain least
         squares, ``True``: 1.
@@ -237,6 +266,9 @@ class StyleModel:
         Sakoe-Chiba band of the alignment, seconds.
     cv_folds : int
         Folds of the settings' cross-validation.
+    realign : int
+        Iterations of re-alignment by style (:func:`~._align.realign_by_style`) for point takes
+        aligned by face features; 0: the first DTW alignment only.
 
     Attributes
     ----------
@@ -267,7 +299,8 @@ class StyleModel:
     def __init__(self, variance: float | str = "auto", energy: float | str = "auto", content_dims: int | None = None,
                  style_dims: int | None = None, bundle: int = 1, offset: float = 10.0, local: int | tuple | str = "auto",
                  prior: bool | float | str = "auto", detail: bool = True, align: str = "auto",
-                 audio_features: str = "mfcc", window_s: float | None = None, cv_folds: int = 5):
+                 audio_features: str = "mfcc", window_s: float | None = None, cv_folds: int = 5,
+                 realign: int = 2):
         self.variance = variance
         self.energy = energy
         self.cv_folds = cv_folds
@@ -281,6 +314,7 @@ class StyleModel:
         self.align = align
         self.audio_features = audio_features
         self.window_s = window_s
+        self.realign = realign
 
     # ------------------------------------------------------------------------------------ fitting
     def fit(self, takes: Mapping[str, Performance], reference: str | None = None) -> StyleModel:
@@ -308,7 +342,7 @@ class StyleModel:
             if s == ref:
                 frames[s] = frame_vectors(p)
                 continue
-            al = align_performances(base, p, by=self.align, features=self.audio_features, window_s=self.window_s)
+            al = self._align(base, p)
             self.alignments_[s] = al
             frames[s] = frame_vectors(warp_performance(p, al))
         self.reference_ = ref
@@ -334,6 +368,13 @@ class StyleModel:
         self.reference_ = next(iter(arrs))
         self.alignments_ = {}
         return self._fit_vectors({s: a.reshape(len(a), -1) for s, a in arrs.items()})
+
+    def _align(self, ref: Performance, take: Performance) -> Alignment:
+        """DTW alignment of ``take`` to ``ref``; point takes aligned by face are re-aligned by style."""
+        al = align_performances(ref, take, by=self.align, features=self.audio_features, window_s=self.window_s)
+        if al.by == "face" and int(getattr(self, "realign", 0)) > 0 and point_count(self.frame_shape_) is not None:
+            al = realign_by_style(ref, take, al, iterations=int(self.realign), window_s=self.window_s)
+        return al
 
     def _set_layout(self, p: Performance) -> None:
         self.take_kind_ = p.kind
@@ -429,7 +470,9 @@ class StyleModel:
             m.settings_ = {"variance": variance, "energy": energy, "prior": prior, "local": 0}
             return m
 
-        sel = select_settings(make, X, fixed=fixed, folds=self.cv_folds)
+        P = point_count(self.frame_shape_)
+        rest = None if P is None else np.concatenate(list(X.values())).mean(0).reshape(P, 3)
+        sel = select_settings(make, X, fixed=fixed, folds=self.cv_folds, points_rest=rest)
         self.selection_ = sel
         self.settings_ = sel.settings()
 
@@ -484,7 +527,8 @@ class StyleModel:
         return self._range(z, margin, warn)
 
     def _range(self, z: np.ndarray, margin: float, warn: bool) -> RangeReport:
-        width = np.maximum(self.coef_hi_ - self.coef_lo_, 1e-12 * max(float(np.ptp(self.coef_hi_)), 1e-300))
+        w = self.coef_hi_ - self.coef_lo_
+        width = np.maximum(w, max(RANGE_FLOOR * float(w.max(initial=0.0)), 1e-300))
         ex = np.maximum(np.maximum(z - self.coef_hi_, self.coef_lo_ - z), 0.0) / width
         per_frame = ex.max(axis=1) if ex.size else np.zeros(len(z))
         score = float(per_frame.max(initial=0.0))
@@ -519,6 +563,9 @@ class StyleModel:
         for st in (source, target):
             A.style_index(st)
         x = self._flat(frames)
+        if self._points_on():
+            src = np.zeros(len(x), int)
+            return self._points_result(x, src, [source], target, amount, margin, warn)
         Yin = self.encode(x)
         b = A.content(Yin, source)
         Y = A.interpolate(b, source, target, amount)
@@ -554,6 +601,12 @@ class StyleModel:
             block = Yin.shape[1] // self.bundle
             anchor = (np.arange(self.bundle) * block, self.offset_)
         res = S.infer(Yin, window=window, max_iter=max_iter, anchor=anchor)
+        if self._points_on():                                          # each frame from its nearest style
+            near = res.nearest[np.minimum(np.arange(len(x)), len(res.nearest) - 1)]
+            out = self._points_result(x, near, list(self.styles_), target, amount, margin, warn)
+            out.inferred = res
+            out.style_weights = self._style_weights(res.style)
+            return out
         a = (1 - amount) * res.style + amount * at
         Y = S.render(res.content, a)
         Y0 = S.render(res.content, res.style) if self.detail else None
@@ -627,6 +680,61 @@ class StyleModel:
     def _local_on(self) -> bool:
         loc = self.settings_["local"]
         return isinstance(loc, tuple) or int(loc) > 0
+
+    def _points_on(self) -> bool:
+        loc = self.settings_["local"]
+        return isinstance(loc, tuple) and loc[0] == "points"
+
+    def _point_map(self, source: str, target: str):
+        """The point-local change ``source -> target`` fitted on their paired training frames (or None)."""
+        key = ("points", source, target)
+        cache = self.__dict__.setdefault("_local_cache", {})
+        if key not in cache:
+            found = None
+            P = point_count(self.frame_shape_)
+            for ps in self.pair_sets_:
+                if source in ps and target in ps and P is not None:
+                    xs, xt = (ps[st] @ self.basis_.T + self.mean_ for st in (source, target))
+                    found = fit_point_map(xs.reshape(len(xs), P, 3), xt.reshape(len(xt), P, 3),
+                                          self.mean_.reshape(P, 3), self.settings_["local"])
+                    break
+            cache[key] = found
+        return cache[key]
+
+    def _point_path(self, source: str, target: str) -> list[str] | None:
+        """Styles from ``source`` to ``target`` linked by paired training frames: ``[source, target]``, or
+        through one style paired with both (an added style and the training styles), or None."""
+        if self._point_map(source, target) is not None:
+            return [source, target]
+        for mid in self.styles_:
+            if mid not in (source, target) and self._point_map(source, mid) is not None \
+                    and self._point_map(mid, target) is not None:
+                return [source, mid, target]
+        return None
+
+    def _points_result(self, x: np.ndarray, src_index: np.ndarray, sources: list[str], target: str,
+                       amount: float, margin: float, warn: bool) -> Restyled:
+        """The input plus ``amount`` times the point-local change from each frame's source style."""
+        P = point_count(self.frame_shape_)
+        out = x.copy()
+        used = False
+        for si in np.unique(src_index):
+            sel = src_index == si
+            if sources[si] == target:
+                continue
+            path = self._point_path(sources[si], target)
+            if path is None:
+                raise InvalidDataError(f"no paired training frames link '{sources[si]}' to '{target}' for the "
+                                       "point-local translation; fit with local=0 or a kernel correction")
+            y = x[sel].reshape(-1, P, 3)
+            for a, b in zip(path[:-1], path[1:], strict=True):           # through the style the examples were paired with
+                y = y + self._point_map(a, b).predict(y)
+            out[sel] = x[sel] + amount * (y.reshape(int(sel.sum()), -1) - x[sel])
+            used = True
+        r = Restyled(out.reshape((len(out),) + tuple(self.frame_shape_)),
+                     self._range((out - self.mean_) @ self.basis_, margin, warn))
+        r.local = used
+        return r
 
     def _style_weights(self, a: np.ndarray) -> np.ndarray:
         """Per-frame affine weights (sum 1) of the training styles reproducing style vectors ``a``."""
@@ -740,7 +848,7 @@ class StyleModel:
         self._check_fitted()
         kt = self._conform(known_take)
         tk = self._conform(take)
-        al = align_performances(kt, tk, by=self.align, features=self.audio_features, window_s=self.window_s)
+        al = self._align(kt, tk)
         return self.add_style(name, frame_vectors(warp_performance(tk, al)), like=(known, frame_vectors(kt)))
 
     def _result(self, Y: np.ndarray, margin: float, warn: bool, x: np.ndarray | None = None,
@@ -797,7 +905,7 @@ class StyleModel:
         path = Path(path)
         params = {k: getattr(self, k) for k in ("variance", "energy", "content_dims", "style_dims", "bundle",
                                                 "offset", "local", "prior", "detail", "align", "audio_features",
-                                                "window_s", "cv_folds")}
+                                                "window_s", "cv_folds", "realign")}
         meta = {"styles": self.styles_, "reference": self.reference_, "take_kind": self.take_kind_,
                 "frame_shape": list(self.frame_shape_), "names": self.names_, "labels": self.labels_,
                 "unit": self.unit_, "pair_sets": [list(ps) for ps in self.pair_sets_],

@@ -45,6 +45,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.spatial import cKDTree
 
 from ._bilinear import _ridge_map, choose_dims
+from ._pointlocal import score_point_local
 
 __all__ = ["Selection", "GRID", "FALLBACK", "STYLE_RIDGE_GRID", "select_settings", "select_style_ridge", "kernel_fit",
            "kernel_predict", "cv_folds", "pca_of", "ones_weights"]
@@ -201,7 +202,7 @@ def _sse_known(m, Xva: dict[str, np.ndarray], corr=None, prep: dict | None = Non
 
 def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None = None, folds: int = 5,
                     gap: int | None = None, grid: dict | None = None, min_frames: int = 30,
-                    search: str = "coordinate") -> Selection:
+                    search: str = "coordinate", points_rest: np.ndarray | None = None) -> Selection:
     """Choose ``variance``, ``energy``, ``prior`` and the local correction by blocked cross-validation.
 
     Parameters
@@ -220,6 +221,10 @@ def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None 
         (default) starts in its middle and alternately scores a whole row (every bandwidth at the
         current ridge) and a whole column (every ridge at the current bandwidth), moving to the best
         candidate scored so far, until a row and a column in turn leave it in place.
+    points_rest : (P, 3) float, optional
+        The mean face when frames are ``(P, 3)`` points: stage 3 then scores the point-local
+        translations (:func:`~._pointlocal.score_point_local`) on the same folds, and one wins
+        when it beats the bilinear model with its best correction.
     """
     fixed = dict(fixed or {})
     g = dict(GRID)
@@ -355,6 +360,14 @@ def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None 
             table.append({"stage": 2, "variance": v, "energy": e, "prior": p,
                           "local": list(c) if c else 0, "score": s2[c] / base})
         local = min(specs, key=lambda c: s2[c])
+        if points_rest is not None:                                     # ---- stage 3: point-local translation
+            s3 = score_point_local(X, splits, points_rest)
+            for c, sc in s3.items():
+                table.append({"stage": 3, "variance": v, "energy": e, "prior": p, "local": list(c),
+                              "score": sc / base})
+            best3 = min(s3, key=s3.get)
+            if s3[best3] < s2[local]:
+                local = best3
     return Selection(v, e, p, local, folds, gap, table)
 
 
@@ -392,7 +405,7 @@ def select_style_ridge(b: np.ndarray, Yn: np.ndarray, Yk: np.ndarray, Ak: np.nda
     nf = int(max(2, min(folds, T // max(10, 2 * gap + 2))))
     grid = tuple(float(r) for r in grid)
     err = np.zeros(len(grid))
-    kern = isinstance(local, tuple)
+    kern = isinstance(local, tuple) and local[0] == "kernel"
     for tr, va in cv_folds(T, nf, gap):
         btr, bva = b[tr], b[va]
         d = (Yn[tr] - Yk[tr]).mean(0)

@@ -42,16 +42,18 @@ def _auto_float(v: str):
 def _local_arg(v: str):
     if v == "auto":
         return v
-    if v.startswith("kernel:"):
-        try:
-            _, h, lam = v.split(":")
-            return ("kernel", float(h), float(lam))
-        except ValueError as e:
-            raise argparse.ArgumentTypeError(f"expected kernel:BANDWIDTH:RIDGE, got {v!r}") from e
+    for kind, conv, form in (("kernel", float, "kernel:BANDWIDTH:RIDGE"), ("points", int, "points:NEIGHBOURS:FRAMES")):
+        if v.startswith(kind + ":"):
+            try:
+                _, a, b = v.split(":")
+                return (kind, conv(a), conv(b))
+            except ValueError as e:
+                raise argparse.ArgumentTypeError(f"expected {form}, got {v!r}") from e
     try:
         return int(v)
     except ValueError as e:
-        raise argparse.ArgumentTypeError(f"expected auto, an integer or kernel:H:LAM, got {v!r}") from e
+        raise argparse.ArgumentTypeError(f"expected auto, an integer, kernel:H:LAM or points:M:K, got {v!r}") from e
+
 
 def _pairs(items, what: str) -> dict[str, str]:
     out: dict[str, str] = {}
@@ -152,7 +154,8 @@ def cmd_restyle(args, log) -> int:
         top = sorted(zip(model.styles_, w, strict=True), key=lambda x: -x[1])
         log("inferred style (mean weights): " + ", ".join(f"{k} {v:.2f}" for k, v in top))
     log(f"restyled {perf.n_frames} frames {args.source or '(inferred)'} -> {args.to} at amount {args.amount:g}"
-        f"{' with local correction' if res.local else ''}; range score {res.range.score:.2f}"
+        f"{(' by the point-local translation' if model._points_on() else ' with local correction') if res.local else ''}"
+        f"; range score {res.range.score:.2f}"
         f"{' (outside the training range)' if res.range.outside else ''}")
     with warnings_to_log(log):
         if new.kind == "weights":
@@ -212,7 +215,9 @@ def register(subparsers) -> None:
     f.add_argument("--bundle", type=int, default=1, help="frames per observation (n-frame bundles, default 1)")
     f.add_argument("--local", type=_local_arg, default="auto",
                    help="local correction: auto (default, cross-validated), 0 (off), K (mean residual of the K "
-                        "nearest training frames) or kernel:H:LAM (kernel ridge regression)")
+                        "nearest training frames), kernel:H:LAM (kernel ridge regression) or points:M:K "
+                        "(point-local translation: each point's change from it and its M-1 neighbours, "
+                        "affine plus the mean remainder of the K nearest training frames; point takes only)")
     f.add_argument("--fps", type=float, help="frame rate of takes without times")
     f.add_argument("--out", required=True, help="output model .npz")
     f.set_defaults(func=cmd_style_fit)
