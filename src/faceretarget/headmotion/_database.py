@@ -99,6 +99,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import InputFileError, InvalidDataError
 from ..io._atomic import atomic_path
+from ..io._files import input_file
 from ..io.obj import check_output_path
 from ..performance import Performance
 from ._blend import blend_segments
@@ -715,9 +716,7 @@ class HeadMotionDatabase:
         InputFileError
             Missing file, not an ``.npz``, or not a head-motion database (naming the missing key).
         """
-        path = Path(path)
-        if not path.is_file():
-            raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+        path = input_file(path)
         if not zipfile.is_zipfile(path):
             raise InputFileError(f"{path}: not an .npz archive (expected a head-motion database written by "
                                  "'faceretarget headmotion build')")

@@ -31,6 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputFileError, InvalidDataError
+from ..io._files import input_file
 from ..io.audio import read_audio
 from ..io.bvh import Bvh, bvh_chain, read_bvh
 from ..performance import Performance
@@ -188,9 +189,7 @@ def head_motion_from_smplx(path: str | os.PathLike, neck_length: float = 10.0
         Centimetres (see ``neck_length``).
     fps : float
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+    path = input_file(path)
     if not zipfile.is_zipfile(path):
         raise InputFileError(f"{path}: not an .npz archive")
     try:

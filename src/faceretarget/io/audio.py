@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import os
 import warnings
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputFileError
+from ._files import input_file
 
 __all__ = ["read_audio"]
 
@@ -40,9 +40,7 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
     """
     from scipy.io import wavfile
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+    path = input_file(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", wavfile.WavFileWarning)  # unknown chunks (LIST, bext...)

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import InputFileError, InvalidDataError
 from ._atomic import atomic_path
+from ._files import input_file, read_text
 from .obj import check_output_path
 
 __all__ = ["Bvh", "BvhJoint", "read_bvh", "write_bvh", "bvh_chain", "make_head_bvh"]
@@ -202,13 +203,8 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
         the wrong number of values or a non-numeric value (naming the line), or fewer frames than
         ``Frames:`` announces.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as e:
-        raise InputFileError(f"{path}: cannot read ({e.strerror or e})") from e
+    path = input_file(path)
+    text = read_text(path)
     lines = text.splitlines()
     # tokens of the hierarchy with their line numbers
     toks: list[tuple[str, int]] = []

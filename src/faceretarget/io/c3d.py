@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import InputFileError, InvalidDataError, OutputError
 from ..performance import Performance
 from ._atomic import atomic_path
+from ._files import input_file
 from .obj import check_output_path
 
 __all__ = ["read_c3d", "write_c3d"]
@@ -119,9 +120,7 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
         Markers that are missing in every frame (naming them), repeated labels, or a file holding
         fewer frames than its header declares (a truncated file).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+    path = input_file(path)
     ezc3d = _ezc3d()
     try:
         c = ezc3d.c3d(str(path))

@@ -31,6 +31,7 @@ from ..errors import InputFileError, InvalidDataError
 from ..names import ARKIT_NAMES, normalize_name, split_parent
 from ..performance import Performance
 from ._atomic import atomic_path
+from ._files import input_file, read_text
 from .obj import check_output_path
 
 __all__ = ["read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo", "HEAD_COLUMNS",
@@ -137,13 +138,8 @@ def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = No
     InvalidDataError
         A NaN or infinite value in a kept row (naming the file, line and column).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
-    try:
-        text = path.read_text(encoding="utf-8-sig", errors="replace")
-    except OSError as e:
-        raise InputFileError(f"{path}: cannot read ({e.strerror or e})") from e
+    path = input_file(path)
+    text = read_text(path, encoding="utf-8-sig")
     lines = text.splitlines()
     first = next((i for i, line in enumerate(lines) if line.strip()), None)
     if first is None:

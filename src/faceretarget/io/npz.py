@@ -32,6 +32,7 @@ from ..errors import InputFileError, InvalidDataError
 from ..mesh import Mesh
 from ..performance import Performance
 from ._atomic import atomic_path
+from ._files import input_file
 from .obj import check_output_path
 
 __all__ = ["write_npz", "read_npz_performance"]
@@ -101,9 +102,7 @@ def write_npz(path: str | os.PathLike, vertices: np.ndarray, times: np.ndarray,
 
 def load_npz_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Every array of an ``.npz`` file (no pickles), or an :class:`InputFileError` naming the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+    path = input_file(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
