@@ -45,6 +45,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import nnls as scipy_nnls
 
+from _plot import font as _font  # bench/_plot.py (same folder)
+from _plot import nice_step as _nice_step
 from faceretarget.io import load_rig, read_c3d, read_livelinkface
 from faceretarget.retarget.rigid import RigidAligner
 from faceretarget.retarget.selection import SELECTION_METHODS, nnls_greedy_path, reconstruction_error
@@ -134,13 +136,6 @@ def run_dataset(X: np.ndarray, ks: list[int]) -> tuple[dict, dict, dict]:
 
 
 # ---------------------------------------------------------------------------------- plot
-def _font(size: int):
-    from PIL import ImageFont
-
-    try:
-        return ImageFont.load_default(size=size)
-    except (TypeError, OSError, ImportError):  # Pillow < 10.1
-        return ImageFont.load_default()
 
 
 def plot(rel: dict[str, dict[str, list[float]]], ks: list[int], path: Path) -> Path:
@@ -209,12 +204,6 @@ def plot(rel: dict[str, dict[str, list[float]]], ks: list[int], path: Path) -> P
     return path
 
 
-def _nice_step(x: float) -> float:
-    e = 10.0 ** np.floor(np.log10(max(x, 1e-12)))
-    for m in (1, 2, 2.5, 5, 10):
-        if m * e >= x:
-            return m * e
-    return 10 * e
 
 
 def _line(d, pts, color, width, dashed) -> None:

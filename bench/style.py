@@ -64,6 +64,8 @@ from pathlib import Path
 
 import numpy as np
 
+from _plot import font as _font  # bench/_plot.py (same folder)
+from _plot import nice_step as _nice_step
 from faceretarget.evaluation import metrics, rel_motion_pct
 from faceretarget.io import load_rig, read_livelinkface
 from faceretarget.style import (
@@ -99,21 +101,8 @@ def log(*a) -> None:
 
 
 # ================================================================================== plotting (Pillow)
-def _font(size: int):
-    from PIL import ImageFont
-
-    try:
-        return ImageFont.load_default(size=size)
-    except (TypeError, OSError, ImportError):  # Pillow < 10.1
-        return ImageFont.load_default()
 
 
-def _nice_step(x: float) -> float:
-    e = 10.0 ** np.floor(np.log10(max(x, 1e-12)))
-    for m in (1, 2, 2.5, 5, 10):
-        if m * e >= x:
-            return m * e
-    return 10 * e
 
 
 def _ticks(lo: float, hi: float, n: int = 5) -> list[float]:
