@@ -169,9 +169,10 @@ def score_point_local(X: dict[str, np.ndarray], splits, rest: np.ndarray, grid: 
     F = {s: np.asarray(x, np.float64).reshape(len(x), P, 3) for s, x in X.items()}
     ks = sorted({int(k) for k in g["frames"]})
     score = {("points", int(m), k): 0.0 for m in g["neighbours"] for k in ks}
+    nbs = {int(m): neighbours(rest, int(m)) for m in g["neighbours"]}
+    kmax = max(ks)
     for tr, va in splits:
-        for m in g["neighbours"]:
-            nb = neighbours(rest, int(m))
+        for m, nb in nbs.items():
             for s in styles:
                 targets = [t for t in styles if t != s]
                 prep = _prepare(F[s][tr], nb)
@@ -180,12 +181,11 @@ def score_point_local(X: dict[str, np.ndarray], splits, rest: np.ndarray, grid: 
                 Uq, Fq = _features(prep, F[s][va])
                 pred = np.matmul(Fq, W)                                  # (P, nv, 3 (S - 1))
                 truth = np.concatenate([(F[t][va] - F[s][va]).transpose(1, 0, 2) for t in targets], axis=-1)
-                kmax = max(ks)
                 ii = _nearest(prep, Uq, kmax) if kmax > 0 else None
                 for k in ks:
                     p = pred
                     if k > 0:
                         kk = min(k, ii.shape[2])
                         p = pred + np.take_along_axis(R[:, :, None, :], ii[:, :, :kk, None], axis=1).mean(2)
-                    score[("points", int(m), k)] += float(np.sum((p - truth) ** 2))
+                    score[("points", m, k)] += float(np.sum((p - truth) ** 2))
     return score
