@@ -55,11 +55,11 @@ from faceretarget.capture import (  # noqa: E402
     FaceTracker,
     OneEuroParams,
     draw_overlay,
-    iter_frames,
     procrustes_align,
     track_video,
 )
 from faceretarget.errors import FaceRetargetError  # noqa: E402
+from faceretarget.io import iter_frames  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -35,10 +35,11 @@ from pathlib import Path
 import numpy as np
 
 from faceretarget.cloning import ExpressionCloner, keymodel_pair
-from faceretarget.cloning.noh import NohNeumannCloner
+from faceretarget.cloning._noh import NohNeumannCloner
+from faceretarget.datasets import add_capture_noise
 from faceretarget.errors import FaceRetargetError
-from faceretarget.evaluation import add_capture_noise, metrics, oracle_rel_motion_pct
 from faceretarget.io import load_rig, read_livelinkface
+from faceretarget.metrics import metrics, oracle_rel_motion_pct
 
 REPO = Path(__file__).resolve().parents[1]
 TAKES = ("S07-001", "apfel", "MySlate_3_Jason_Millers_iPhone")

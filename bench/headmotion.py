@@ -23,7 +23,7 @@ could rank the methods either way by luck.
 Metrics
 -------
 * ``beat_align``: symmetric F1 of pitch-accent onsets against motion beats (maxima of angular
-  speed) within +-100 ms (definitions in :mod:`faceretarget.headmotion._metrics`), counts pooled
+  speed) within +-100 ms (definitions in :mod:`faceretarget.metrics`), counts pooled
   over all held-out phrases; the same function for synthesized, baseline and real motion.
 * ``beat_align_margin_ci95``: paired 95 % bootstrap interval (resampling held-out cases) of
   synth F1 minus each baseline's F1.
@@ -53,18 +53,16 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import wasserstein_distance
 
-from faceretarget.headmotion import (
-    HeadMotionDatabase,
+from faceretarget.headmotion import HeadMotionDatabase, read_head_take, segment_speech
+from faceretarget.metrics import (
     accent_onsets,
     angular_speed,
     beat_alignment,
     motion_beats,
     perlin_noise,
     pitch_peaks,
-    read_head_take,
-    segment_speech,
+    summarize_alignment,
 )
-from faceretarget.headmotion._metrics import summarize_alignment
 
 REPO = Path(__file__).resolve().parents[1]
 TAKES = ("beat_2_scott_0_1_1", "zeggs_067_Speech_2_x_1_0")
@@ -356,9 +354,9 @@ def main(argv=None) -> int:
 
 def _preview(path: Path, take, perf, info, db) -> None:
     """Eight frames of the demo head turned by the synthesized rotation, over the most active 4 s."""
-    from faceretarget.demo_data import make_demo_character
+    from faceretarget.datasets import make_demo_character
     from faceretarget.headmotion._database import rotation_matrices
-    from faceretarget.render.preview import fit_camera, render_grid, render_mesh, save_png
+    from faceretarget.render._preview import fit_camera, render_grid, render_mesh, save_png
 
     rig = make_demo_character("ada")
     v = rig.neutral.vertices

@@ -3,21 +3,21 @@
 Protocol P2 of ../shared/EVALUATION.md.  Data sets:
 
 * ``mocap/<take>``: each ``facial-mocap/*.c3d`` take (41 markers, mm) with the rigid head motion
-  removed (:class:`faceretarget.retarget.rigid.RigidAligner`, automatic rigid subset, median
+  removed (:class:`faceretarget.numerics.RigidAligner`, automatic rigid subset, median
   reference).  The takes have no separate neutral: the **first frame** is taken as the neutral, so
   ``X`` holds every frame's marker displacements from it.  Frames with a missing marker are dropped
   (none in the shared takes).
 * ``ict68/<take>``: the 68 landmark vertices of the ``ict-face`` rig driven by each ``livelinkface``
   take's weights; the rig's neutral is the neutral.  Converted from cm to mm.
 
-Methods: every entry of :data:`faceretarget.retarget.selection.SELECTION_METHODS` (``pca-extrema``,
+Methods: every entry of :data:`faceretarget.numerics.SELECTION_METHODS` (``pca-extrema``,
 ``hull``, ``kmeans2``, ``kmeans3``, ``pivoted-qr``, ``nnls-greedy``) plus ``nnls-greedy/noguard``, the new method
 without its PCA-extrema guard, to show how it does on its own.  ``nnls-greedy`` grows its sets
 one key at a time, so its sets for every k come from one run (:func:`nnls_greedy_path`;
 ``nnls_greedy(X, k)`` returns exactly ``path[k - 1]``, as the tests check); the other methods are
 called once per k.
 
-Error (:func:`faceretarget.retarget.selection.reconstruction_error`): every frame of the take is
+Error (:func:`faceretarget.numerics.reconstruction_error`): every frame of the take is
 fitted with non-negative weights of the k chosen frames (exact NNLS per frame; the neutral is the
 implicit zero key), and the residual's RMS over all frames and coordinates is reported in mm, and
 as a percentage of the take's RMS motion ``sqrt(mean(X**2))`` (100 % = reconstructing everything as
@@ -48,8 +48,7 @@ from scipy.optimize import nnls as scipy_nnls
 from _plot import font as _font  # bench/_plot.py (same folder)
 from _plot import nice_step as _nice_step
 from faceretarget.io import load_rig, read_c3d, read_livelinkface
-from faceretarget.retarget.rigid import RigidAligner
-from faceretarget.retarget.selection import SELECTION_METHODS, nnls_greedy_path, reconstruction_error
+from faceretarget.numerics import SELECTION_METHODS, RigidAligner, nnls_greedy_path, reconstruction_error
 
 REPO = Path(__file__).resolve().parents[1]
 NEW = "nnls-greedy"

@@ -1,6 +1,6 @@
 """Benchmark: whole-take non-negative keyshape weights (Chuang Eq. 3.1/3.2) against SciPy per frame.
 
-``faceretarget.retarget.nnls.solve_nnls`` on synthetic problems of the P1 sizes (68 landmarks x 3 =
+``faceretarget.numerics.solve_nnls`` on synthetic problems of the P1 sizes (68 landmarks x 3 =
 204 features, 40 and 83 keyshapes, a 2,028-frame take) against ``scipy.optimize.nnls`` called for
 every frame, both timed in this process (best of ``--repeat`` interleaved runs, single-threaded
 BLAS recommended: ``OPENBLAS_NUM_THREADS=1``).  Reports the speedup and the largest absolute
@@ -34,8 +34,8 @@ import time
 import numpy as np
 from scipy.optimize import nnls
 
-from faceretarget.retarget._synthetic import keyshape_problem, rom_problem
-from faceretarget.retarget.nnls import solve_nnls
+from faceretarget.datasets import keyshape_problem, rom_problem
+from faceretarget.numerics import solve_nnls
 
 SIZES = ((204, 40, 2028), (204, 83, 2028))
 

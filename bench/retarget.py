@@ -40,18 +40,13 @@ import numpy as np
 from scipy.optimize import nnls
 
 from cloning import TAKES, _animate, _load  # the P1 loader of bench/cloning.py (same folder)
-from faceretarget.cloning import ExpressionCloner
-from faceretarget.cloning.keysets import keymodel_rig, keyset_weights
+from faceretarget.cloning import ExpressionCloner, keymodel_rig, keyset_weights
+from faceretarget.datasets import add_capture_noise
 from faceretarget.errors import SingularKeysError
-from faceretarget.evaluation import add_capture_noise, metrics
 from faceretarget.io import read_c3d
-from faceretarget.retarget import (
-    SELECTION_METHODS,
-    BlendshapeRetargeter,
-    RigidAligner,
-    select_keyshapes,
-    solve_nnls,
-)
+from faceretarget.metrics import metrics
+from faceretarget.numerics import SELECTION_METHODS, RigidAligner, select_keyshapes, solve_nnls
+from faceretarget.retarget import BlendshapeRetargeter
 from faceretarget.rig import Rig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -165,7 +160,7 @@ def speed(problems, quick: bool, log) -> dict:
                           numpy_s=best["numpy"], speedup=t_ref / best["auto"],
                           speedup_numpy=t_ref / best["numpy"], max_abs_diff=float(np.abs(W - Wref).max()),
                           rel_fit_diff=float(rel_fit)))
-    from faceretarget.retarget import _nnls_numba
+    from faceretarget.numerics import _nnls_numba
 
     sp = np.array([c["speedup"] for c in cases])
     spn = np.array([c["speedup_numpy"] for c in cases])

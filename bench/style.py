@@ -12,7 +12,7 @@ neutral one by DTW of face features (no audio) and re-aligned by style (``realig
 ``StyleModel.fit`` does), the error of the recovered warp (and of the first pass) is reported in
 ms, and the models are trained on the first ``--train`` share (60 %) of the neutral timeline
 (neutral, happy, angry) and tested on the rest, against the rig's ground truth at the same
-content, with the P1 metrics (``faceretarget.evaluation.metrics``; ``rel_motion_pct`` is the
+content, with the P1 metrics (``faceretarget.metrics.metrics``; ``rel_motion_pct`` is the
 headline).  Tasks:
 
 * known expression: the neutral test frames rendered angry (input style given);
@@ -66,8 +66,10 @@ import numpy as np
 
 from _plot import font as _font  # bench/_plot.py (same folder)
 from _plot import nice_step as _nice_step
-from faceretarget.evaluation import metrics, rel_motion_pct
+from faceretarget.datasets import make_p3_takes
 from faceretarget.io import load_rig, read_livelinkface
+from faceretarget.io import read_audio as read_wav
+from faceretarget.metrics import metrics, rel_motion_pct
 from faceretarget.style import (
     PiecewiseWarp,
     StyleModel,
@@ -76,8 +78,6 @@ from faceretarget.style import (
     align_performances,
     audio_features,
     frame_vectors,
-    make_p3_takes,
-    read_wav,
     realign_by_style,
     time_warp_audio,
     warp_performance,

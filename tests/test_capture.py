@@ -339,9 +339,9 @@ def test_capture_csv_reads_back(tracked, tmp_path):
 
 
 def test_frames_without_a_face_are_flagged_and_short_gaps_filled(video_dir, tmp_path, capsys):
-    from faceretarget.capture import iter_frames, track_video
-    from faceretarget.capture._video import write_video
-    from faceretarget.io import read_livelinkface
+    from faceretarget.capture import track_video
+    from faceretarget.io import iter_frames, read_livelinkface
+    from faceretarget.io._video import write_video
 
     frames = [rgb for _, _, rgb in iter_frames(video_dir / VIDEOS[0], max_frames=30)]
     blank = [10, 11, 12] + list(range(20, 28))
@@ -380,21 +380,9 @@ def test_head_pose_agrees_with_the_landmarks(tracked):
 
 
 def _run(argv):
-    """The main CLI when it has the capture commands (or for other commands), else this package's own."""
-    import contextlib
-    import io
+    from faceretarget.cli import main
 
-    from faceretarget import cli as main_cli
-    from faceretarget.capture import cli as cap_cli
-
-    if not {"capture", "appearance"} & set(argv[:2]):
-        return main_cli.main(argv)
-    try:
-        with contextlib.redirect_stderr(io.StringIO()):
-            main_cli.build_parser().parse_args(["capture", "x", "--out", "y.csv"])
-        return main_cli.main(argv)
-    except SystemExit:
-        return cap_cli.main(argv)
+    return main(argv)
 
 
 def test_cli_capture_end_to_end_and_clone(video_dir, data_dir, tmp_path, capsys):

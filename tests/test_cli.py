@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from faceretarget.cli import main
-from faceretarget.demo_data import make_demo_character, make_demo_take
+from faceretarget.datasets import make_demo_character, make_demo_take
 from faceretarget.io import read_glb_weights, save_rig_obj, write_livelinkface
 from faceretarget.rig import Rig
 

@@ -12,15 +12,13 @@ from faceretarget.cloning import (
     ExpressionCloner,
     FeaturePCA,
     cubic_bspline,
-    denoise_take,
-    estimate_noise_sigma,
     keymodel_pair,
 )
-from faceretarget.demo_data import make_demo_character, make_demo_take
+from faceretarget.datasets import add_capture_noise, make_demo_character, make_demo_take
 from faceretarget.errors import SingularKeysError, TopologyError
-from faceretarget.evaluation import add_capture_noise, err_pct, rel_motion_pct
 from faceretarget.io import read_livelinkface
-from faceretarget.retarget import pca_extrema
+from faceretarget.metrics import err_pct, rel_motion_pct
+from faceretarget.numerics import denoise_take, estimate_noise_sigma, pca_extrema
 from faceretarget.rig import Rig
 
 

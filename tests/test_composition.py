@@ -7,16 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from faceretarget.cloning.composition import (
-    blend_weight,
-    build_key_models,
-    compose_displacements,
-    compose_key_models,
-    propagate_importance,
-    raw_importance,
-    vertex_importance,
-)
-from faceretarget.cloning.tables import (
+from faceretarget.cloning import (
     EMOTIONS,
     VISEMES,
     combined_weight_vectors,
@@ -24,6 +15,15 @@ from faceretarget.cloning.tables import (
     table_shapes,
     viseme_vectors,
     weight_vector,
+)
+from faceretarget.cloning._composition import (
+    blend_weight,
+    build_key_models,
+    compose_displacements,
+    compose_key_models,
+    propagate_importance,
+    raw_importance,
+    vertex_importance,
 )
 from faceretarget.errors import InvalidDataError, MissingShapeError, TopologyError
 from faceretarget.mesh import Mesh

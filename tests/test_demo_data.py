@@ -10,12 +10,12 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from faceretarget.demo_data import (
-    _build,
+from faceretarget.datasets import (
     demo_vertex_colors,
     make_demo_character,
     make_demo_take,
 )
+from faceretarget.datasets._demo import _build
 from faceretarget.errors import InvalidDataError
 from faceretarget.names import ARKIT_NAMES
 

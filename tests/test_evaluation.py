@@ -5,13 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from faceretarget.datasets import ArkitPairing, add_capture_noise, keymodels_from_weights, rig_animation
 from faceretarget.errors import InvalidDataError
-from faceretarget.evaluation import (
-    ArkitPairing,
-    add_capture_noise,
+from faceretarget.mesh import Mesh
+from faceretarget.metrics import (
     err_pct,
     err_pct_axis,
-    keymodels_from_weights,
     lip_vertices,
     lve_mm,
     metrics,
@@ -20,9 +19,7 @@ from faceretarget.evaluation import (
     oracle_blend,
     oracle_rel_motion_pct,
     rel_motion_pct,
-    rig_animation,
 )
-from faceretarget.mesh import Mesh
 from faceretarget.rig import Rig
 
 # ---------------------------------------------------------------- a tiny case computed by hand

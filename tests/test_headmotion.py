@@ -20,20 +20,18 @@ from faceretarget.headmotion import (
     HeadMotionDatabase,
     HeadTake,
     PathWeights,
-    angular_speed,
-    beat_alignment,
     blend_segments,
     extract_pitch,
     head_motion_from_bvh,
     head_motion_from_smplx,
-    head_quaternions,
     mirror_head_motion,
     segment_speech,
     viterbi,
 )
 from faceretarget.headmotion._viterbi import path_cost
-from faceretarget.io.audio import read_audio
-from faceretarget.io.bvh import bvh_chain, make_head_bvh, read_bvh, write_bvh
+from faceretarget.io import head_quaternions, read_audio
+from faceretarget.io._bvh import bvh_chain, make_head_bvh, read_bvh, write_bvh
+from faceretarget.metrics import angular_speed, beat_alignment
 
 REPO = Path(__file__).resolve().parents[1]
 SR = 16000
@@ -500,8 +498,8 @@ def _validate(path: Path) -> None:
 def test_gltf_head_animation_round_trip(tmp_path):
     import pygltflib
 
-    from faceretarget.demo_data import make_demo_character
-    from faceretarget.io.gltf import read_glb_head, read_glb_weights, write_glb, write_glb_head
+    from faceretarget.datasets import make_demo_character
+    from faceretarget.io._gltf import read_glb_head, read_glb_weights, write_glb, write_glb_head
 
     rng = np.random.default_rng(9)
     T = 40
@@ -551,13 +549,7 @@ def test_gltf_head_animation_round_trip(tmp_path):
 
 # ------------------------------------------------------------------------------------ command line
 def _cli(argv) -> int:
-    from faceretarget import cli as main_cli
-
-    parser = main_cli.build_parser()
-    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
-    if "headmotion" in sub.choices:
-        return main_cli.main(argv)
-    from faceretarget.headmotion.cli import main
+    from faceretarget.cli import main
 
     return main(argv)
 
@@ -587,7 +579,7 @@ def test_cli_build_and_synth(data_dir, tmp_path, capsys):
     llf = read_livelinkface(outs["csv"])
     # the CSV holds radians, with Live Link Face's chin-up-positive HeadPitch (as capture writes it)
     np.testing.assert_allclose(llf.head_rotation, rad * [1, -1, 1], atol=1e-6)
-    from faceretarget.io.gltf import read_glb_head
+    from faceretarget.io._gltf import read_glb_head
 
     _, q, tr = read_glb_head(outs["glb"])
     np.testing.assert_allclose(np.abs((q * head_quaternions(rad)).sum(axis=1)), 1.0, atol=1e-5)

@@ -9,7 +9,7 @@ import pytest
 
 from faceretarget.errors import InputFileError, InvalidDataError
 from faceretarget.io import read_livelinkface, write_livelinkface
-from faceretarget.io.livelinkface import EYE_COLUMNS, HEAD_COLUMNS, LLF_NAMES
+from faceretarget.io._livelinkface import EYE_COLUMNS, HEAD_COLUMNS, LLF_NAMES
 from faceretarget.mesh import Mesh
 from faceretarget.names import ARKIT_NAMES
 from faceretarget.performance import Performance

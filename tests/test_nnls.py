@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear, nnls
 
+from faceretarget.datasets import keyshape_problem
+from faceretarget.datasets import rom_problem as _rom_problem
 from faceretarget.errors import InvalidDataError
-from faceretarget.retarget._synthetic import keyshape_problem
-from faceretarget.retarget._synthetic import rom_problem as _rom_problem
-from faceretarget.retarget.nnls import extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
+from faceretarget.numerics import extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
 
 
 def random_problem(D, N, T, seed):
@@ -89,7 +89,7 @@ def test_duplicate_and_zero_keys_give_an_optimal_solution():
 
 @pytest.mark.parametrize("D,N,seed", [(204, 40, 30), (123, 30, 31)])
 def test_rom_keys_match_scipy_with_both_methods(D, N, seed):
-    from faceretarget.retarget.nnls import _bpp, _lh
+    from faceretarget.numerics._nnls import _bpp, _lh
 
     K, F = rom_problem(D, N, 240, seed)
     R = per_frame_nnls(K, F)
@@ -119,7 +119,7 @@ def test_dependent_rom_keys_fit_as_well_as_scipy():
 
 
 def test_lawson_hanson_with_upper_bounds():
-    from faceretarget.retarget.nnls import _lh
+    from faceretarget.numerics._nnls import _lh
 
     K, F = keyshape_problem(60, 10, 80, 33, noise=0.1)
     F = 1.5 * F
@@ -220,7 +220,7 @@ def test_smooth_matches_reference(s, upper):
 
 
 def test_smooth_projected_newton_fallback():
-    from faceretarget.retarget.nnls import _box_qp, _smooth_qp
+    from faceretarget.numerics._nnls import _box_qp, _smooth_qp
 
     K, F = keyshape_problem(30, 6, 40, 15, noise=0.2)
     G, B = K.T @ K, F @ K
@@ -361,7 +361,7 @@ def test_filter_errors():
 @pytest.mark.parametrize("seed", [40, 41])
 def test_backends_agree_with_scipy_on_rom_keys(seed):
     """The compiled kernel (numba, when installed) and the NumPy methods give scipy's weights."""
-    from faceretarget.retarget import _nnls_numba
+    from faceretarget.numerics import _nnls_numba
 
     K, F = rom_problem(204, 40, 300, seed)
     ref = per_frame_nnls(K, F)

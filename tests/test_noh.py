@@ -7,11 +7,12 @@ import time
 import numpy as np
 import pytest
 
-import faceretarget.cloning.noh as noh
-from faceretarget.cloning.noh import NohNeumannCloner, closest_points_on_mesh
+import faceretarget.cloning._noh as noh
+from faceretarget.cloning._noh import NohNeumannCloner, closest_points_on_mesh
+from faceretarget.datasets import ArkitPairing
 from faceretarget.errors import FaceRetargetError, InvalidDataError
-from faceretarget.evaluation import ArkitPairing, err_pct, metrics, rel_motion_pct
 from faceretarget.mesh import Mesh
+from faceretarget.metrics import err_pct, metrics, rel_motion_pct
 
 
 # ---------------------------------------------------------------- synthetic surfaces

@@ -187,7 +187,7 @@ def test_grid_and_png(tmp_path):
 
 
 def test_render_shapes_sheet():
-    from faceretarget.demo_data import make_demo_character
+    from faceretarget.datasets import make_demo_character
 
     rig = make_demo_character("bo")
     sheet = render_shapes(rig, ["jawOpen", "eyeBlinkLeft"], size=(64, 64), cols=3)

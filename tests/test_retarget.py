@@ -9,7 +9,7 @@ import pytest
 
 from faceretarget.cli import main
 from faceretarget.errors import InvalidDataError, MissingShapeError
-from faceretarget.io import read_livelinkface, read_npz_performance, write_livelinkface
+from faceretarget.io import read_livelinkface, read_npz_performance, read_target_keyshapes, write_livelinkface
 from faceretarget.mesh import Mesh
 from faceretarget.performance import Performance
 from faceretarget.retarget import (
@@ -18,7 +18,6 @@ from faceretarget.retarget import (
     check_consistency,
     default_regions,
     load_regions,
-    read_target_keyshapes,
 )
 from faceretarget.rig import Rig
 
@@ -168,7 +167,7 @@ def test_missing_target_key_is_named():
 
 
 def test_consistency_flags_a_bad_key(data_dir, ict_rig):
-    from faceretarget.cloning.keysets import keymodel_rig, keyset_weights
+    from faceretarget.cloning import keymodel_rig, keyset_weights
     from faceretarget.io import load_rig
 
     ark = load_rig(data_dir / "arkit-face")
@@ -192,8 +191,8 @@ def test_consistency_flags_a_bad_key(data_dir, ict_rig):
 
 def test_arkit_keys_retarget_exactly(data_dir, ict_rig):
     from faceretarget.cloning import keymodel_pair
-    from faceretarget.evaluation import rel_motion_pct
     from faceretarget.io import load_rig
+    from faceretarget.metrics import rel_motion_pct
 
     ark = load_rig(data_dir / "arkit-face")
     with warnings.catch_warnings():
@@ -282,7 +281,8 @@ def test_2d_landmark_tracks_retarget_through_flat_keyshapes(tmp_path):
     pts = rest + np.einsum("tk,kpd->tpd", W, modes)
     perf = Performance.from_points(pts, [f"m{i}" for i in range(P)], fps=30)
     keys = tmp_path / "keys"
-    from faceretarget.retarget import export_keyshapes, pivoted_qr
+    from faceretarget.io import export_keyshapes
+    from faceretarget.numerics import pivoted_qr
 
     X = (pts - pts[0]).reshape(T, -1)
     frames = sorted(pivoted_qr(X, 6).tolist())

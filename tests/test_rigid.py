@@ -8,8 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from faceretarget.errors import InvalidDataError
 from faceretarget.io import read_c3d
+from faceretarget.numerics import RigidAligner, fit_rigid, select_rigid_markers
 from faceretarget.performance import Performance
-from faceretarget.retarget import RigidAligner, fit_rigid, select_rigid_markers
 
 N_RIGID = 6
 

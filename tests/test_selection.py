@@ -10,11 +10,9 @@ from scipy.optimize import nnls
 from scipy.spatial import ConvexHull
 
 from faceretarget.errors import InvalidDataError, MissingShapeError, TopologyError
-from faceretarget.io import read_obj, write_obj
+from faceretarget.io import export_keyshapes, read_obj, read_target_keyshapes, write_obj
 from faceretarget.mesh import Mesh
-from faceretarget.performance import Performance
-from faceretarget.retarget.export import export_keyshapes, read_target_keyshapes
-from faceretarget.retarget.selection import (
+from faceretarget.numerics._selection import (
     SELECTION_METHODS,
     hull_selection,
     kmeans_selection,
@@ -24,6 +22,7 @@ from faceretarget.retarget.selection import (
     reconstruction_error,
     select_keyshapes,
 )
+from faceretarget.performance import Performance
 
 METHODS = ["pca-extrema", "hull", "kmeans2", "kmeans3", "nnls-greedy"]
 
@@ -268,7 +267,7 @@ def test_export_rejects_bad_input(tmp_path):
 
 
 def test_pivoted_qr_picks_one_frame_per_direction_and_skips_still_frames():
-    from faceretarget.retarget.selection import pivoted_qr
+    from faceretarget.numerics import pivoted_qr
 
     rng = np.random.default_rng(0)
     dirs = np.eye(6)[:, :5].T * 10                                   # 5 orthogonal motions in 6-D

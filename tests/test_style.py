@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from faceretarget.errors import InvalidDataError
+from faceretarget.io import read_audio as read_wav
 from faceretarget.style import (
     AlphaCurves,
     AsymmetricBilinearModel,
@@ -23,7 +24,6 @@ from faceretarget.style import (
     choose_dims,
     face_features,
     load_bilinear,
-    read_wav,
     time_warp_audio,
     unbundle_frames,
 )
@@ -228,12 +228,12 @@ def test_mfcc_alignment_of_real_speech_retimed_by_known_warp(data_dir):
 
 
 def test_p3_face_alignment_and_known_expression(data_dir, ict_rig):
-    from faceretarget.evaluation import rel_motion_pct
+    from faceretarget.datasets import make_p3_takes
     from faceretarget.io import read_livelinkface
+    from faceretarget.metrics import rel_motion_pct
     from faceretarget.style import (
         align_performances,
         frame_vectors,
-        make_p3_takes,
         realign_by_style,
         warp_performance,
     )
@@ -381,27 +381,18 @@ def test_sliders_reproduce_single_emotion_and_blend_linearly():
 
 # ------------------------------------------------------------------------------------------ CLI
 def _cli_main():
-    """The main program when it has the style commands wired in, else the style module's own."""
-    import argparse
-
-    from faceretarget import cli
-
-    subs = [a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
-    if subs and "restyle" in subs[0].choices and "style" in subs[0].choices:
-        return cli.main
-    from faceretarget.style.cli import main
+    from faceretarget.cli import main
 
     return main
 
 
 @pytest.fixture(scope="module")
 def takes(tmp_path_factory):
-    from faceretarget.cloning.tables import EMOTIONS, weight_vector
-    from faceretarget.demo_data import make_demo_character, make_demo_take
+    from faceretarget.cloning import EMOTIONS, weight_vector
+    from faceretarget.datasets import StyleWarp, make_demo_character, make_demo_take
     from faceretarget.io import save_rig_obj, write_livelinkface
     from faceretarget.names import ARKIT_NAMES
     from faceretarget.performance import Performance
-    from faceretarget.style import StyleWarp
 
     d = tmp_path_factory.mktemp("style_cli")
     base = make_demo_take(seconds=8.0, fps=30.0, seed=11)
@@ -447,7 +438,7 @@ def test_cli_fit_and_restyle_end_to_end(takes, capsys):
 
 
 def test_cli_point_takes_use_the_point_local_translation(tmp_path, capsys):
-    from faceretarget.io.npz import read_npz_performance, write_npz
+    from faceretarget.io import read_npz_performance, write_npz
 
     main = _cli_main()
     x0, x1 = _local_nonlinear_takes(C=600)

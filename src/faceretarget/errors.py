@@ -1,7 +1,19 @@
-"""Exceptions a user can act on.
+"""Exceptions and warnings a user can act on.
 
 Every error raised for bad input is a :class:`FaceRetargetError` whose message names the file,
 shape, frame or row at fault.  The command line prints the message on one line and exits non-zero.
+
+Warnings are :class:`FaceRetargetWarning` subclasses, never a bare ``UserWarning``, so a caller can
+filter exactly what this package says (``warnings.simplefilter("error", DataWarning)``):
+
+======================== =====================================================================
+:class:`DataWarning`     an input was read with something dropped or guessed (rows, markers,
+                         a frame rate), named in the message
+:class:`FitWarning`      a model was fitted or applied where the data do not support it well
+                         (dependent key-models, frames outside the key-models)
+:class:`StyleRangeWarning`  an emotion edit left the range of its training data
+:class:`StyleFitWarning` an untrained style has too few examples to be learned reliably
+======================== =====================================================================
 """
 
 from __future__ import annotations
@@ -14,6 +26,14 @@ __all__ = [
     "InvalidDataError",
     "SingularKeysError",
     "OutputError",
+    "NotFittedError",
+    "MissingDependencyError",
+    "FaceRetargetWarning",
+    "DataWarning",
+    "FitWarning",
+    "StyleRangeWarning",
+    "StyleFitWarning",
+    "format_ranges",
 ]
 
 
@@ -46,3 +66,54 @@ class SingularKeysError(FaceRetargetError, ValueError):
 
 class OutputError(FaceRetargetError, OSError):
     """An output could not be written; nothing partial is left behind."""
+
+
+class NotFittedError(FaceRetargetError, AttributeError):
+    """A model was applied (or saved) before :meth:`fit` (or ``load``)."""
+
+
+class MissingDependencyError(FaceRetargetError, ImportError):
+    """An optional package is not installed; the message names the extra that brings it."""
+
+
+class FaceRetargetWarning(UserWarning):
+    """Base class of every warning faceretarget gives."""
+
+
+class DataWarning(FaceRetargetWarning):
+    """An input was read, but something in it was dropped, repaired or guessed."""
+
+
+class FitWarning(FaceRetargetWarning):
+    """A model was fitted or applied where the data do not support it well."""
+
+
+class StyleRangeWarning(FaceRetargetWarning):
+    """An emotion edit left the range of the training data (extrapolation)."""
+
+
+class StyleFitWarning(FaceRetargetWarning):
+    """An untrained style's examples are too few or too close to a known style to learn it well."""
+
+
+def format_ranges(indices, limit: int | None = None) -> str:
+    """Sorted indices (frames, lines) as runs for a message: ``[5, 6, 7, 9]`` -> ``"5-7, 9"``.
+
+    With ``limit``, at most that many runs are shown and the rest counted.
+
+    >>> format_ranges([5, 6, 7, 9])
+    '5-7, 9'
+    >>> format_ranges([1, 3, 5], limit=2)
+    '1, 3 and 1 more run(s)'
+    """
+    idx = [int(i) for i in indices]
+    if not idx:
+        return ""
+    runs, start = [], 0
+    for k in range(1, len(idx) + 1):
+        if k == len(idx) or idx[k] != idx[k - 1] + 1:
+            a, b = idx[start], idx[k - 1]
+            runs.append(str(a) if a == b else f"{a}-{b}")
+            start = k
+    more = f" and {len(runs) - limit} more run(s)" if limit is not None and len(runs) > limit else ""
+    return ", ".join(runs if limit is None else runs[:limit]) + more

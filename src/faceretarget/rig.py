@@ -2,33 +2,19 @@
 
 from __future__ import annotations
 
+import os
 import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from .errors import InvalidDataError, MissingShapeError, TopologyError
+from .errors import DataWarning, InputFileError, InvalidDataError, MissingShapeError, TopologyError
 from .mesh import Mesh
 from .names import normalize_name, split_parent
+from .units import UNIT_TO_MM, normalize_unit
 
-__all__ = ["Rig", "UNIT_TO_MM", "guess_unit"]
-
-#: Millimetres per unit for the units a rig may carry.
-UNIT_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
-
-
-def guess_unit(mesh: Mesh) -> str:
-    """Guess a face mesh's unit from its size: a human face is about 15-40 cm across.
-
-    A bounding-box diagonal under 2 is taken as metres, under 150 as centimetres, else millimetres.
-    Pass the unit explicitly when the guess is wrong (a toy character, a whole body).
-    """
-    d = mesh.bbox_diagonal()
-    if d < 2.0:
-        return "m"
-    if d < 150.0:
-        return "cm"
-    return "mm"
+__all__ = ["Rig", "resolve_features"]
 
 
 @dataclass(eq=False)
@@ -83,8 +69,7 @@ class Rig:
                 )
             seen[n] = i
         self._index = seen
-        if self.unit not in UNIT_TO_MM:
-            raise InvalidDataError(f"{self.name}: unknown unit '{self.unit}', use one of {list(UNIT_TO_MM)}")
+        self.unit = normalize_unit(self.unit, what=self.name)
         if self.landmarks is not None:
             lm = np.asarray(self.landmarks, dtype=np.int64).reshape(-1)
             if lm.size and (lm.min() < 0 or lm.max() >= V):
@@ -192,6 +177,7 @@ class Rig:
             warnings.warn(
                 f"{source}: {len(unknown)} channel(s) have no shape in rig '{self.name}' and are "
                 f"ignored: {', '.join(unknown)}",
+                DataWarning,
                 stacklevel=2,
             )
         return out
@@ -201,3 +187,41 @@ class Rig:
         idx = [self.index(n) for n in names]
         return Rig(self.neutral, [self.names[i] for i in idx], self.deltas[idx], self.unit,
                    self.landmarks, None, self.name)
+
+
+def resolve_features(spec, n_vertices: int, landmarks: np.ndarray | None = None, *, who: str = "rig") -> np.ndarray:
+    """Vertex indices of the feature points.
+
+    Parameters
+    ----------
+    spec : ``"landmarks"``, ``"all"``, a path to a text file of 0-based vertex indices, or an array
+    n_vertices : int
+        Vertex count of the mesh the indices refer to.
+    landmarks : (P,) int, optional
+        The rig's landmark indices (``landmarks68.txt``), used for ``"landmarks"``.
+
+    Returns
+    -------
+    (P,) int
+    """
+    if isinstance(spec, str) and spec == "all":
+        return np.arange(n_vertices)
+    if isinstance(spec, str) and spec == "landmarks":
+        if landmarks is None or len(landmarks) == 0:
+            raise InvalidDataError(f"{who}: features 'landmarks' asked for but the rig has no landmarks68.txt")
+        idx = np.asarray(landmarks, dtype=np.int64)
+    elif isinstance(spec, (str, os.PathLike)):
+        p = Path(spec)
+        if not p.is_file():
+            raise InputFileError(f"{p}: feature point file not found")
+        try:
+            idx = np.loadtxt(p, dtype=np.int64, ndmin=1)
+        except ValueError as e:
+            raise InputFileError(f"{p}: feature point file must hold 0-based vertex indices ({e})") from e
+    else:
+        idx = np.asarray(spec, dtype=np.int64).reshape(-1)
+    if idx.size == 0:
+        raise InvalidDataError(f"{who}: no feature points")
+    if idx.min() < 0 or idx.max() >= n_vertices:
+        raise InvalidDataError(f"{who}: feature point index outside 0..{n_vertices - 1}")
+    return idx

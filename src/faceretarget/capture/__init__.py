@@ -21,7 +21,6 @@ from ._capture import Capture, capture_video, draw_overlay, track_video, write_p
 from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
 from ._pose import matrix_to_pose, pose_to_matrix
 from ._tracker import FaceTracker, find_model
-from ._video import VideoInfo, iter_frames, probe_video, read_audio
 from ._warp import PiecewiseAffineWarp
 
 __all__ = [
@@ -42,8 +41,4 @@ __all__ = [
     "PiecewiseAffineWarp",
     "AppearanceModel",
     "procrustes_align",
-    "VideoInfo",
-    "probe_video",
-    "iter_frames",
-    "read_audio",
 ]

@@ -439,7 +439,7 @@ class AppearanceModel:
         (Kc,), ``texture_scale`` (), ``names`` (D,).  The per-pixel triangle and barycentric map is
         recomputed from ``mean_shape``, ``triangles`` and ``canvas`` on load.
         """
-        from ..io.obj import check_output_path
+        from ..files import check_output_path
 
         self._check()
         path = check_output_path(path)
@@ -453,7 +453,7 @@ class AppearanceModel:
         for ch, b, v in zip(_CHANNELS, self.texture_basis_, self.texture_var_, strict=True):
             arrays[f"texture_basis_{ch}"] = b.astype(np.float32)
             arrays[f"texture_var_{ch}"] = v
-        from ..io.npz import save_npz_arrays
+        from ..files import save_npz_arrays
 
         return save_npz_arrays(path, arrays)
 
@@ -461,7 +461,7 @@ class AppearanceModel:
     def load(cls, path: str | os.PathLike) -> AppearanceModel:
         """Read a model written by :meth:`save`."""
 
-        from ..io.npz import load_npz_arrays
+        from ..files import load_npz_arrays
 
         path = Path(path)
         d = load_npz_arrays(path)

@@ -9,14 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
+from .._optional import optional_import
 from ..errors import InputFileError, InvalidDataError
-from ..io._atomic import atomic_path
-from ..io.obj import check_output_path
+from ..files import atomic_path, check_output_path
+from ..io import iter_frames, probe_video, read_video_audio, write_video
+from ..numerics import runs
 from ..performance import Performance
-from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro, runs
+from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
 from ._pose import matrix_to_pose, pose_to_matrix
 from ._tracker import N_LANDMARKS, FaceTracker
-from ._video import iter_frames, probe_video, read_audio, write_video
 
 __all__ = ["Capture", "track_video", "capture_video", "write_preview", "draw_overlay", "FACE_WIDTH_CM",
            "DEFAULT_SMOOTH"]
@@ -149,7 +150,7 @@ class Capture:
         if smooth is not None:
             out = replace(self, landmarks=lm, interpolated=filled)
             fw = out.face_width()
-            for a, b in runs(valid):
+            for a, b in zip(*runs(valid), strict=True):
                 if b - a < 2:
                     continue
                 s = slice(a, b)
@@ -247,7 +248,7 @@ class Capture:
         if self.audio is not None:
             arrays["audio"] = self.audio.astype(np.float32)
             arrays["audio_rate"] = np.int64(self.audio_rate or 0)
-        from ..io.npz import save_npz_arrays
+        from ..files import save_npz_arrays
 
         return save_npz_arrays(path, arrays)
 
@@ -256,7 +257,7 @@ class Capture:
         """Read a file written by :meth:`save_npz`."""
         import json
 
-        from ..io.npz import load_npz_arrays
+        from ..files import load_npz_arrays
 
         path = Path(path)
         d = load_npz_arrays(path)
@@ -350,7 +351,7 @@ def track_video(path: str | os.PathLike, *, model: str | os.PathLike | None = No
     for i in np.flatnonzero(det):
         L[i], W[i], M[i] = lms[i], scores[i], mats[i]
     rot, tr = matrix_to_pose(M)
-    au = read_audio(path, duration=(times[-1] + 1.0 / info.fps)) if audio and info.has_audio else None
+    au = read_video_audio(path, duration=(times[-1] + 1.0 / info.fps)) if audio and info.has_audio else None
     if timings is not None:
         timings.update(decode_s=decode_s, track_s=track_s, frames=T)
     return Capture(times=np.asarray(times), fps=info.fps, image_size=(info.width, info.height), landmarks=L,
@@ -409,7 +410,7 @@ def draw_overlay(rgb: np.ndarray, landmarks: np.ndarray | None, *, interpolated:
     label : str
         Text for the top-left corner (frame number, time).
     """
-    import cv2
+    cv2 = optional_import("cv2", "drawing the overlay preview")
 
     global _CONTOURS
     if _CONTOURS is None:

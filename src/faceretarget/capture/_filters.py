@@ -11,8 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidDataError
+from ..numerics import runs
 
-__all__ = ["OneEuroParams", "one_euro", "fill_gaps", "runs", "neutral_baseline", "calibrate_neutral"]
+__all__ = ["OneEuroParams", "one_euro", "fill_gaps", "neutral_baseline", "calibrate_neutral"]
 
 
 @dataclass(frozen=True)
@@ -120,15 +121,6 @@ def one_euro(x: np.ndarray, times: np.ndarray, params: OneEuroParams | None = No
     return out
 
 
-def runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """``[start, stop)`` index ranges of the True runs of a boolean (T,) mask.
-
-    >>> runs(np.array([0, 1, 1, 0, 1], dtype=bool))
-    [(1, 3), (4, 5)]
-    """
-    m = np.asarray(mask, dtype=bool).reshape(-1)
-    d = np.diff(np.concatenate([[0], m.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
 
 
 def fill_gaps(x: np.ndarray, valid: np.ndarray, max_gap: int, times: np.ndarray | None = None
@@ -165,7 +157,7 @@ def fill_gaps(x: np.ndarray, valid: np.ndarray, max_gap: int, times: np.ndarray 
     t = np.arange(v.size, dtype=np.float64) if times is None else np.asarray(times, dtype=np.float64)
     x[~v] = np.nan
     filled = np.zeros_like(v)
-    for a, b in runs(~v):
+    for a, b in zip(*runs(~v), strict=True):
         if a == 0 or b == v.size or b - a > max_gap:
             continue
         w = ((t[a:b] - t[a - 1]) / (t[b] - t[a - 1])).reshape((-1,) + (1,) * (x.ndim - 1))

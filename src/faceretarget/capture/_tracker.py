@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._optional import optional_import
 from ..errors import FaceRetargetError, InputFileError
 
 __all__ = ["find_model", "FaceTracker", "N_LANDMARKS", "INSTALL_HINT"]
@@ -79,12 +80,10 @@ def _native_stderr_silenced() -> Iterator[None]:
 
 
 def _mediapipe():
-    try:
-        import mediapipe as mp
-        from mediapipe.tasks.python import vision
-        from mediapipe.tasks.python.core.base_options import BaseOptions
-    except ImportError as e:
-        raise FaceRetargetError(f"video capture needs MediaPipe ({e}): {INSTALL_HINT}") from e
+    mp = optional_import("mediapipe", "video capture", INSTALL_HINT)
+    vision = optional_import("mediapipe.tasks.python.vision", "video capture", INSTALL_HINT)
+    BaseOptions = optional_import("mediapipe.tasks.python.core.base_options", "video capture",
+                                  INSTALL_HINT).BaseOptions
     return mp, vision, BaseOptions
 
 

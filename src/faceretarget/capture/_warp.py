@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._optional import optional_import
 from ..errors import InvalidDataError
 
 __all__ = ["PiecewiseAffineWarp", "rasterize_triangles"]
@@ -151,7 +152,7 @@ class PiecewiseAffineWarp:
         (height, width[, C]) array of ``image``'s dtype
             Bilinear samples; ``border`` outside the mesh.
         """
-        import cv2
+        cv2 = optional_import("cv2", "warping face textures")
 
         mx, my = self.maps(points)
         return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=border)

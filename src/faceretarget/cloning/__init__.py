@@ -1,22 +1,45 @@
-"""Example-based expression cloning (Pyun et al. 2003).
+"""Example-based expression cloning (Pyun, Kim, Chae, Kang and Shin 2003).
 
-Sec. 2 key-model composition (:mod:`.composition`, tables in :mod:`.tables`), Sec. 3 feature
-parameterisation (:mod:`.features`), Sec. 4 cardinal basis weight functions (:mod:`.cardinal`) and
-runtime blending (:class:`ExpressionCloner`), the standard key-model sets (:mod:`.keysets`), and the
-Noh & Neumann peer baseline (:mod:`.noh`).
+================================ ================================================================
+:mod:`._tables`                  emotion and viseme key-models as ARKit weight vectors (FACS)
+:mod:`._composition`             Sec. 2 and Appendix: per-vertex importance, composition (Eq. 13)
+:mod:`._features`                Sec. 3: feature-point displacements, PCA parameter space
+:mod:`._cardinal`                Sec. 4: cardinal basis weight functions (linear + cubic B-spline)
+:mod:`._cloner`                  :class:`ExpressionCloner`: runtime blending of a whole take
+:mod:`._keysets`                 the standard key-model sets of two ARKit-style rigs (P1, ``--keys``)
+:mod:`._noh`                     Noh & Neumann 2001, the peer baseline
+================================ ================================================================
 """
 
-from .cardinal import CardinalBasis, cubic_bspline
-from .cloner import METHODS, ExpressionCloner
-from .composition import build_key_models, compose_key_models, vertex_importance
-from .features import FeaturePCA, feature_vectors, resolve_features
-from .keysets import KEYSETS, keymodel_pair, keymodel_rig, keyset_weights
-from .tables import EMOTIONS, VISEMES, combined_weight_vectors, emotion_vectors, viseme_vectors
-from .temporal import denoise_take, estimate_noise_sigma, sure_whittaker
+from ._cardinal import CardinalBasis, cubic_bspline
+from ._cloner import METHODS, ExpressionCloner
+from ._composition import (
+    Importance,
+    blend_weight,
+    build_key_models,
+    compose_displacements,
+    compose_key_models,
+    propagate_importance,
+    raw_importance,
+    vertex_importance,
+)
+from ._features import FeaturePCA, feature_vectors
+from ._keysets import KEYSETS, keymodel_pair, keymodel_rig, keyset_weights
+from ._noh import NohNeumannCloner, closest_points_on_mesh
+from ._tables import (
+    EMOTIONS,
+    VISEMES,
+    combined_weight_vectors,
+    emotion_vectors,
+    table_shapes,
+    viseme_vectors,
+    weight_vector,
+)
 
 __all__ = [
     "ExpressionCloner", "METHODS", "CardinalBasis", "cubic_bspline", "FeaturePCA", "feature_vectors",
-    "resolve_features", "build_key_models", "compose_key_models", "vertex_importance", "KEYSETS",
-    "keymodel_pair", "keymodel_rig", "keyset_weights", "EMOTIONS", "VISEMES", "combined_weight_vectors",
-    "emotion_vectors", "viseme_vectors", "denoise_take", "estimate_noise_sigma", "sure_whittaker",
+    "build_key_models", "compose_key_models", "compose_displacements", "vertex_importance", "raw_importance",
+    "propagate_importance", "blend_weight", "Importance", "KEYSETS", "keymodel_pair", "keymodel_rig",
+    "keyset_weights", "EMOTIONS", "VISEMES", "combined_weight_vectors", "emotion_vectors", "viseme_vectors",
+    "weight_vector", "table_shapes", "NohNeumannCloner", "closest_points_on_mesh",
 ]

@@ -98,9 +98,7 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputFileError, InvalidDataError
-from ..io._atomic import atomic_path
-from ..io._files import input_file
-from ..io.obj import check_output_path
+from ..files import atomic_path, check_output_path, input_file
 from ..performance import Performance
 from ._blend import blend_segments
 from ._pitch import PitchTrack, extract_pitch

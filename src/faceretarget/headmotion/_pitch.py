@@ -20,8 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidDataError
+from ..numerics import runs
 
-__all__ = ["PitchTrack", "extract_pitch", "runs"]
+__all__ = ["PitchTrack", "extract_pitch"]
 
 
 @dataclass
@@ -68,18 +69,6 @@ class PitchTrack:
         return np.stack([self.times[s] - h, self.times[e - 1] + h], axis=1) if s.size else np.zeros((0, 2))
 
 
-def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end (exclusive) indices of the runs of True in a 1-D bool array.
-
-    Examples
-    --------
-    >>> s, e = runs(np.array([0, 1, 1, 0, 1], bool))
-    >>> s.tolist(), e.tolist()
-    ([1, 4], [3, 5])
-    """
-    m = np.asarray(mask, bool).astype(np.int8)
-    d = np.diff(np.concatenate([[0], m, [0]]))
-    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
 
 
 def _run_median(st: np.ndarray, s: np.ndarray, e: np.ndarray) -> np.ndarray:

@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._pitch import PitchTrack, runs
+from ..numerics import runs
+from ._pitch import PitchTrack
 
 __all__ = ["Segmentation", "segment_speech", "PHRASE_STATS"]
 

@@ -31,9 +31,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputFileError, InvalidDataError
-from ..io._files import input_file
-from ..io.audio import read_audio
-from ..io.bvh import Bvh, bvh_chain, read_bvh
+from ..files import input_file
+from ..io import Bvh, bvh_chain, read_audio, read_bvh
 from ..performance import Performance
 from ._pitch import PitchTrack
 
@@ -244,7 +243,7 @@ def head_motion_from_markers(perf: Performance, subset=None, n_auto: int = 8
         when it is unknown).
     fps : float
     """
-    from ..retarget.rigid import RigidAligner
+    from ..numerics import RigidAligner
 
     al = RigidAligner(subset=subset, n_auto=n_auto)
     with warnings.catch_warnings():
@@ -292,7 +291,7 @@ def read_head_take(audio_path: str | os.PathLike, motion_path: str | os.PathLike
     elif ext == ".npz":
         rot, trans, fps = head_motion_from_smplx(motion_path, neck_length=neck_length)
     elif ext == ".c3d":
-        from ..io.c3d import read_c3d
+        from ..io import read_c3d
 
         rot, trans, fps = head_motion_from_markers(read_c3d(motion_path))
     else:

@@ -1,53 +1,48 @@
-"""Readers and writers: OBJ meshes and rigs, Live Link Face CSV, glTF binary (morph and head animation), ``.npz``,
-OBJ sequences, C3D markers, BVH head motion and WAV audio.
+"""Every file format: rigs and meshes (OBJ, glTF), takes (Live Link Face CSV, C3D, ``.npz``, OBJ
+sequences, glTF weight animation), head motion (BVH, SMPL-X, glTF head node, Live Link Face head
+columns), audio (WAV), video (any container ffmpeg reads, through PyAV), keyshape folders.
 
+:func:`read_performance` and :func:`write_animation` choose the format from the path through one
+extension registry (:data:`READERS`, :data:`WRITERS`); each format's module documents its layout.
 Every reader raises :class:`~faceretarget.errors.InputFileError` (or a more specific
 :class:`~faceretarget.errors.FaceRetargetError`) whose message names the file and the line, row,
 shape or key at fault; every writer produces its output whole or not at all
-(:mod:`faceretarget.io._atomic`) and raises :class:`~faceretarget.errors.OutputError` naming the
-path it could not write.
+(:mod:`faceretarget.files`) and raises :class:`~faceretarget.errors.OutputError` naming the path
+it could not write.
 """
 
-from .audio import read_audio
-from .bvh import Bvh, BvhJoint, bvh_chain, make_head_bvh, read_bvh, write_bvh
-from .c3d import read_c3d, write_c3d
-from .gltf import glb_vertex_order, read_glb_head, read_glb_rig, read_glb_weights, write_glb, write_glb_head
-from .livelinkface import LiveLinkFaceInfo, read_livelinkface, write_livelinkface
-from .npz import read_npz_performance, write_npz
-from .obj import read_obj, read_obj_sequence, read_obj_vertices, write_obj, write_obj_sequence
-from .performance_io import read_performance, write_animation
-from .rigio import load_rig, load_rig_npz, save_rig_npz, save_rig_obj
+from ..files import atomic_dir, atomic_path, check_output_path, input_file, load_npz_arrays, save_npz_arrays
+from ._audio import read_audio
+from ._bvh import Bvh, BvhJoint, bvh_chain, make_head_bvh, read_bvh, write_bvh
+from ._c3d import read_c3d, write_c3d
+from ._gltf import glb_vertex_order, read_glb_head, read_glb_rig, read_glb_weights, write_glb, write_glb_head
+from ._head import HEAD_FORMATS, head_quaternions, write_head_motion
+from ._keyshapes import (
+    export_keyshapes,
+    is_keyshape_folder,
+    keyshape_filename,
+    read_marker_labels,
+    read_target_keyshapes,
+)
+from ._livelinkface import LiveLinkFaceInfo, read_livelinkface, write_livelinkface
+from ._npz import read_npz_performance, write_npz
+from ._obj import read_obj, read_obj_sequence, read_obj_vertices, write_obj, write_obj_sequence
+from ._registry import READ_FORMATS, WRITE_FORMATS, read_performance, write_animation
+from ._rig import load_rig, load_rig_npz, save_rig_npz, save_rig_obj
+from ._video import VideoInfo, iter_frames, probe_video, read_video_audio, write_video
 
 __all__ = [
-    "read_obj",
-    "read_obj_vertices",
-    "write_obj",
-    "read_obj_sequence",
-    "write_obj_sequence",
-    "load_rig",
-    "save_rig_obj",
-    "save_rig_npz",
-    "load_rig_npz",
-    "read_livelinkface",
-    "write_livelinkface",
-    "LiveLinkFaceInfo",
-    "write_glb",
-    "read_glb_weights",
-    "read_glb_rig",
-    "glb_vertex_order",
-    "write_npz",
-    "read_npz_performance",
-    "read_performance",
-    "write_animation",
-    "read_c3d",
-    "write_c3d",
+    "read_obj", "read_obj_vertices", "write_obj", "read_obj_sequence", "write_obj_sequence",
+    "load_rig", "save_rig_obj", "save_rig_npz", "load_rig_npz",
+    "read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo",
+    "write_glb", "read_glb_weights", "read_glb_rig", "glb_vertex_order", "write_glb_head", "read_glb_head",
+    "write_npz", "read_npz_performance",
+    "read_performance", "write_animation", "READ_FORMATS", "WRITE_FORMATS",
+    "read_c3d", "write_c3d",
     "read_audio",
-    "Bvh",
-    "BvhJoint",
-    "bvh_chain",
-    "make_head_bvh",
-    "read_bvh",
-    "write_bvh",
-    "write_glb_head",
-    "read_glb_head",
+    "Bvh", "BvhJoint", "bvh_chain", "make_head_bvh", "read_bvh", "write_bvh",
+    "write_head_motion", "head_quaternions", "HEAD_FORMATS",
+    "export_keyshapes", "read_target_keyshapes", "read_marker_labels", "is_keyshape_folder", "keyshape_filename",
+    "VideoInfo", "probe_video", "iter_frames", "read_video_audio", "write_video",
+    "atomic_path", "atomic_dir", "check_output_path", "input_file", "load_npz_arrays", "save_npz_arrays",
 ]

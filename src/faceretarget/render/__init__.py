@@ -1,6 +1,6 @@
 """Preview rendering with no system dependencies: see :mod:`faceretarget.render.preview`."""
 
-from .preview import (
+from ._preview import (
     DEFAULT_BACKGROUND,
     DEFAULT_COLOR,
     DEFAULT_LIGHT,

@@ -8,7 +8,7 @@ features, :mod:`._align`), compressed by PCA and separated into *style* (the emo
 examples (:meth:`StyleModel.add_style`), and interpolates or exaggerates between emotions with a
 guard that reports when the result leaves the range of the training data.
 :class:`ExpressionSliders` blends per-emotion retargets over time (Ch. 5, Eq. 5.1).
-:func:`make_p3_takes` builds the evaluation data of protocol P3.  See ``docs/style.md``.
+See ``docs/style.md``.
 """
 
 from ._align import (
@@ -31,7 +31,7 @@ from ._bilinear import (
     choose_dims,
     load_bilinear,
 )
-from ._features import AUDIO_FEATURES, PiecewiseWarp, audio_features, read_wav, time_warp_audio
+from ._features import AUDIO_FEATURES, PiecewiseWarp, audio_features, time_warp_audio
 from ._model import (
     RangeReport,
     Restyled,
@@ -41,7 +41,6 @@ from ._model import (
     bundle_frames,
     unbundle_frames,
 )
-from ._p3 import DEFAULT_WARPS, P3Takes, StyleWarp, content_channels, make_p3_takes
 from ._select import (
     GRID,
     STYLE_RIDGE_GRID,
@@ -86,7 +85,6 @@ __all__ = [
     "frame_vectors",
     "resample",
     "warp_performance",
-    "read_wav",
     "audio_features",
     "time_warp_audio",
     "PiecewiseWarp",
@@ -94,9 +92,4 @@ __all__ = [
     "ExpressionSliders",
     "AlphaCurves",
     "alpha_curves",
-    "make_p3_takes",
-    "P3Takes",
-    "StyleWarp",
-    "DEFAULT_WARPS",
-    "content_channels",
 ]

@@ -67,7 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputFileError, InvalidDataError
-from ..io._atomic import atomic_path
+from ..files import atomic_path
 
 __all__ = [
     "AsymmetricBilinearModel",

@@ -1,4 +1,4 @@
-"""Speech features for aligning takes (Chuang Sec. 2.3.1): MFCC and RASTA-PLP, and WAV reading.
+"""Speech features for aligning takes (Chuang Sec. 2.3.1): MFCC and RASTA-PLP.
 
 Both feature kinds come from ``spafe`` (``spafe.features.mfcc.mfcc``,
 ``spafe.features.rplp.rplp``) on audio resampled to 16 kHz (so the 25 ms analysis window fits
@@ -14,17 +14,14 @@ clips whose true alignment is known.
 
 from __future__ import annotations
 
-import os
-import warnings
 from dataclasses import dataclass
 from math import gcd
-from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, InvalidDataError
+from ..errors import InvalidDataError
 
-__all__ = ["read_wav", "audio_features", "time_warp_audio", "PiecewiseWarp", "FEATURE_RATE", "AUDIO_FEATURES"]
+__all__ = ["audio_features", "time_warp_audio", "PiecewiseWarp", "FEATURE_RATE", "AUDIO_FEATURES"]
 
 #: Sample rate (Hz) the features are computed at.
 FEATURE_RATE = 16000
@@ -32,44 +29,6 @@ FEATURE_RATE = 16000
 AUDIO_FEATURES = ("mfcc", "rplp")
 
 
-def read_wav(path: str | os.PathLike) -> tuple[np.ndarray, float]:
-    """Read a WAV file as mono float samples in [-1, 1].
-
-    Returns
-    -------
-    samples : (N,) float
-        Channels averaged.
-    rate : float
-        Sample rate in Hz.
-
-    Raises
-    ------
-    InputFileError
-        Missing or unreadable file, or an empty recording.
-    """
-    from scipy.io import wavfile
-
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"{p}: not found")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", wavfile.WavFileWarning)
-            rate, x = wavfile.read(p)
-    except (ValueError, OSError, EOFError) as e:
-        raise InputFileError(f"{p}: not a readable WAV file ({e})") from e
-    if x.dtype.kind == "i":
-        x = x.astype(np.float64) / float(-np.iinfo(x.dtype).min)
-    elif x.dtype.kind == "u":
-        info = np.iinfo(x.dtype)
-        x = (x.astype(np.float64) - (info.max + 1) / 2) / ((info.max + 1) / 2)
-    else:
-        x = x.astype(np.float64)
-    if x.ndim == 2:
-        x = x.mean(axis=1)
-    if x.size == 0:
-        raise InputFileError(f"{p}: the recording is empty")
-    return x, float(rate)
 
 
 def _to_feature_rate(x: np.ndarray, rate: float) -> np.ndarray:

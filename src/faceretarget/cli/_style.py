@@ -1,0 +1,234 @@
+"""Command line: ``faceretarget style fit`` (train a style model) and ``faceretarget restyle``.
+
+``register(subparsers)`` adds both commands to the main parser; handlers take ``(args, log)`` and
+return an exit code, and raise :class:`~faceretarget.errors.FaceRetargetError` for bad input (the
+main program prints it on one line and exits 2)::
+
+    faceretarget style fit --take neutral=A.csv --take angry=B.csv --take happy=C.csv --out M.npz
+    faceretarget restyle --model M.npz --performance TAKE.csv --to angry --amount 1.5 --out OUT.csv
+
+``style fit`` aligns the takes (by audio when every take has a ``--audio STYLE=WAV``, else by face
+features) to the reference (``--reference``, default the first take) and writes the model
+(``StyleModel.save``).  ``--add STYLE=PATH`` adds an untrained style from a take of the same text
+as the reference.  ``restyle`` changes the emotion of a take: with ``--from STYLE`` the take's
+emotion is known (asymmetric model), otherwise it is inferred (symmetric model; ``--window``
+seconds over which it is held constant).  ``--amount`` interpolates (< 1) or exaggerates (> 1);
+a warning says when the result leaves the range of the training data.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..errors import InvalidDataError, OutputError
+from ._support import protect as _protect
+from ._support import run_command, warnings_to_log
+
+__all__ = ["register", "cmd_style_fit", "cmd_restyle", "main"]
+
+
+
+def _auto_float(v: str):
+    if v == "auto":
+        return v
+    try:
+        return float(v)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {v!r}") from e
+
+
+def _local_arg(v: str):
+    if v == "auto":
+        return v
+    for kind, conv, form in (("kernel", float, "kernel:BANDWIDTH:RIDGE"), ("points", int, "points:NEIGHBOURS:FRAMES")):
+        if v.startswith(kind + ":"):
+            try:
+                _, a, b = v.split(":")
+                return (kind, conv(a), conv(b))
+            except ValueError as e:
+                raise argparse.ArgumentTypeError(f"expected {form}, got {v!r}") from e
+    try:
+        return int(v)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"expected auto, an integer, kernel:H:LAM or points:M:K, got {v!r}") from e
+
+
+def _pairs(items, what: str) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for it in items or []:
+        if "=" not in it:
+            raise InvalidDataError(f"{what} '{it}': write STYLE=PATH (for example neutral=take.csv)")
+        k, v = it.split("=", 1)
+        k, v = k.strip(), v.strip()
+        if not k or not v:
+            raise InvalidDataError(f"{what} '{it}': write STYLE=PATH (for example neutral=take.csv)")
+        if k in out:
+            raise InvalidDataError(f"{what}: style '{k}' given twice")
+        out[k] = v
+    return out
+
+
+def _read_take(path: str, fps, audio: str | None):
+    from dataclasses import replace
+
+    from ..io import read_audio, read_performance
+
+    perf = read_performance(path, fps=fps)
+    if audio is not None:
+        x, rate = read_audio(audio)
+        perf = replace(perf, audio=x, audio_rate=rate)
+    return perf
+
+
+def cmd_style_fit(args, log) -> int:
+    """``style fit``: align takes of one text in several styles and write a :class:`StyleModel`."""
+    from ..style import StyleModel
+
+    takes = _pairs(args.take, "--take")
+    audio = _pairs(args.audio, "--audio")
+    adds = _pairs(args.add, "--add")
+    if len(takes) < 2:
+        raise InvalidDataError(f"give takes in at least 2 styles (--take STYLE=PATH), got {len(takes)}")
+    for k in audio:
+        if k not in takes and k not in adds:
+            raise InvalidDataError(f"--audio {k}=...: no take of style '{k}'")
+    for k in adds:
+        if k in takes:
+            raise InvalidDataError(f"--add {k}=...: style '{k}' is also a --take")
+    out = Path(args.out)
+    _protect(out, [*takes.values(), *audio.values(), *adds.values()])
+    if out.suffix.lower() != ".npz":
+        raise OutputError(f"{out}: a style model is written as .npz")
+    perfs = {k: _read_take(v, args.fps, audio.get(k)) for k, v in takes.items()}
+    for k, p in perfs.items():
+        log(f"{k}: {p.n_frames} frames ({p.kind}) from {takes[k]}" + (" with audio" if p.audio is not None else ""))
+    ref = args.reference or next(iter(takes))
+    model = StyleModel(variance=args.variance, energy=args.energy, content_dims=args.content_dims,
+                       style_dims=args.style_dims, bundle=args.bundle, local=args.local, prior=args.prior,
+                       align=args.align,
+                       audio_features=args.audio_features, window_s=args.window_s)
+    with warnings_to_log(log):
+        model.fit(perfs, reference=ref)
+        log(f"settings: {model.settings_}" + (" (cross-validated on the training frames)"
+                                               if model.selection_ is not None else ""))
+        for k, al in model.alignments_.items():
+            rate = (al.take_times[-1] - al.take_times[0]) / max(al.ref_times[-1] - al.ref_times[0], 1e-9)
+            log(f"aligned {k} to {ref} by {al.by}: {len(al.path)} path steps; {k} lasts {rate:.3f} times as long")
+        for k, path in adds.items():
+            take = _read_take(path, args.fps, audio.get(k))
+            model.add_style_take(k, take, ref, perfs[ref])
+            log(f"added untrained style '{k}' from {path} (same text as '{ref}')")
+    A, S = model.asymmetric_, model.symmetric_
+    log(f"PCA: {model.n_components_} components; content dims J = {A.content_dims_}, style dims I = "
+        f"{S.style_dims_}; symmetric fit {S.n_iter_} iteration(s); styles: {', '.join(model.styles_)}")
+    model.save(out)
+    log(f"wrote {out}")
+    return 0
+
+
+def cmd_restyle(args, log) -> int:
+    """``restyle``: change the emotion of a take with a trained :class:`StyleModel`."""
+    from ..io import load_rig, write_animation
+    from ..style import StyleModel
+
+    out = Path(args.out)
+    _protect(out, [args.model, args.performance, args.rig])
+    model = StyleModel.load(args.model)
+    perf = _read_take(args.performance, args.fps, None)
+    ext = out.suffix.lower()
+    if perf.kind == "weights" and ext in (".glb", ".npz", "") and args.rig is None:
+        raise InvalidDataError(f"{out}: writing a weight take as {ext or 'an OBJ sequence'} needs the rig (--rig DIR)")
+    rig = load_rig(args.rig, neutral=args.rig_neutral) if args.rig else None
+    window = None
+    if args.window is not None:
+        if not args.window > 0:
+            raise InvalidDataError(f"--window must be positive seconds, got {args.window}")
+        window = max(1, int(round(args.window * perf.fps)))
+    with warnings_to_log(log):
+        new, res = model.restyle(perf, args.to, args.amount, source=args.source, window=window, margin=args.margin)
+    if args.source is None:
+        w = res.style_weights.mean(0)
+        top = sorted(zip(model.styles_, w, strict=True), key=lambda x: -x[1])
+        log("inferred style (mean weights): " + ", ".join(f"{k} {v:.2f}" for k, v in top))
+    log(f"restyled {perf.n_frames} frames {args.source or '(inferred)'} -> {args.to} at amount {args.amount:g}"
+        f"{(' by the point-local translation' if model._points_on() else ' with local correction') if res.local else ''}"
+        f"; range score {res.range.score:.2f}"
+        f"{' (outside the training range)' if res.range.outside else ''}")
+    with warnings_to_log(log):
+        if new.kind == "weights":
+            write_animation(out, rig=rig, weights=new.weights, names=new.names, times=new.times)
+        else:
+            write_animation(out, vertices=new.data(), mesh=new.mesh, times=new.times)
+    log(f"wrote {out}")
+    return 0
+
+
+def register(subparsers) -> None:
+    """Add ``restyle`` and ``style fit`` to the main parser's subcommands."""
+    r = subparsers.add_parser(
+        "restyle", help="change the emotion of a take, keeping its lip sync (Chuang 2004, Ch. 2)",
+        description="Change the emotion of a take with a style model from 'faceretarget style fit'. With --from "
+                    "the take's emotion is known; otherwise it is inferred.")
+    r.add_argument("--model", required=True, help="style model .npz from 'style fit'")
+    r.add_argument("--performance", required=True, help="take: Live Link Face .csv, .npz, .glb, OBJ-sequence folder")
+    r.add_argument("--to", required=True, help="target style (one of the model's)")
+    r.add_argument("--from", dest="source", help="the take's own style when known (else inferred)")
+    r.add_argument("--amount", type=float, default=1.0,
+                   help="0 keeps the take's style, 1 is the target, > 1 exaggerates (default 1)")
+    r.add_argument("--window", type=float, help="seconds over which an inferred style is held constant "
+                                                 "(default: the whole take)")
+    r.add_argument("--out", required=True, help="output: .csv (weights), .glb, .npz, or a folder (OBJ sequence)")
+    r.add_argument("--rig", help="rig folder, for .glb / .npz / OBJ output of a weight take")
+    r.add_argument("--rig-neutral", help="the rig folder's neutral OBJ when it is not named neutral*")
+    r.add_argument("--fps", type=float, help="frame rate of a take without times")
+    r.add_argument("--margin", type=float, default=0.5,
+                   help="warn when the result leaves the training range by more than this share of it")
+    r.set_defaults(func=cmd_restyle)
+
+    s = subparsers.add_parser("style", help="style/content (emotion/speech) model tools")
+    ss = s.add_subparsers(dest="style_command", required=True)
+    f = ss.add_parser("fit", help="train a style model from takes of the same text in several emotions",
+                      description="Align takes of the same text in different emotions and fit the bilinear "
+                                  "style/content models (written as .npz).")
+    f.add_argument("--take", action="append", required=True, metavar="STYLE=PATH",
+                   help="a take in one style (repeat: at least two)")
+    f.add_argument("--audio", action="append", default=[], metavar="STYLE=WAV",
+                   help="the take's audio (starting with its first frame); with audio for every take they "
+                        "are aligned by speech features")
+    f.add_argument("--add", action="append", default=[], metavar="STYLE=PATH",
+                   help="an untrained style from a take of the same text as the reference")
+    f.add_argument("--reference", help="style whose timeline the others are aligned to (default: the first)")
+    f.add_argument("--align", choices=["auto", "audio", "face"], default="auto", help="alignment features")
+    f.add_argument("--audio-features", choices=["mfcc", "rplp"], default="mfcc", help="speech features")
+    f.add_argument("--window-s", type=float, help="Sakoe-Chiba band of the alignment, seconds")
+    f.add_argument("--variance", type=_auto_float, default="auto",
+                   help="retained PCA variance (default auto: cross-validated on the training frames)")
+    f.add_argument("--energy", type=_auto_float, default="auto",
+                   help="retained energy for the style/content dimensions (default auto)")
+    f.add_argument("--prior", type=_auto_float, default="auto",
+                   help="strength of the content prior (0: the thesis's least squares; default auto)")
+    f.add_argument("--content-dims", type=int, help="content dimensions J (default: from --energy)")
+    f.add_argument("--style-dims", type=int, help="style dimensions I (default: from --energy)")
+    f.add_argument("--bundle", type=int, default=1, help="frames per observation (n-frame bundles, default 1)")
+    f.add_argument("--local", type=_local_arg, default="auto",
+                   help="local correction: auto (default, cross-validated), 0 (off), K (mean residual of the K "
+                        "nearest training frames), kernel:H:LAM (kernel ridge regression) or points:M:K "
+                        "(point-local translation: each point's change from it and its M-1 neighbours, "
+                        "affine plus the mean remainder of the K nearest training frames; point takes only)")
+    f.add_argument("--fps", type=float, help="frame rate of takes without times")
+    f.add_argument("--out", required=True, help="output model .npz")
+    f.set_defaults(func=cmd_style_fit)
+
+
+def main(argv=None) -> int:
+    """Run ``restyle`` / ``style fit`` on their own (the main ``faceretarget`` program does the same)."""
+    p = argparse.ArgumentParser(prog="faceretarget")
+    p.add_argument("--quiet", "-q", action="store_true")
+    register(p.add_subparsers(dest="command", required=True))
+    return run_command(p.parse_args(argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,58 @@
+"""What every ``faceretarget`` command shares: quiet-able logging, input protection, warnings as
+one line each, and the error-to-exit-code policy (2 for bad input, 1 for system errors)."""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from contextlib import contextmanager
+
+from ..errors import FaceRetargetError
+from ..files import protect_inputs as protect
+
+__all__ = ["Log", "protect", "warnings_to_log", "run_command"]
+
+
+class Log:
+    """``print`` unless quiet."""
+
+    def __init__(self, quiet: bool):
+        self.quiet = quiet
+
+    def __call__(self, *a):
+        if not self.quiet:
+            print(*a, flush=True)
+
+
+
+
+@contextmanager
+def warnings_to_log(log):
+    """Print each distinct warning raised inside the block once, on one line."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            yield
+        finally:
+            seen = set()
+            for c in caught:
+                msg = str(c.message)
+                if msg not in seen:
+                    seen.add(msg)
+                    log(f"warning: {msg}")
+
+
+def run_command(args) -> int:
+    """Run ``args.func(args, log)``: errors a user can act on as one line and exit code 2."""
+    log = Log(getattr(args, "quiet", False))
+    try:
+        return int(args.func(args, log) or 0)
+    except FaceRetargetError as e:
+        print(f"faceretarget: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("faceretarget: interrupted", file=sys.stderr)
+        return 130
+    except OSError as e:
+        print(f"faceretarget: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
+        return 1

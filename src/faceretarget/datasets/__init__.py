@@ -1,0 +1,25 @@
+"""Data made by the package: the embedded demo characters and evaluation data of the protocols.
+
+================================ ================================================================
+:mod:`._demo`                    the procedural demo characters ``ada`` and ``bo`` and seeded
+                                 ARKit weight takes (``make demo``, tests)
+:mod:`._p1`                      P1 ground truth: paired rigs driven by the same weights, capture
+                                 noise
+:mod:`._p3`                      P3: styled takes with a known answer (emotion x speech content)
+:mod:`._synthetic`               synthetic keyshape problems for the NNLS tests and benchmark
+================================ ================================================================
+
+Nothing here is needed to retarget a user's take; the methods never import it.
+"""
+
+from ._demo import DEMO_CHARACTERS, demo_vertex_colors, make_demo_character, make_demo_take
+from ._p1 import ArkitPairing, add_capture_noise, keymodels_from_weights, rig_animation
+from ._p3 import DEFAULT_WARPS, P3Takes, StyleWarp, content_channels, make_p3_takes
+from ._synthetic import keyshape_problem, rom_problem
+
+__all__ = [
+    "DEMO_CHARACTERS", "make_demo_character", "demo_vertex_colors", "make_demo_take",
+    "ArkitPairing", "add_capture_noise", "keymodels_from_weights", "rig_animation",
+    "make_p3_takes", "P3Takes", "StyleWarp", "DEFAULT_WARPS", "content_channels",
+    "keyshape_problem", "rom_problem",
+]

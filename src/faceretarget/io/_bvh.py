@@ -1,0 +1,414 @@
+"""Biovision Hierarchy (``.bvh``) motion: read and write skeletons with their channel curves.
+
+Conventions (the ones every common exporter follows):
+
+* Rotations are in degrees.  A joint's rotation channels are applied in the order they are listed:
+  ``CHANNELS 3 Zrotation Xrotation Yrotation`` means the local rotation ``R = Rz @ Rx @ Ry`` (column
+  vectors; scipy's intrinsic ``Rotation.from_euler("ZXY", [z, x, y])``).  Each joint's own channel
+  order is honoured.
+* A joint's local transform is its ``OFFSET`` (plus position channels, when it has them) followed
+  by its rotation: a point ``p`` in the joint's frame is at ``offset + position + R @ p`` in the
+  parent's frame.
+* In the rest pose every joint frame is parallel to the world frame, so composed rotations are
+  expressed in the rest-pose axes (Y up in the shared takes, X the character's left, +Z forward).
+
+:func:`make_head_bvh` builds the minimal skeleton :mod:`faceretarget.headmotion` writes: one root
+joint ``Head`` with channels ``Yrotation Xrotation Zrotation`` (so its three rotation values per
+frame are exactly yaw, pitch and roll in degrees, intrinsic Y-X-Z) and, when a translation is given,
+``Xposition Yposition Zposition`` before them.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..errors import InputFileError, InvalidDataError
+from ..files import atomic_path, check_output_path, input_file, read_text
+
+__all__ = ["Bvh", "BvhJoint", "read_bvh", "write_bvh", "bvh_chain", "make_head_bvh"]
+
+_ROT = {"xrotation": "X", "yrotation": "Y", "zrotation": "Z"}
+_POS = {"xposition": 0, "yposition": 1, "zposition": 2}
+
+
+@dataclass
+class BvhJoint:
+    """One joint of a BVH hierarchy.
+
+    Attributes
+    ----------
+    name : str
+    parent : int
+        Index of the parent joint, -1 for a root.
+    offset : (3,) float
+        Position of the joint's origin in its parent's frame (rest pose).
+    channels : tuple of str
+        Channel names as written (``Xposition``, ``Zrotation``, ...).
+    end_site : (3,) float or None
+        ``End Site`` offset, when the joint has one.
+    """
+
+    name: str
+    parent: int
+    offset: np.ndarray
+    channels: tuple[str, ...] = ()
+    end_site: np.ndarray | None = None
+
+
+@dataclass
+class Bvh:
+    """A BVH skeleton and its motion.
+
+    Attributes
+    ----------
+    joints : list of BvhJoint
+        In file order (a parent always precedes its children).
+    frame_time : float
+        Seconds per frame.
+    motion : (T, C) float
+        Channel values per frame, columns in joint order then channel order.
+    source : str
+        File name, for messages.
+    """
+
+    joints: list[BvhJoint]
+    frame_time: float
+    motion: np.ndarray
+    source: str = "bvh"
+    _start: list[int] = field(default_factory=list, repr=False)
+
+    def __post_init__(self) -> None:
+        self.motion = np.asarray(self.motion, dtype=np.float64)
+        starts, c = [], 0
+        for j in self.joints:
+            starts.append(c)
+            c += len(j.channels)
+        self._start = starts
+        if self.motion.ndim != 2 or self.motion.shape[1] != c:
+            raise InvalidDataError(f"{self.source}: motion must be (T, {c}) for {c} channels, "
+                                   f"got {self.motion.shape}")
+        if not (np.isfinite(self.frame_time) and self.frame_time > 0):
+            raise InvalidDataError(f"{self.source}: frame time must be positive, got {self.frame_time}")
+
+    @property
+    def fps(self) -> float:
+        return 1.0 / self.frame_time
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.motion.shape[0])
+
+    @property
+    def names(self) -> list[str]:
+        return [j.name for j in self.joints]
+
+    def index(self, name: str) -> int:
+        """Index of joint ``name`` (raises :class:`InvalidDataError` naming the joints present)."""
+        for i, j in enumerate(self.joints):
+            if j.name == name:
+                return i
+        raise InvalidDataError(f"{self.source}: no joint '{name}' (joints: {', '.join(self.names[:40])}"
+                               f"{', ...' if len(self.joints) > 40 else ''})")
+
+    def local_rotations(self, joint: str | int) -> np.ndarray:
+        """(T, 3, 3) local rotation matrices of a joint (identity when it has no rotation channels)."""
+        i = joint if isinstance(joint, int) else self.index(joint)
+        j = self.joints[i]
+        cols = [(self._start[i] + k, _ROT[c.lower()]) for k, c in enumerate(j.channels) if c.lower() in _ROT]
+        T = self.n_frames
+        if not cols:
+            return np.broadcast_to(np.eye(3), (T, 3, 3)).copy()
+        seq = "".join(a for _, a in cols)
+        ang = self.motion[:, [c for c, _ in cols]]
+        return Rotation.from_euler(seq, ang, degrees=True).as_matrix().reshape(T, 3, 3)
+
+    def local_translations(self, joint: str | int) -> np.ndarray:
+        """(T, 3) the joint's offset plus its position channels (when it has them)."""
+        i = joint if isinstance(joint, int) else self.index(joint)
+        j = self.joints[i]
+        out = np.broadcast_to(np.asarray(j.offset, np.float64), (self.n_frames, 3)).copy()
+        for k, c in enumerate(j.channels):
+            if c.lower() in _POS:
+                out[:, _POS[c.lower()]] += self.motion[:, self._start[i] + k]
+        return out
+
+
+def bvh_chain(bvh: Bvh, joints: tuple[str, ...] | list[str] = ("Neck", "Neck1", "Head")
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation and position of the last joint of a chain relative to the parent of the first.
+
+    Parameters
+    ----------
+    bvh : Bvh
+    joints : sequence of str
+        A parent-to-child chain, each joint the child of the one before.
+
+    Returns
+    -------
+    rotation : (T, 3, 3) float
+        ``R_0 @ R_1 @ ... @ R_n`` of the chain's local rotations: the last joint's orientation in
+        the frame of the first joint's parent.
+    position : (T, 3) float
+        The last joint's origin in that frame, in the file's length unit.
+
+    Raises
+    ------
+    InvalidDataError
+        A joint is missing, or the joints do not form a parent-to-child chain.
+    """
+    idx = [bvh.index(n) for n in joints]
+    for a, b in zip(idx[:-1], idx[1:], strict=True):
+        if bvh.joints[b].parent != a:
+            raise InvalidDataError(f"{bvh.source}: joint '{bvh.joints[b].name}' is not a child of "
+                                   f"'{bvh.joints[a].name}'")
+    T = bvh.n_frames
+    R = np.broadcast_to(np.eye(3), (T, 3, 3)).copy()
+    p = np.zeros((T, 3))
+    for i in idx:
+        p = p + np.einsum("tij,tj->ti", R, bvh.local_translations(i))
+        R = R @ bvh.local_rotations(i)
+    return R, p
+
+
+# ------------------------------------------------------------------------------------------ reading
+def _num(path: Path, lineno: int, s: str) -> float:
+    try:
+        v = float(s)
+    except ValueError:
+        raise InputFileError(f"{path}: line {lineno}: {s!r} is not a number") from None
+    if not np.isfinite(v):
+        raise InputFileError(f"{path}: line {lineno}: value {s!r} is not finite")
+    return v
+
+
+def read_bvh(path: str | os.PathLike) -> Bvh:
+    """Read a ``.bvh`` file.
+
+    Returns
+    -------
+    Bvh
+        Joints with offsets and channels, frame time, and the (T, C) channel values.
+
+    Raises
+    ------
+    InputFileError
+        Missing file, malformed hierarchy (naming the line), unknown channel names, a frame row with
+        the wrong number of values or a non-numeric value (naming the line), or fewer frames than
+        ``Frames:`` announces.
+    """
+    path = input_file(path)
+    text = read_text(path)
+    lines = text.splitlines()
+    # tokens of the hierarchy with their line numbers
+    toks: list[tuple[str, int]] = []
+    motion_line = None
+    for i, line in enumerate(lines):
+        if line.strip().upper().startswith("MOTION"):
+            motion_line = i
+            break
+        toks.extend((t, i + 1) for t in line.replace("{", " { ").replace("}", " } ").split())
+    if not toks or toks[0][0].upper() != "HIERARCHY":
+        raise InputFileError(f"{path}: not a BVH file (it must start with 'HIERARCHY')")
+    if motion_line is None:
+        raise InputFileError(f"{path}: no MOTION section")
+
+    joints: list[BvhJoint] = []
+    stack: list[int] = []  # joint index per open brace (-2 for an End Site)
+    pending: tuple[str, int] | None = None  # (name, parent) of a joint whose brace is not open yet
+    k = 1
+    n = len(toks)
+
+    def need(j: int, what: str) -> tuple[str, int]:
+        if j >= n:
+            raise InputFileError(f"{path}: hierarchy ends early, expected {what}")
+        return toks[j]
+
+    while k < n:
+        t, ln = toks[k]
+        u = t.upper()
+        if u in ("ROOT", "JOINT"):
+            name, _ = need(k + 1, "a joint name")
+            if u == "JOINT" and not stack:
+                raise InputFileError(f"{path}: line {ln}: JOINT outside of any ROOT")
+            parent = -1 if u == "ROOT" else next((s for s in reversed(stack) if s >= 0), -1)
+            pending = (name, parent)
+            k += 2
+        elif u == "END":
+            nxt, _ = need(k + 1, "'Site'")
+            if nxt.upper() != "SITE":
+                raise InputFileError(f"{path}: line {ln}: expected 'End Site'")
+            pending = ("__end__", -2)
+            k += 2
+        elif t == "{":
+            if pending is None:
+                raise InputFileError(f"{path}: line {ln}: unexpected '{{'")
+            if pending[1] == -2:
+                stack.append(-2)
+            else:
+                joints.append(BvhJoint(pending[0], pending[1], np.zeros(3)))
+                stack.append(len(joints) - 1)
+            pending = None
+            k += 1
+        elif t == "}":
+            if not stack:
+                raise InputFileError(f"{path}: line {ln}: unbalanced '}}'")
+            stack.pop()
+            k += 1
+        elif u == "OFFSET":
+            if not stack:
+                raise InputFileError(f"{path}: line {ln}: OFFSET outside of a joint")
+            vals = np.array([_num(path, need(k + j, "3 offset values")[1], need(k + j, "3 offset values")[0])
+                             for j in (1, 2, 3)])
+            if stack[-1] == -2:
+                owner = next((s for s in reversed(stack) if s >= 0), None)
+                if owner is not None:
+                    joints[owner].end_site = vals
+            else:
+                joints[stack[-1]].offset = vals
+            k += 4
+        elif u == "CHANNELS":
+            if not stack or stack[-1] < 0:
+                raise InputFileError(f"{path}: line {ln}: CHANNELS outside of a joint")
+            cnt_s, _ = need(k + 1, "a channel count")
+            try:
+                cnt = int(cnt_s)
+            except ValueError:
+                raise InputFileError(f"{path}: line {ln}: channel count {cnt_s!r} is not an integer") from None
+            chans = []
+            for j in range(cnt):
+                c, cl = need(k + 2 + j, f"{cnt} channel names")
+                if c.lower() not in _ROT and c.lower() not in _POS:
+                    raise InputFileError(f"{path}: line {cl}: unknown channel {c!r}")
+                chans.append(c)
+            joints[stack[-1]].channels = tuple(chans)
+            k += 2 + cnt
+        else:
+            raise InputFileError(f"{path}: line {ln}: unexpected {t!r} in the hierarchy")
+    if stack:
+        raise InputFileError(f"{path}: the hierarchy has {len(stack)} unclosed '{{'")
+    if not joints:
+        raise InputFileError(f"{path}: the hierarchy has no joint")
+
+    # MOTION: Frames: N / Frame Time: dt / rows
+    i = motion_line + 1
+    header: dict[str, tuple[str, int]] = {}
+    while i < len(lines) and len(header) < 2:
+        s = lines[i].strip()
+        if s:
+            key, _, val = s.partition(":")
+            key = key.strip().lower()
+            if key not in ("frames", "frame time"):
+                raise InputFileError(f"{path}: line {i + 1}: expected 'Frames:' and 'Frame Time:', got {s!r}")
+            header[key] = (val.strip(), i + 1)
+        i += 1
+    if len(header) < 2:
+        raise InputFileError(f"{path}: MOTION needs 'Frames:' and 'Frame Time:' lines")
+    try:
+        n_frames = int(header["frames"][0])
+    except ValueError:
+        raise InputFileError(f"{path}: line {header['frames'][1]}: frame count "
+                             f"{header['frames'][0]!r} is not an integer") from None
+    frame_time = _num(path, header["frame time"][1], header["frame time"][0])
+    if frame_time <= 0:
+        raise InputFileError(f"{path}: line {header['frame time'][1]}: frame time must be positive")
+    C = sum(len(j.channels) for j in joints)
+    rows_text = [(j + 1, lines[j]) for j in range(i, len(lines)) if lines[j].strip()]
+    if len(rows_text) < n_frames:
+        raise InputFileError(f"{path}: 'Frames: {n_frames}' but only {len(rows_text)} frame rows")
+    rows_text = rows_text[:n_frames]
+    try:
+        flat = np.array(" ".join(r for _, r in rows_text).split(), dtype=np.float64)
+    except ValueError:
+        flat = None
+    if flat is None or flat.size != n_frames * C or not np.isfinite(flat).all():
+        for ln, r in rows_text:  # find the faulty row for the message
+            parts = r.split()
+            if len(parts) != C:
+                raise InputFileError(f"{path}: line {ln}: {len(parts)} values, the hierarchy has {C} channels")
+            for p in parts:
+                _num(path, ln, p)
+        raise InputFileError(f"{path}: malformed motion data")
+    return Bvh(joints, frame_time, flat.reshape(n_frames, C), source=str(path))
+
+
+# ------------------------------------------------------------------------------------------ writing
+def write_bvh(path: str | os.PathLike, bvh: Bvh, decimals: int = 6) -> Path:
+    """Write a :class:`Bvh` to ``path``, whole or not at all.
+
+    Parameters
+    ----------
+    decimals : int
+        Decimals of every motion value (6 keeps angles to 5e-7 degrees).
+    """
+    path = check_output_path(path)
+    if not np.isfinite(bvh.motion).all():
+        f = int(np.flatnonzero(~np.isfinite(bvh.motion).all(axis=1))[0])
+        raise InvalidDataError(f"{path}: frame {f} has a non-finite channel value")
+    children: dict[int, list[int]] = {}
+    for i, j in enumerate(bvh.joints):
+        children.setdefault(j.parent, []).append(i)
+    out = ["HIERARCHY"]
+
+    def fmt3(v) -> str:
+        return " ".join(f"{float(x):.6f}" for x in v)
+
+    def emit(i: int, depth: int) -> None:
+        j = bvh.joints[i]
+        ind = "\t" * depth
+        out.append(f"{ind}{'ROOT' if j.parent < 0 else 'JOINT'} {j.name}")
+        out.append(f"{ind}{{")
+        out.append(f"{ind}\tOFFSET {fmt3(j.offset)}")
+        if j.channels:
+            out.append(f"{ind}\tCHANNELS {len(j.channels)} {' '.join(j.channels)}")
+        for c in children.get(i, []):
+            emit(c, depth + 1)
+        if j.end_site is not None:
+            out.extend([f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET {fmt3(j.end_site)}", f"{ind}\t}}"])
+        out.append(f"{ind}}}")
+
+    for r in children.get(-1, []):
+        emit(r, 0)
+    out += ["MOTION", f"Frames: {bvh.n_frames}", f"Frame Time: {bvh.frame_time:.10g}"]
+    m = np.where(bvh.motion == 0, 0.0, bvh.motion)  # no "-0.000000"
+    fmt = " ".join([f"%.{int(decimals)}f"] * m.shape[1])
+    body = "\n".join(fmt % tuple(r) for r in m.tolist())
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(out) + "\n" + body + ("\n" if body else ""), encoding="utf-8")
+    return path
+
+
+def make_head_bvh(rotation_deg: np.ndarray, fps: float, translation: np.ndarray | None = None,
+                  joint: str = "Head", end_site: tuple[float, float, float] = (0.0, 10.0, 0.0)) -> Bvh:
+    """The minimal head skeleton: one root joint animated by yaw, pitch, roll (and a translation).
+
+    Parameters
+    ----------
+    rotation_deg : (T, 3) float
+        Yaw, pitch, roll in degrees, intrinsic Y-X-Z (written as ``Yrotation Xrotation Zrotation``).
+    fps : float
+        Frame rate.
+    translation : (T, 3) float, optional
+        Written as ``Xposition Yposition Zposition`` channels (in the caller's unit).
+    joint : str
+        Name of the joint.
+    end_site : 3 floats
+        The ``End Site`` offset (the top of the head; for viewers that draw bones).
+    """
+    r = np.asarray(rotation_deg, np.float64)
+    if r.ndim != 2 or r.shape[1] != 3:
+        raise InvalidDataError(f"rotation must be (T, 3) yaw, pitch, roll, got {r.shape}")
+    chans: tuple[str, ...] = ("Yrotation", "Xrotation", "Zrotation")
+    motion = r
+    if translation is not None:
+        tr = np.asarray(translation, np.float64)
+        if tr.shape != r.shape:
+            raise InvalidDataError(f"translation must be {r.shape}, got {tr.shape}")
+        chans = ("Xposition", "Yposition", "Zposition") + chans
+        motion = np.concatenate([tr, r], axis=1)
+    j = BvhJoint(joint, -1, np.zeros(3), chans, np.asarray(end_site, np.float64))
+    return Bvh([j], 1.0 / float(fps), motion, source=joint)

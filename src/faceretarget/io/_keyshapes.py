@@ -1,0 +1,344 @@
+"""Hand chosen keyshape frames to an artist and read the target keyshapes they model back.
+
+:func:`export_keyshapes` writes the selected frames of a source take (see
+:mod:`faceretarget.retarget.selection`) into a folder:
+
+* ``frame_00123.obj`` per frame: the marker / feature points as an OBJ point set (``v`` lines only,
+  marker labels in comments) or, for a mesh take, the whole mesh;
+* ``contact_sheet.png``: every exported frame seen from the front, labelled with its frame id (a
+  scatter of the markers, or a shaded render of the mesh);
+* ``keyshapes.txt``: one line per frame, ``file<TAB>frame<TAB>time_s<TAB>label``.
+
+The artist models the target character's counterpart of each frame and saves it under the same
+name (``frame_00123.obj``) in a folder, with the target's neutral as ``neutral.obj``;
+:func:`read_target_keyshapes` reads them back by frame id (or label) into a
+:class:`~faceretarget.rig.Rig` whose key shapes are in the order asked for.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputFileError, InvalidDataError, MissingShapeError, TopologyError
+from ..files import atomic_dir
+from ..mesh import Mesh
+from ..performance import Performance
+from ..rig import Rig
+from ..units import guess_unit
+from ._obj import read_obj, read_obj_vertices, write_obj
+
+__all__ = ["export_keyshapes", "read_target_keyshapes", "read_marker_labels", "is_keyshape_folder",
+           "keyshape_filename", "MANIFEST", "MARKERS", "CONTACT_SHEET"]
+
+MANIFEST = "keyshapes.txt"
+MARKERS = "markers.txt"
+CONTACT_SHEET = "contact_sheet.png"
+
+
+def keyshape_filename(frame: int) -> str:
+    """``frame_00123.obj``: the file name of the keyshape of frame ``frame``."""
+    return f"frame_{int(frame):05d}.obj"
+
+
+def _frames(frames, T: int) -> list[int]:
+    out = []
+    for f in np.asarray(frames).reshape(-1).tolist():
+        if isinstance(f, bool) or int(f) != f:
+            raise InvalidDataError(f"keyshape frames must be integer frame indices, got {f!r}")
+        f = int(f)
+        if not 0 <= f < T:
+            raise InvalidDataError(f"keyshape frame {f} is outside the take's frames 0..{T - 1}")
+        out.append(f)
+    if not out:
+        raise InvalidDataError("no keyshape frames to export")
+    dup = sorted({f for f in out if out.count(f) > 1})
+    if dup:
+        raise InvalidDataError(f"keyshape frame(s) {', '.join(map(str, dup))} listed more than once")
+    return out
+
+
+def _scatter_sheet(points: np.ndarray, frames: list[int], labels: list[str], cell: int) -> np.ndarray:
+    """Front-view scatter plots of the points ``(n, P, 3)`` with one shared camera, tiled."""
+    from PIL import Image, ImageDraw
+
+    from ..render import fit_camera, render_grid
+
+    cam = fit_camera(points, (cell, cell), "front", margin=0.08)
+    # a light reference: the mean of the exported frames, so each frame's displacement shows
+    ref = cam.project(points.mean(axis=0))
+    r = max(2, cell // 90)
+    imgs = []
+    for p in points:
+        im = Image.new("RGB", (cell, cell), (250, 250, 250))
+        d = ImageDraw.Draw(im)
+        q = cam.project(p)
+        for (x0, y0, _), (x1, y1, _) in zip(ref, q, strict=True):
+            d.line([(x0, y0), (x1, y1)], fill=(170, 190, 220), width=1)
+        for x, y, _ in ref:
+            d.ellipse([x - r + 1, y - r + 1, x + r - 1, y + r - 1], fill=(200, 200, 200))
+        for x, y, _ in q:
+            d.ellipse([x - r, y - r, x + r, y + r], fill=(20, 60, 150))
+        imgs.append(np.asarray(im))
+    text = [f"frame {f}" + (f" {lab}" if lab != f"frame {f}" else "") for f, lab in zip(frames, labels, strict=True)]
+    return render_grid(imgs, text, background=(255, 255, 255), text_color=(20, 20, 20))
+
+
+def _mesh_sheet(vertices: np.ndarray, mesh: Mesh, frames: list[int], labels: list[str], cell: int) -> np.ndarray:
+    from ..render import render_frames, render_grid
+
+    imgs = list(render_frames(vertices, mesh, (cell, cell), "front"))
+    text = [f"frame {f}" + (f" {lab}" if lab != f"frame {f}" else "") for f, lab in zip(frames, labels, strict=True)]
+    return render_grid(imgs, text)
+
+
+def export_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence[int],
+                     out_dir: str | os.PathLike, *, mesh: Mesh | None = None,
+                     labels: Sequence[str] | None = None, contact_sheet: bool = True,
+                     cell: int = 240, neutral: np.ndarray | None = None) -> Path:
+    """Write the chosen frames of a take for an artist to model (see the module).
+
+    Parameters
+    ----------
+    perf_or_vertices : Performance or (T, P, 3) / (T, P, 2) array
+        A point (marker, landmark) or mesh take, or its array.  2-D points get ``z = 0``.
+    frames : sequence of int
+        Frame indices (0-based, into the take), e.g. from
+        :func:`~faceretarget.retarget.selection.select_keyshapes`.
+    out_dir : path-like
+        Output folder; written whole or not at all (files of the same name in an existing folder
+        are replaced, others are kept).  Its parent must exist.
+    mesh : Mesh, optional
+        Topology of a mesh take (defaults to the performance's ``mesh``).  Without one each frame
+        is written as a point set.
+    labels : sequence of str, optional
+        A label per frame (e.g. ``"jaw open"``), written to ``keyshapes.txt`` and the contact
+        sheet; ``read_target_keyshapes`` can then look frames up by label.
+    contact_sheet : bool
+        Write ``contact_sheet.png``.
+    cell : int
+        Size in pixels of each contact sheet cell.
+    neutral : (P, 3) float, optional
+        The source's rest pose (same points / vertices as the frames), written as ``neutral.obj``
+        so the folder is a complete set of source keyshapes for retargeting.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    Raises
+    ------
+    InvalidDataError
+        A weights-only take, bad frame indices, a frame with a missing (NaN) point, labels of the
+        wrong count.
+    OutputError
+        The folder cannot be written.
+    """
+    times = None
+    unit = None
+    marker_labels: list[str] = []
+    if isinstance(perf_or_vertices, Performance):
+        perf = perf_or_vertices
+        if perf.kind == "weights":
+            raise InvalidDataError(f"{perf.source}: a weights take has no geometry to export; drive a rig "
+                                   "first (rig.evaluate) or export its landmark points")
+        data = perf.data()
+        times = perf.times
+        unit = perf.unit
+        marker_labels = list(perf.labels) if perf.kind == "points" else []
+        if mesh is None and perf.kind == "vertices":
+            mesh = perf.mesh
+        source = perf.source
+    else:
+        data = np.asarray(perf_or_vertices, dtype=np.float64)
+        source = "take"
+    if data.ndim != 3 or data.shape[2] not in (2, 3):
+        raise InvalidDataError(f"{source}: expected frames of points (T, P, 3) or (T, P, 2), got {data.shape}")
+    T, P, _ = data.shape
+    fr = _frames(frames, T)
+    if labels is None:
+        labs = [f"frame {f}" for f in fr]
+    else:
+        labs = [str(s) for s in labels]
+        if len(labs) != len(fr):
+            raise InvalidDataError(f"{len(labs)} labels for {len(fr)} keyshape frames")
+        for s in labs:
+            if not s.strip() or any(c in s for c in "\t\n\r"):
+                raise InvalidDataError(f"keyshape label {s!r} must be non-empty without tabs or line breaks")
+    if mesh is not None and mesh.n_vertices != P:
+        raise TopologyError(f"{source}: frames have {P} points but the mesh has {mesh.n_vertices} vertices")
+    pts = np.zeros((len(fr), P, 3))
+    pts[:, :, : data.shape[2]] = data[fr]
+    bad = ~np.isfinite(pts).all(axis=2)
+    if bad.any():
+        i, j = (int(x[0]) for x in np.nonzero(bad))
+        who = f"'{marker_labels[j]}'" if marker_labels else str(j)
+        raise InvalidDataError(f"{source}: frame {fr[i]} has a missing point {who}; choose another frame "
+                               "or fill the gap first")
+    out = Path(out_dir)
+    with atomic_dir(out) as tmp:
+        lines = ["# file\tframe\ttime_s\tlabel"]
+        for n, f in enumerate(fr):
+            name = keyshape_filename(f)
+            t = "" if times is None else f"{float(times[f]):.6f}"
+            head = [f"faceretarget keyshape: frame {f} of {Path(source).name}" + (f", t = {t} s" if t else ""),
+                    f"label: {labs[n]}"] + ([f"unit: {unit}"] if unit else [])
+            if mesh is None:
+                head.append("point set (no faces): one vertex per point, in the take's order")
+                head += [f"point {j}: {lab}" for j, lab in enumerate(marker_labels)]
+                write_obj(tmp / name, Mesh(pts[n], name=name), header="\n".join(head))
+            else:
+                write_obj(tmp / name, mesh, pts[n], header="\n".join(head))
+            lines.append(f"{name}\t{f}\t{t}\t{labs[n]}")
+        (tmp / MANIFEST).write_text("\n".join(lines) + "\n", encoding="utf-8")
+        if marker_labels:
+            (tmp / MARKERS).write_text("\n".join(marker_labels) + "\n", encoding="utf-8")
+        if neutral is not None:
+            nv = np.zeros((P, 3))
+            n_arr = np.asarray(neutral, dtype=np.float64)
+            if n_arr.shape[0] != P or n_arr.shape[1] not in (2, 3) or not np.isfinite(n_arr).all():
+                raise InvalidDataError(f"{source}: the neutral must be {P} finite points, got {n_arr.shape}")
+            nv[:, : n_arr.shape[1]] = n_arr
+            head = [f"faceretarget source neutral of {Path(source).name}"] + ([f"unit: {unit}"] if unit else [])
+            write_obj(tmp / "neutral.obj", Mesh(nv, name="neutral") if mesh is None else mesh,
+                      None if mesh is None else nv, header="\n".join(head))
+        if contact_sheet:
+            from ..render import save_png
+
+            sheet = _scatter_sheet(pts, fr, labs, cell) if mesh is None else _mesh_sheet(pts, mesh, fr, labs, cell)
+            save_png(tmp / CONTACT_SHEET, sheet)
+    return out
+
+
+def _manifest(folder: Path) -> list[tuple[str, int, str]]:
+    """``(file, frame, label)`` rows of a folder's ``keyshapes.txt`` (empty when there is none)."""
+    path = folder / MANIFEST
+    if not path.is_file():
+        return []
+    rows = []
+    for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        parts = line.split("\t")
+        try:
+            rows.append((parts[0], int(parts[1]), parts[3] if len(parts) > 3 else f"frame {parts[1]}"))
+        except (IndexError, ValueError):
+            raise InputFileError(f"{path}:{n}: expected 'file<TAB>frame<TAB>time<TAB>label', got {line!r}") from None
+    return rows
+
+
+def _frame_of(item, folder: Path, rows: list[tuple[str, int, str]]) -> int:
+    if isinstance(item, str):
+        for _, f, lab in rows:
+            if lab == item:
+                return f
+        s = item.strip()
+        if s.endswith(".obj"):
+            s = s[:-4]
+        if s.startswith("frame_"):
+            s = s[6:]
+        if s.isdigit():
+            return int(s)
+        known = ", ".join(repr(lab) for _, _, lab in rows) or "none: there is no keyshapes.txt"
+        raise MissingShapeError(f"{folder}: no keyshape labelled {item!r} (labels: {known})")
+    if isinstance(item, bool) or int(item) != item:
+        raise InvalidDataError(f"keyshape frames must be frame ids or labels, got {item!r}")
+    return int(item)
+
+
+def read_target_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str] | None = None, *,
+                          neutral: Mesh | str | os.PathLike | None = None, unit: str | None = None,
+                          name: str | None = None) -> Rig:
+    """Read the artist's target keyshapes (``frame_00123.obj`` ...) back, by frame id or label.
+
+    Parameters
+    ----------
+    folder : path-like
+        Folder holding the target keyshapes, one OBJ per frame named as :func:`export_keyshapes`
+        named them, and by default the target's neutral ``neutral.obj``.
+    frames : sequence of int or str, optional
+        Which keyshapes, in which order: frame ids (``123``), file names or stems
+        (``"frame_00123"``) or labels from ``keyshapes.txt``.  By default the frames listed in
+        ``keyshapes.txt`` (copy it beside the target shapes), else every ``frame_*.obj``.
+    neutral : Mesh or path-like, optional
+        The target's neutral; default ``folder/neutral.obj``.
+    unit : str, optional
+        The target's unit (guessed from the neutral's size when omitted).
+    name : str, optional
+        The rig's name (default: the folder's name).
+
+    Returns
+    -------
+    Rig
+        The neutral and one key shape per frame, named by its label (``keyshapes.txt``) or
+        ``frame_00123``; ``source_names`` holds the file stems.
+
+    Raises
+    ------
+    MissingShapeError
+        A frame's file (naming the frame id and the file expected) or the neutral is missing, or
+        a label is unknown.
+    TopologyError
+        A keyshape's vertex count differs from the neutral's.
+    InputFileError
+        Unreadable files.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputFileError(f"{folder}: target keyshape folder not found")
+    rows = _manifest(folder)
+    if frames is None:
+        if rows:
+            ids = [f for _, f, _ in rows]
+        else:
+            ids = sorted(int(p.stem[6:]) for p in folder.glob("frame_*.obj") if p.stem[6:].isdigit())
+            if not ids:
+                raise MissingShapeError(f"{folder}: no target keyshapes (frame_00123.obj files) found")
+    else:
+        ids = [_frame_of(item, folder, rows) for item in (frames if not isinstance(frames, str) else [frames])]
+    dup = sorted({f for f in ids if ids.count(f) > 1})
+    if dup:
+        raise InvalidDataError(f"keyshape frame(s) {', '.join(map(str, dup))} asked for more than once")
+    if isinstance(neutral, Mesh):
+        base = neutral
+    else:
+        npath = folder / "neutral.obj" if neutral is None else Path(neutral)
+        if not npath.is_file():
+            raise MissingShapeError(f"{folder}: no target neutral '{npath.name}'; pass neutral= or save the "
+                                    "target's rest face as neutral.obj in the folder")
+        base = read_obj(npath)
+    label_of = {f: lab for _, f, lab in rows}
+    missing = [f for f in ids if not (folder / keyshape_filename(f)).is_file()]
+    if missing:
+        which = ", ".join(f"frame {f} ({keyshape_filename(f)})" for f in missing)
+        raise MissingShapeError(f"{folder}: missing target keyshape for {which}")
+    deltas = np.empty((len(ids), base.n_vertices, 3))
+    for n, f in enumerate(ids):
+        path = folder / keyshape_filename(f)
+        v = read_obj_vertices(path)
+        if v.shape != base.vertices.shape:
+            raise TopologyError(f"{path}: the keyshape of frame {f} has {len(v)} vertices, the target neutral "
+                                f"has {base.n_vertices}")
+        deltas[n] = v - base.vertices
+    stems = [Path(keyshape_filename(f)).stem for f in ids]
+    labels = [label_of.get(f, stems[n]) for n, f in enumerate(ids)]
+    labels = [stems[n] if lab == f"frame {f}" else lab for n, (f, lab) in enumerate(zip(ids, labels, strict=True))]
+    return Rig(base, labels, deltas, unit or guess_unit(base), None, stems, name or folder.name)
+
+
+def read_marker_labels(folder: str | os.PathLike) -> list[str]:
+    """Marker labels of exported point keyshapes (``markers.txt``), empty when there are none."""
+    p = Path(folder) / MARKERS
+    if not p.is_file():
+        return []
+    return [ln.strip() for ln in p.read_text(encoding="utf-8").splitlines() if ln.strip()]
+
+
+def is_keyshape_folder(folder: str | os.PathLike) -> bool:
+    """Whether a folder holds exported keyshapes (``keyshapes.txt`` or ``frame_*.obj``) rather than a rig."""
+    f = Path(folder)
+    return (f / MANIFEST).is_file() or any(f.glob("frame_*.obj"))

@@ -1,0 +1,351 @@
+"""Live Link Face CSV takes (Epic Games' iPhone app): 52 ARKit weights per row plus head and eyes.
+
+Layout::
+
+    Timecode,BlendShapeCount,EyeBlinkLeft,...,TongueOut,HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,
+    LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll
+    12:21:59:06.595,61,0.0009391578,...
+
+``Timecode`` is ``HH:MM:SS:FF.fff``: ``FF.fff`` is a frame number with a fractional sub-frame in a
+timecode base whose rate the file does not state.  The reader infers it as the smallest standard
+rate (24, 25, 30, 48, 50, 60, 100, 120) above the largest ``FF`` in the take (pass
+``timecode_rate`` when a short take never reaches the top frames).  The shared takes use a 60 base
+with a row every 1 or 2 frames (60 or 30 fps).
+
+Rows Live Link Face writes when it loses the face, ``<timecode>,0`` (a blendshape count of 0 and
+no values), are dropped wherever they are, with one warning; the remaining frames keep their real
+times, so the take has a gap there.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DataWarning, InputFileError, InvalidDataError, format_ranges
+from ..files import atomic_path, check_output_path, input_file, read_text
+from ..names import ARKIT_NAMES, normalize_name, split_parent
+from ..performance import Performance
+
+__all__ = ["read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo", "HEAD_COLUMNS",
+           "EYE_COLUMNS", "TIMECODE_RATES", "LLF_NAMES"]
+
+#: Standard timecode rates the reader chooses from.
+TIMECODE_RATES: tuple[int, ...] = (24, 25, 30, 48, 50, 60, 100, 120)
+HEAD_COLUMNS: tuple[str, ...] = ("HeadYaw", "HeadPitch", "HeadRoll")
+EYE_COLUMNS: tuple[str, ...] = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll",
+                                "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
+#: The 52 weight column names as Live Link Face spells them (PascalCase), in its order.
+LLF_NAMES: tuple[str, ...] = tuple(n[:1].upper() + n[1:] for n in ARKIT_NAMES)
+_DAY = 86400.0
+_MAX_GAP = 60.0  # a timecode this soon after midnight follows one just before it
+
+
+@dataclass
+class LiveLinkFaceInfo:
+    """What a Live Link Face file holds besides the weights (see :func:`read_livelinkface`).
+
+    Attributes
+    ----------
+    start_timecode : str
+        Timecode of the first kept row, as written.
+    start_seconds : float
+        That timecode in seconds since midnight (``Performance.times`` are relative to it).
+    timecode_rate : int
+        The (inferred or given) timecode base rate, frames per second.
+    eye_rotation : (T, 6) float or None
+        ``LeftEyeYaw, LeftEyePitch, LeftEyeRoll, RightEyeYaw, RightEyePitch, RightEyeRoll`` as in
+        the file.
+    dropped_lines : list of int
+        1-based file lines that were dropped (trailing junk, no-face rows).
+    """
+
+    start_timecode: str
+    start_seconds: float
+    timecode_rate: int
+    eye_rotation: np.ndarray | None = None
+    dropped_lines: list[int] = field(default_factory=list)
+
+
+def _parse_timecode(s: str) -> tuple[int, int, int, float] | None:
+    parts = s.strip().split(":")
+    if len(parts) != 4:
+        return None
+    try:
+        h, m, sec = int(parts[0]), int(parts[1]), int(parts[2])
+        ff = float(parts[3])
+    except ValueError:
+        return None
+    if not (0 <= h < 24 and 0 <= m < 60 and 0 <= sec < 60 and 0 <= ff < TIMECODE_RATES[-1]):
+        return None
+    if not math.isfinite(ff):
+        return None
+    return h, m, sec, ff
+
+
+
+
+def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = None,
+                      with_info: bool = False) -> Performance | tuple[Performance, LiveLinkFaceInfo]:
+    """Read a Live Link Face CSV take.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.csv`` file.
+    timecode_rate : int, optional
+        The timecode base rate; inferred from the largest frame number when omitted.
+    with_info : bool
+        Also return a :class:`LiveLinkFaceInfo` (absolute start timecode, rate, eye angles).
+
+    Returns
+    -------
+    Performance
+        ``weights`` (T, K) with ``names`` in ARKit camelCase (every weight column of the file,
+        normally the 52 ARKit shapes; unknown columns are kept under their normalised name),
+        ``times`` (T,) seconds relative to the first kept row (so ``times[0] == 0``),
+        ``fps = 1 / median(diff(times))``, ``head_rotation`` (T, 3) yaw, pitch, roll exactly as
+        written in the file (no unit conversion; Live Link Face writes angles in radians, and the
+        shared takes hold zeros), ``source`` the file path.
+    LiveLinkFaceInfo
+        Only with ``with_info=True``.
+
+    Raises
+    ------
+    InputFileError
+        Missing or empty file, a header without ``Timecode``, a malformed row (wrong column count,
+        bad timecode, non-numeric value or a time that does not increase) before the last good row
+        (naming its 1-based line), or no valid row.  Malformed rows after the last good row are
+        dropped with one warning naming their lines.
+    InvalidDataError
+        A NaN or infinite value in a kept row (naming the file, line and column).
+    """
+    path = input_file(path)
+    text = read_text(path, encoding="utf-8-sig")
+    lines = text.splitlines()
+    first = next((i for i, line in enumerate(lines) if line.strip()), None)
+    if first is None:
+        raise InputFileError(f"{path}: empty file; expected a Live Link Face CSV "
+                             "(header 'Timecode,BlendShapeCount,EyeBlinkLeft,...')")
+    header = [c.strip() for c in lines[first].split(",")]
+    if header[0].lower() != "timecode":
+        raise InputFileError(f"{path}: line {first + 1}: header must start with 'Timecode', got {header[0]!r}; "
+                             "is this a Live Link Face CSV?")
+    ncol = len(header)
+    skip = {"timecode", "blendshapecount"}
+    head_idx = [header.index(c) if c in header else -1 for c in HEAD_COLUMNS]
+    eye_idx = [header.index(c) if c in header else -1 for c in EYE_COLUMNS]
+    other = set(HEAD_COLUMNS) | set(EYE_COLUMNS)
+    w_idx = [j for j, c in enumerate(header) if c.lower() not in skip and c not in other]
+    names = [normalize_name(header[j]) for j in w_idx]
+
+    # ---- pass 1: structure of every row
+    STRUCT_OK, NOFACE, JUNK = 0, 1, 2
+    rows: list[tuple[int, int, tuple | None, list[str] | None, str]] = []  # line, kind, tc, cells, why
+    for i in range(first + 1, len(lines)):
+        line = lines[i]
+        if not line.strip():
+            continue
+        cells = line.split(",")
+        tc = _parse_timecode(cells[0])
+        if len(cells) == 2 and cells[1].strip() == "0" and tc is not None:
+            rows.append((i + 1, NOFACE, tc, None, "no face (blendshape count 0)"))
+        elif len(cells) != ncol:
+            rows.append((i + 1, JUNK, tc, None, f"has {len(cells)} columns, the header has {ncol}"))
+        elif tc is None:
+            rows.append((i + 1, JUNK, None, None, f"timecode {cells[0]!r} is not HH:MM:SS:FF.fff"))
+        else:
+            rows.append((i + 1, STRUCT_OK, tc, cells, ""))
+    if timecode_rate is None:
+        max_ff = max((r[2][3] for r in rows if r[1] != JUNK), default=0.0)
+        rate = next((r for r in TIMECODE_RATES if r > max_ff), None)
+        if rate is None:
+            raise InputFileError(f"{path}: frame numbers reach {max_ff:g}, above every standard "
+                                 f"timecode rate {TIMECODE_RATES}; pass timecode_rate")
+    else:
+        rate = int(timecode_rate)
+
+    # ---- pass 2: values and times of structurally good rows
+    kind: list[int] = []
+    why: list[str] = []
+    values: list[list[float] | None] = []
+    t_abs: list[float | None] = []
+    prev_t: float | None = None
+    offset = 0.0  # whole days added after a midnight wrap
+    for _lineno, k, tc, cells, reason in rows:
+        t = None
+        if tc is not None:
+            h, m, s, ff = tc
+            if ff >= rate:
+                k, reason = JUNK, f"frame {ff:g} of timecode {cells[0] if cells else ''!r} is not below the timecode rate {rate}"
+            else:
+                t = h * 3600 + m * 60 + s + ff / rate + offset
+                if prev_t is not None and t < prev_t and 0 < t + _DAY - prev_t < _MAX_GAP:
+                    offset += _DAY  # passed midnight
+                    t += _DAY
+        vals = None
+        if k == STRUCT_OK:
+            try:
+                vals = [float(c) for c in cells[1:]]
+            except ValueError:
+                j, c = next((j, c) for j, c in enumerate(cells[1:], 1) if not _is_float(c))
+                k, reason = JUNK, f"column '{header[j]}' value {c.strip()!r} is not a number"
+        if k != JUNK and t is not None and prev_t is not None and t <= prev_t:
+            k, reason = JUNK, "time does not increase after the previous row"
+        if k != JUNK and t is not None:
+            prev_t = t
+        kind.append(k)
+        why.append(reason)
+        values.append(vals)
+        t_abs.append(t)
+    good = [j for j, k in enumerate(kind) if k == STRUCT_OK]
+    if not good:
+        raise InputFileError(f"{path}: no valid data row ({len(rows)} row(s) after the header, none "
+                             f"usable{'; first problem: line ' + str(rows[0][0]) + ' ' + why[0] if rows else ''})")
+    last = good[-1]
+    mid_junk = [j for j in range(last) if kind[j] == JUNK]
+    if mid_junk:
+        j = mid_junk[0]
+        more = f"; {len(mid_junk) - 1} more bad row(s) follow" if len(mid_junk) > 1 else ""
+        raise InputFileError(f"{path}: line {rows[j][0]}: {why[j]} (malformed rows are only dropped at "
+                             f"the end of a take{more})")
+    trailing = [rows[j][0] for j in range(last + 1, len(rows))]
+    noface = [rows[j][0] for j in range(last) if kind[j] == NOFACE]
+    if trailing:
+        warnings.warn(f"{path}: dropped {len(trailing)} malformed row(s) at the end of the take, "
+                      f"line(s) {format_ranges(trailing)} ({why[last + 1]})", DataWarning, stacklevel=2)
+    if noface:
+        warnings.warn(f"{path}: dropped {len(noface)} row(s) where Live Link Face lost the face "
+                      f"(blendshape count 0), line(s) {format_ranges(noface)}; the take has gaps there",
+                      DataWarning, stacklevel=2)
+    data = np.array([values[j] for j in good], dtype=np.float64)  # columns 1.. of the header
+    lines_kept = np.array([rows[j][0] for j in good])
+    times_abs = np.array([t_abs[j] for j in good], dtype=np.float64)
+    if not np.isfinite(data).all():
+        r, c = (int(x[0]) for x in np.nonzero(~np.isfinite(data)))
+        raise InvalidDataError(f"{path}: line {int(lines_kept[r])}: column '{header[c + 1]}' is "
+                               f"{data[r, c]} (frame {r})")
+    weights = data[:, [j - 1 for j in w_idx]] if w_idx else np.zeros((len(good), 0))
+    head = None
+    if all(j >= 0 for j in head_idx):
+        head = data[:, [j - 1 for j in head_idx]]
+    eyes = data[:, [j - 1 for j in eye_idx]] if all(j >= 0 for j in eye_idx) else None
+    times = times_abs - times_abs[0]
+    d = np.diff(times)
+    fps = 1.0 / float(np.median(d)) if d.size else float(rate)
+    perf = Performance(times=times, fps=fps, weights=weights, names=names, head_rotation=head,
+                       source=str(path))
+    if not with_info:
+        return perf
+    start_line = rows[good[0]]
+    info = LiveLinkFaceInfo(
+        start_timecode=lines[start_line[0] - 1].split(",", 1)[0].strip(),
+        start_seconds=float(times_abs[0]), timecode_rate=rate, eye_rotation=eyes,
+        dropped_lines=sorted(trailing + noface))
+    return perf, info
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def _timecodes(t_abs: np.ndarray, rate: int, decimals: int) -> list[str]:
+    scale = rate * 10**decimals
+    ticks = np.round(np.asarray(t_abs) * scale).astype(np.int64) % int(_DAY * scale)
+    secs, rem = np.divmod(ticks, scale)
+    h, r = np.divmod(secs, 3600)
+    m, s = np.divmod(r, 60)
+    width = 3 + decimals if decimals else 2
+    ff = rem / 10**decimals
+    return [f"{a:02d}:{b:02d}:{c:02d}:{f:0{width}.{decimals}f}"
+            for a, b, c, f in zip(h.tolist(), m.tolist(), s.tolist(), ff.tolist(), strict=True)]
+
+
+def _to_arkit_columns(names: list[str], weights: np.ndarray, source: str) -> np.ndarray:
+    """(T, 52) weights in Live Link Face column order from any named weights."""
+    norm = [normalize_name(n) for n in names]
+    col = {n: j for j, n in enumerate(ARKIT_NAMES)}
+    out = np.zeros((weights.shape[0], len(ARKIT_NAMES)))
+    halves: dict[int, list[int]] = {}
+    dropped = []
+    for j, n in enumerate(norm):
+        if n in col:
+            out[:, col[n]] = weights[:, j]
+        elif (p := split_parent(n)) is not None and p in col:
+            halves.setdefault(col[p], []).append(j)
+        else:
+            dropped.append(names[j])
+    for c, js in halves.items():
+        if not any(norm[i] == ARKIT_NAMES[c] for i in range(len(norm))):
+            out[:, c] = weights[:, js].mean(axis=1)
+    if dropped:
+        warnings.warn(f"{source}: {len(dropped)} channel(s) are not ARKit shapes and are not written "
+                      f"to the Live Link Face CSV: {', '.join(dropped)}", DataWarning, stacklevel=3)
+    return out
+
+
+def write_livelinkface(path: str | os.PathLike, perf: Performance, *, rate: int = 60,
+                       start: float | str = 0.0, eye_rotation: np.ndarray | None = None,
+                       decimals: int = 3) -> Path:
+    """Write a weights performance as a Live Link Face CSV, whole or not at all.
+
+    Parameters
+    ----------
+    path : path-like
+        Output ``.csv``.
+    perf : Performance
+        A weights performance; names in any spelling.  The 52 ARKit columns are written in Live
+        Link Face's order (missing ones as 0; split halves such as ``browInnerUpLeft``/``Right``
+        averaged into the whole; other names dropped with a warning).  ``head_rotation`` (T, 3)
+        fills ``HeadYaw, HeadPitch, HeadRoll`` (zeros when absent).
+    rate : int
+        Timecode base rate (frames per second of the ``FF`` field).
+    start : float or str
+        Timecode of the first frame, seconds since midnight or ``"HH:MM:SS:FF.fff"``; frame ``i``
+        is written at ``start + times[i] - times[0]``.
+    eye_rotation : (T, 6) float, optional
+        Eye yaw, pitch, roll left then right (zeros when absent).
+    decimals : int
+        Decimals of the sub-frame part of the timecode (Live Link Face writes 3).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = check_output_path(path)
+    if perf.weights is None:
+        raise InvalidDataError(f"{perf.source}: a Live Link Face CSV holds weights, this take holds "
+                               f"{perf.kind}")
+    if isinstance(start, str):
+        tc = _parse_timecode(start)
+        if tc is None or tc[3] >= rate:
+            raise InvalidDataError(f"start timecode {start!r} is not HH:MM:SS:FF.fff at rate {rate}")
+        start = tc[0] * 3600 + tc[1] * 60 + tc[2] + tc[3] / rate
+    T = perf.n_frames
+    w = _to_arkit_columns(perf.names, perf.weights, perf.source)
+    head = perf.head_rotation if perf.head_rotation is not None else np.zeros((T, 3))
+    eyes = np.zeros((T, 6)) if eye_rotation is None else np.asarray(eye_rotation, dtype=np.float64)
+    if eyes.shape != (T, 6):
+        raise InvalidDataError(f"{perf.source}: eye_rotation must be ({T}, 6), got {eyes.shape}")
+    tcs = _timecodes(float(start) + perf.times - perf.times[0], rate, decimals)
+    if len(set(tcs)) != T:
+        raise InvalidDataError(f"{perf.source}: frames closer than the timecode resolution "
+                               f"(1/{rate} s / 10^{decimals}); raise rate or decimals")
+    header = ",".join(("Timecode", "BlendShapeCount") + LLF_NAMES + HEAD_COLUMNS + EYE_COLUMNS)
+    count = len(LLF_NAMES) + len(HEAD_COLUMNS) + len(EYE_COLUMNS)
+    vals = np.concatenate([w, head, eyes], axis=1)
+    fmt = ",".join(["%.10f"] * vals.shape[1])
+    body = "".join(f"{tc},{count}," + (fmt % tuple(row)) + "\n" for tc, row in zip(tcs, vals.tolist(), strict=True))
+    with atomic_path(path) as tmp:
+        tmp.write_text(header + "\n" + body, encoding="utf-8")
+    return path

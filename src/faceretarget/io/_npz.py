@@ -1,0 +1,145 @@
+"""Takes as NumPy ``.npz`` archives, for pipelines that post-process in Python.
+
+Layout written by :func:`write_npz` (read with ``np.load(path)``; no pickles):
+
+================== ====================== =================================================
+key                shape, dtype           meaning
+================== ====================== =================================================
+``vertices``       (T, V, 3) float        vertex positions per frame
+``times``          (T,) float64           frame times in seconds
+``fps``            () float64             nominal frame rate (median of the time steps)
+``face_counts``    (F,) int64             corners per polygon (when a mesh is given)
+``face_indices``   (sum(face_counts),)    0-based vertex index per corner (with a mesh)
+``faces``          (n, 3) int64           the polygons fanned into triangles (with a mesh)
+``uvs``            (U, 2) float64         texture coordinates (mesh with UVs)
+``face_uv_indices`` (sum(face_counts),)   UV index per corner (mesh with UVs)
+``...``            any                    extra keyword arrays, e.g. ``unit="cm"``
+================== ====================== =================================================
+
+:func:`read_npz_performance` also reads weight takes: ``weights`` (T, K) with ``names`` (K,) str.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DataWarning, InputFileError, InvalidDataError
+from ..files import atomic_path, check_output_path, load_npz_arrays
+from ..mesh import Mesh
+from ..performance import Performance
+
+__all__ = ["write_npz", "read_npz_performance"]
+
+_RESERVED = {"vertices", "times", "fps", "face_counts", "face_indices", "faces", "uvs",
+             "face_uv_indices"}
+
+
+def write_npz(path: str | os.PathLike, vertices: np.ndarray, times: np.ndarray,
+              mesh: Mesh | None = None, **extra) -> Path:
+    """Write a vertex take to ``.npz`` (layout in the module docstring), whole or not at all.
+
+    Parameters
+    ----------
+    path : path-like
+        Output file; use the ``.npz`` extension.
+    vertices : (T, V, 3) float
+        Positions per frame (float32 is kept as float32, anything else stored as float64).
+    times : (T,) float
+        Frame times in seconds, strictly increasing.
+    mesh : Mesh, optional
+        Topology to store (``face_counts``, ``face_indices``, ``faces`` and UVs).
+    **extra
+        More arrays to store under their keyword (not one of the reserved keys).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = check_output_path(path)
+    v = np.asarray(vertices)
+    if v.dtype != np.float32:
+        v = v.astype(np.float64)
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    if v.ndim != 3 or v.shape[2] != 3:
+        raise InvalidDataError(f"{path}: vertices must have shape (T, V, 3), got {v.shape}")
+    if t.size != v.shape[0]:
+        raise InvalidDataError(f"{path}: {t.size} times for {v.shape[0]} frames")
+    if not np.isfinite(v).all():
+        f, j = (int(x[0]) for x in np.nonzero(~np.isfinite(v))[:2])
+        raise InvalidDataError(f"{path}: frame {f} vertex {j} is not finite; nothing written")
+    if not np.isfinite(t).all() or (t.size > 1 and (np.diff(t) <= 0).any()):
+        raise InvalidDataError(f"{path}: times must be finite and strictly increasing")
+    clash = sorted(_RESERVED & set(extra))
+    if clash:
+        raise InvalidDataError(f"{path}: extra key(s) {', '.join(clash)} are reserved")
+    arrays: dict[str, np.ndarray] = {"vertices": v, "times": t}
+    if t.size > 1:
+        arrays["fps"] = np.float64(1.0 / np.median(np.diff(t)))
+    if mesh is not None:
+        if mesh.n_vertices != v.shape[1]:
+            raise InvalidDataError(
+                f"{path}: frames have {v.shape[1]} vertices but the mesh has {mesh.n_vertices}")
+        arrays["face_counts"] = mesh.face_counts
+        arrays["face_indices"] = mesh.face_indices
+        arrays["faces"] = mesh.triangles()
+        if mesh.uvs is not None and mesh.face_uv_indices is not None:
+            arrays["uvs"] = mesh.uvs
+            arrays["face_uv_indices"] = mesh.face_uv_indices
+    for k, a in extra.items():
+        arrays[k] = np.asarray(a)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+    return path
+
+
+def read_npz_performance(path: str | os.PathLike, fps: float | None = None) -> Performance:
+    """Read a take from ``.npz``: ``vertices`` (T, V, 3) or ``weights`` (T, K) with ``names``.
+
+    Times come from ``times``, else from ``fps`` (the argument, else an ``fps`` key, else 30 with a
+    warning).  A mesh is rebuilt from ``face_counts``/``face_indices`` (or ``faces`` (F, n)) with
+    the first frame as its positions.  A ``unit`` key, when present, sets ``Performance.unit``.
+
+    Raises
+    ------
+    InputFileError
+        Missing or unreadable file, or neither ``vertices`` nor ``weights``+``names`` in it (the
+        message lists the keys found).
+    InvalidDataError
+        Shapes that do not agree (named in the message).
+    """
+    path = Path(path)
+    data = load_npz_arrays(path)
+    if "vertices" not in data and not ("weights" in data and "names" in data):
+        raise InputFileError(f"{path}: holds neither 'vertices' nor 'weights' + 'names' (keys: "
+                             f"{', '.join(sorted(data)) or 'none'})")
+    times = data.get("times")
+    if times is None and fps is None:
+        if "fps" in data:
+            fps = float(data["fps"])
+        else:
+            warnings.warn(f"{path}: no 'times' and no fps given; assuming 30 fps", DataWarning, stacklevel=2)
+            fps = 30.0
+    unit = str(data["unit"]) if "unit" in data else None
+    src = str(path)
+    try:
+        if "vertices" in data:
+            v = data["vertices"]
+            if v.ndim != 3 or v.shape[-1] != 3:
+                raise InvalidDataError(f"{path}: 'vertices' must have shape (T, V, 3), got {v.shape}")
+            mesh = None
+            if "face_counts" in data and "face_indices" in data:
+                mesh = Mesh(v[0], data["face_counts"], data["face_indices"], data.get("uvs"),
+                            data.get("face_uv_indices"), name=path.name)
+            elif "faces" in data:
+                mesh = Mesh.from_triangles(v[0], data["faces"], name=path.name)
+            return Performance.from_vertices(v, mesh, times=times, fps=fps, unit=unit, source=src)
+        names = [str(n) for n in np.asarray(data["names"]).reshape(-1)]
+        return Performance.from_weights(data["weights"], names, times=times, fps=fps, source=src)
+    except InvalidDataError as e:
+        msg = str(e)
+        raise InvalidDataError(msg if msg.startswith(src) else f"{path}: {msg}") from e

@@ -1,0 +1,43 @@
+"""Shared numerics: the solvers and signal tools several methods use.
+
+=================== ==================================================================================
+:mod:`._nnls`       batched exact NNLS with bounds, L1/L2, temporal and missing-marker terms (Chuang
+                    Eq. 3.1/3.2), weight-curve low-pass filter; compiled kernel in :mod:`._nnls_numba`
+:mod:`._denoise`    take-adaptive denoising: noise level from the take's spectrum, SURE-chosen
+                    Whittaker smoothing in an ensemble of bases
+:mod:`._rigid`      rigid fits (Kabsch/Umeyama), rigid marker selection, :class:`RigidAligner`
+                    (Chuang Ch. 3 head-motion removal)
+:mod:`._rotations`  nearest rotations of matrices
+:mod:`._selection`  keyshape selection (Chuang Sec. 3.2: PCA extrema, convex hull, k-means, and NNLS
+                    greedy pursuit, pivoted QR)
+:mod:`._smooth`     smoothstep ramps
+=================== ==================================================================================
+"""
+
+from ._denoise import denoise_take, estimate_noise_sigma, sure_whittaker
+from ._nnls import extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
+from ._rigid import RigidAligner, fit_rigid, select_rigid_markers
+from ._rotations import nearest_rotation
+from ._runs import runs
+from ._selection import (
+    SELECTION_METHODS,
+    hull_selection,
+    kmeans_selection,
+    nnls_greedy,
+    nnls_greedy_path,
+    nnls_weights,
+    pca_extrema,
+    pivoted_qr,
+    reconstruction_error,
+    select_keyshapes,
+)
+from ._smooth import smoothstep
+
+__all__ = [
+    "solve_nnls", "temporal_filter", "extremes_removed", "filter_cutoff_hz",
+    "denoise_take", "estimate_noise_sigma", "sure_whittaker",
+    "RigidAligner", "fit_rigid", "select_rigid_markers", "nearest_rotation", "runs",
+    "SELECTION_METHODS", "select_keyshapes", "pca_extrema", "hull_selection", "kmeans_selection", "nnls_greedy",
+    "nnls_greedy_path", "nnls_weights", "pivoted_qr", "reconstruction_error",
+    "smoothstep",
+]

@@ -1,0 +1,918 @@
+"""Non-negative keyshape weights for a whole take (Chuang Eq. 3.1/3.2), and their temporal filtering.
+
+Every source frame ``f_t`` (``D`` feature coordinates) is decomposed into non-negative weights of
+the ``N`` source keyshapes ``K`` (one column per keyshape displacement)::
+
+    min_w  1/2 ||K w_t - f_t||^2        subject to  w_t >= 0                       (Eq. 3.1/3.2)
+
+Frames are independent, so the take is solved as a batch of box-constrained quadratic programs in
+``N`` dimensions sharing one Gram matrix ``G = K'K`` (right-hand sides ``b_t = K'f_t``), with exact
+active-set methods vectorised over frames.  Both repeatedly solve, for every unfinished frame, the
+equality-constrained problem on its free set ``F`` (the other weights fixed at 0 or at their upper
+bound), in the cheaper of two equivalent forms: ``G_FF x_F = b_F - G_FU u_U`` when ``|F| <= N/2``,
+otherwise through ``G^-1`` on the fixed set (``N - |F|`` unknowns; only while
+``cond(G) < 1e10``).  Frames are bucketed by form and set size and every bucket is one stacked
+LAPACK solve, so one step over the whole take is a few dozen LAPACK calls.
+
+* **Block principal pivoting** (Kim & Park 2011, "Fast nonnegative matrix factorization: an
+  active-set-like method and comparisons"; Judice & Pires 1994 for upper bounds), the default:
+  every frame starts from the signs of its unconstrained solution and exchanges all variables that
+  break the KKT conditions at once (free but outside the box, at a bound with a gradient pointing
+  inside); a frame whose count of violations has not fallen for three iterations exchanges only
+  its last violator (Murty's rule).  Most frames finish in three to five iterations.
+* **Lawson-Hanson** (BVLS with upper bounds), for strongly correlated keyshapes with sparse
+  solutions (keys chosen among the frames of a take, dependent key sets), where full exchanges
+  oscillate: chosen when, on a probe of 32 frames, pivoting needs more than 8 solves per frame,
+  or more than 5 and more than Lawson-Hanson does; also used to finish any frame pivoting has not
+  settled in 20 iterations.  Each frame keeps a
+  feasible point and frees one variable per step, so the objective falls at every step.  Frames
+  run in chunks of 8 consecutive frames, each starting from the free set of the previous one
+  (consecutive frames of a take share most of it).
+
+With ``numba`` installed and no upper bound, a compiled Lawson-Hanson kernel solves the frames one
+after another instead, each warm-started from the previous frame's free set
+(:mod:`faceretarget.retarget._nnls_numba`): sparse solutions with strongly correlated keys (keys
+chosen among a take's frames) are where the vectorised methods pay NumPy's per-call overhead on
+every small step, and where the compiled loop is tens of times faster than ``scipy.optimize.nnls``
+per frame.  When ``cond(G) > 1e10`` its answers are refined and checked against the exact KKT
+conditions computed from ``K``, and frames that fail go to the NumPy methods.
+
+When ``cond(G) > 1e10`` every frame then gets one step of iterative refinement with the residual
+computed from ``K`` itself (corrected semi-normal equations), so forming ``K'K`` costs no accuracy.
+The result is exact: it agrees with :func:`scipy.optimize.nnls` per frame to rounding (where the
+solution is unique) and is several times faster than calling it per frame (``bench/nnls.py``).
+
+Beyond the thesis, in the spirit of NVIDIA Audio2Face's blendshape solver, the objective can have::
+
+    sum_t [ 1/2 ||K w_t - f_t||^2 + l2/2 ||w_t||^2 + l1 sum_i w_ti ]
+          + smooth/2 sum_t ||w_t - w_{t-1}||^2         subject to  0 <= w_t <= upper
+
+* ``upper``: box constraints (e.g. 1, a rig's slider range);
+* ``l2``: ridge, ``G + l2 I``; it spreads weight over similar keyshapes;
+* ``l1``: sparsity, ``b_t - l1`` (on ``w >= 0`` the L1 norm is linear); it switches weak keys off;
+* ``smooth``: temporal coupling of consecutive frames.  The take becomes one QP whose Hessian
+  ``M = blockdiag(G_t) + smooth (L (x) I)`` (``L``: path Laplacian over frames) is
+  block-tridiagonal, i.e. banded with bandwidth ``N`` in frame-major order.  It is solved by a
+  primal-dual active-set iteration on the whole take (block principal pivoting again: solve on
+  the free variables with one banded Cholesky of ``M`` restricted to them, LAPACK ``pbtrf``,
+  linear in the number of frames; exchange all KKT violators), started from an approximate
+  solution: ADMM with ``M`` diagonalised by the eigenvectors of ``G`` and the DCT over frames
+  when all frames share one Gram matrix, else the per-frame solution.  Should the active-set
+  iteration stall it hands over to Bertsekas' projected Newton method (1982, Armijo search along
+  the projection arc), which converges from anywhere.  Either way the final step solves the
+  optimality conditions exactly;
+* ``mask``: missing markers.  A frame is solved on the rows that exist; frames are grouped by
+  mask pattern, each pattern with its own Gram matrix.
+
+A keyshape that moves none of a frame's observed rows gets weight 0 in that frame (any weight
+fits equally).  When the observed rows cannot tell the remaining keyshapes apart (fewer rows than
+keys, duplicate keys) the weights are not unique; a tiny ridge (``1e-13`` of ``K'K``'s largest
+eigenvalue) then picks one solution.  A frame with no observed row gets zero weights (with
+``smooth``: whatever its neighbours imply).
+
+:func:`temporal_filter` smooths weight curves afterwards with an adjustable level and
+:func:`extremes_removed` reports how much of the curves' extremes that costs.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from scipy.fft import dct, idct
+from scipy.linalg import cho_solve_banded, cholesky_banded
+
+from ..errors import FitWarning, InvalidDataError, MissingDependencyError
+
+__all__ = ["solve_nnls", "temporal_filter", "extremes_removed", "filter_cutoff_hz"]
+
+_RIDGE = 1e-13
+_INVERSE_COND = 1e10
+_SMALL_BATCH = 256
+# mean non-zero weights per frame (probe) up to which the compiled kernel is used; measured on
+# 2,028-frame synthetic takes: 12 non-zero of 20 keys, kernel 13 ms vs pivoting 16 ms; 24 of 40,
+# 66 vs 47 ms; 50 of 83, 160 vs 50 ms (keyshapes chosen among a take's frames: 4-6 non-zero)
+_COMPILED_MAX_NONZERO = 16
+
+
+# ----------------------------------------------------------------------------- batched dense solves
+def _solve_fixed(G: np.ndarray, H: np.ndarray | None, C: np.ndarray, P: np.ndarray,
+                 A0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Minimise ``1/2 x'Gx - c_t'x`` over the free variables ``P[t]`` with the others fixed at ``A0[t]``.
+
+    Each row is solved in the cheaper of two equivalent forms: on the free set,
+    ``G_FF x_F = c_F - G_FA a_A``, or through ``H = G^-1`` on the fixed set,
+    ``x = H (c + lambda)`` with ``H_AA lambda_A = a_A - (H c)_A`` (``lambda``: the multipliers of the
+    fixed variables), so no system is larger than ``N / 2``.  Rows are bucketed by form and size and
+    every bucket is one stacked LAPACK call.
+
+    Parameters
+    ----------
+    G, H : (N, N) float
+        Symmetric positive definite matrix and its inverse (``None``: free-set form only).
+    C : (n, N) float
+    P : (n, N) bool
+        Free variables.
+    A0 : (n, N) float, optional
+        Values of the fixed variables (ignored where ``P``); zero when omitted.
+
+    Returns
+    -------
+    X : (n, N) float
+    Y : (n, N) float
+        Gradient ``G x_t - c_t`` (zero on the free variables up to rounding).
+    """
+    n, N = P.shape
+    k = P.sum(axis=1)
+    free_form = 2 * k <= N if H is not None else np.ones(n, dtype=bool)
+    S = P ^ ~free_form[:, None]                                 # the set each row is solved on
+    ks = np.where(free_form, k, N - k)
+    # one LAPACK call per form and size; a small batch (where the call overhead dominates) is padded
+    # with identity rows to one call per form
+    if n <= _SMALL_BATCH:
+        kp = np.zeros_like(ks)
+        for form in (True, False):
+            sel = free_form == form
+            if sel.any():
+                kp[sel] = ks[sel].max()
+    else:
+        kp = ks
+    key = 2 * kp + free_form
+    perm = np.argsort(key, kind="stable")
+    bounds = np.flatnonzero(np.diff(key[perm])) + 1
+    cols = np.nonzero(S)[1]                                     # each row's set, ascending
+    start = np.concatenate([[0], np.cumsum(ks)[:-1]])
+    if A0 is None:
+        X = np.zeros((n, N))
+        R = C.copy()
+    else:
+        X = np.where(P, 0.0, A0)
+        R = C - X @ G
+    Z = None
+    if not free_form.all():
+        Z = C @ H
+        a = ~free_form
+        R[a] = -Z[a] if A0 is None else (A0 - Z)[a]
+        lam = np.zeros((n, N))
+    Gf, Rf, Xf = G.ravel(), R.ravel(), X.reshape(-1)
+    Hf = None if H is None else H.ravel()
+    cols = np.append(cols, 0)                                   # padding reads a harmless entry
+    for rows in np.split(perm, bounds):
+        kk, ff = int(kp[rows[0]]), bool(free_form[rows[0]])
+        if kk == 0:
+            continue
+        j = np.arange(kk)
+        real = j < ks[rows][:, None]                            # (m, kk): not padding
+        idx = np.where(real, cols[np.minimum(start[rows][:, None] + j, len(cols) - 1)], 0)
+        A = (Gf if ff else Hf)[idx[:, :, None] * N + idx[:, None, :]]
+        flat = rows[:, None] * N + idx
+        rhs = Rf[flat]
+        if not real.all():
+            pair = real[:, :, None] & real[:, None, :]
+            A = np.where(pair, A, np.eye(kk))
+            rhs = np.where(real, rhs, 0.0)
+        x = np.linalg.solve(A, rhs[..., None])[..., 0]
+        if not real.all():
+            flat, x = flat[real], x[real]
+        if ff:
+            Xf[flat] = x
+        else:
+            lam.reshape(-1)[flat] = x
+    if Z is None:
+        return X, X @ G - C
+    ai = np.flatnonzero(a)
+    X[ai] = np.where(P[ai], Z[ai] + lam[ai] @ H, X[ai])
+    fi = np.flatnonzero(free_form)
+    lam[fi] = X[fi] @ G - C[fi]                                 # gradient; on fixed-set rows it is lambda
+    return X, lam
+
+
+def _bpp(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | None, tol: float,
+         max_iter: int, stats: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Block principal pivoting for ``min 1/2 x'Gx - b_t'x, 0 <= x <= ub`` for every row ``b_t`` of ``B``.
+
+    Starts from the signs of the unconstrained solutions; exchanges every KKT violator at once, or
+    only the last one (Murty's rule) when a row's count of violators has not fallen for three
+    iterations.
+
+    Returns
+    -------
+    X : (n, N) float
+    free : (n, N) bool
+        Final free sets.
+    unconverged : (k,) int
+        Rows still violating the KKT conditions after ``max_iter`` iterations.
+    """
+    n, N = B.shape
+    X = np.zeros((n, N))
+    fin = None if ub is None else np.isfinite(ub)
+    ubf = None if ub is None else np.where(fin, ub, 0.0)
+    X0 = B @ H if H is not None else np.linalg.solve(G, B.T).T
+    P = X0 > 0
+    U = np.zeros_like(P)
+    if ub is not None:
+        U = fin & (X0 >= ub)
+        P &= ~U
+    bscale = np.maximum(np.abs(B).max(axis=1), 1e-300)
+    ninf = np.full(n, N + 1)
+    backup = np.full(n, 3)
+    todo = np.arange(n)
+    Pfin = np.zeros_like(P)
+    for it in range(max_iter):
+        Pt, Ut = P[todo], U[todo]
+        A0 = Ut * ubf if ub is not None else None
+        # the fixed-set form is less stable: rows still cycling after 8 iterations use the free-set form
+        Xt, Yt = _solve_fixed(G, H if it < 8 else None, B[todo], Pt, A0)
+        if stats is not None:
+            stats["solves"] = stats.get("solves", 0) + len(todo)
+        xs = tol * np.maximum(np.abs(Xt).max(axis=1), 1.0)[:, None]
+        ys = tol * bscale[todo][:, None]
+        v_neg = Pt & (Xt < -xs)
+        v_in = ~Pt & ~Ut & (Yt < -ys)
+        if ub is not None:
+            v_over = Pt & fin & (Xt > ubf + xs)
+            v_out = Ut & (Yt > ys)
+        else:
+            v_over = v_out = np.zeros_like(Pt)
+        V = v_neg | v_in | v_over | v_out
+        nv = V.sum(axis=1)
+        done = nv == 0
+        rows = todo[done]
+        X[rows], Pfin[rows] = Xt[done], Pt[done]
+        keep = ~done
+        todo = todo[keep]
+        if todo.size == 0:
+            break
+        V, nv = V[keep], nv[keep]
+        v_neg, v_in, v_over, v_out = v_neg[keep], v_in[keep], v_over[keep], v_out[keep]
+        better = nv < ninf[todo]
+        ninf[todo[better]] = nv[better]
+        backup[todo[better]] = 3
+        use_backup = ~better & (backup[todo] <= 0)
+        backup[todo[~better & ~use_backup]] -= 1
+        if use_backup.any():                                    # Murty: only the last violator
+            last = N - 1 - np.argmax(V[:, ::-1], axis=1)
+            single = np.zeros_like(V)
+            single[np.arange(len(V)), last] = True
+            sel = np.where(use_backup[:, None], single, True)
+            v_neg, v_in, v_over, v_out = v_neg & sel, v_in & sel, v_over & sel, v_out & sel
+        Pn, Un = P[todo], U[todo]
+        P[todo] = (Pn & ~v_neg & ~v_over) | v_in | v_out
+        U[todo] = (Un & ~v_out) | v_over
+    return X, Pfin, todo
+
+
+def _lh(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | None, tol: float,
+        max_steps: int, chunk: int = 1,
+        stats: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lawson-Hanson's active-set method (BVLS with upper bounds), vectorised over rows.
+
+    Every row keeps a feasible point; a step solves on the free set and either steps back to the
+    boundary of the box (freeing no variable) or frees the variable that violates the KKT conditions
+    most.  The objective falls at every step, so there is no cycling, whatever the conditioning.
+    Rows are processed in chunks of ``chunk`` consecutive rows: a chunk's next row starts from the
+    free set its previous row ended with (consecutive frames of a take usually share most of it).
+
+    Returns
+    -------
+    X : (n, N) float
+    free : (n, N) bool
+    unconverged : (k,) int
+        Rows stopped after ``max_steps`` steps (their point is feasible, not optimal).
+    """
+    n, N = B.shape
+    W = np.zeros((n, N))
+    Wfree = np.zeros((n, N), dtype=bool)
+    stuck = np.zeros(n, dtype=bool)
+    fin = np.zeros(N, dtype=bool) if ub is None else np.isfinite(ub)
+    ubf = np.zeros(N) if ub is None else np.where(fin, ub, 0.0)
+    starts = np.arange(0, n, chunk)
+    ends = np.minimum(starts + chunk, n)
+    C = len(starts)
+    cur = starts.copy()
+    X = np.zeros((C, N))
+    Fm = np.zeros((C, N), dtype=bool)
+    Um = np.zeros((C, N), dtype=bool)
+    nst = np.zeros(C, dtype=np.int64)
+    bs = np.maximum(np.abs(B).max(axis=1), 1e-300)
+    act = np.arange(C)
+    while act.size:
+        f = cur[act]
+        Fa, Ua, Xa = Fm[act], Um[act], X[act]
+        Z, Y = _solve_fixed(G, H, B[f], Fa, Ua * ubf if ub is not None else None)
+        if stats is not None:
+            stats["solves"] = stats.get("solves", 0) + len(act)
+        lo = Fa & (Z < 0.0)
+        hi = (Fa & fin & (Z > ubf)) if ub is not None else np.zeros_like(lo)
+        bad = (lo | hi).any(axis=1)
+        b = np.flatnonzero(bad)
+        if b.size:                                              # step back to the box boundary
+            xb, zb, lb, hb = Xa[b], Z[b], lo[b], hi[b]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                r = np.where(lb, xb / (xb - zb), np.where(hb, (ubf - xb) / (zb - xb), np.inf))
+            r = np.maximum(r, 0.0)
+            alpha = np.minimum(r.min(axis=1), 1.0)
+            hit = (lb | hb) & (r <= alpha[:, None])
+            up = hit & hb
+            Xa[b] = np.where(hit, np.where(up, ubf, 0.0), xb + alpha[:, None] * (zb - xb))
+            Fa[b] &= ~hit
+            Ua[b] |= up
+        g = np.flatnonzero(~bad)
+        done = np.zeros(0, dtype=np.int64)
+        if g.size:                                              # optimal on the free set: KKT check
+            yg, Fg, Ug = Y[g], Fa[g], Ua[g]
+            s = tol * bs[f[g]][:, None]
+            v = np.where(~Fg & ~Ug & (yg < -s), -yg, 0.0) + np.where(Ug & (yg > s), yg, 0.0)
+            j = np.argmax(v, axis=1)
+            more = v[np.arange(len(g)), j] > 0
+            m = np.flatnonzero(more)
+            Fg[m, j[m]] = True
+            Ug[m, j[m]] = False
+            Xa[g], Fa[g], Ua[g] = Z[g], Fg, Ug
+            done = g[~more]
+        nst[act] += 1
+        over = (nst[act] >= max_steps) & ~np.isin(np.arange(len(act)), done)
+        if done.size:
+            W[f[done]], Wfree[f[done]] = Z[done], Fa[done]
+        if over.any():
+            o = np.flatnonzero(over)
+            W[f[o]], Wfree[f[o]], stuck[f[o]] = Xa[o], Fa[o], True
+            done = np.concatenate([done, o])
+        if done.size:
+            Xa[done] = np.where(Ua[done], ubf, 0.0)             # next row: same sets, feasible start
+        X[act], Fm[act], Um[act] = Xa, Fa, Ua
+        if done.size:
+            rows = act[done]
+            cur[rows] += 1
+            nst[rows] = 0
+            act = act[cur[act] < ends[act]]
+    return W, Wfree, np.flatnonzero(stuck)
+
+
+def _use_compiled(backend: str, ub) -> bool:
+    """Whether the compiled Lawson-Hanson kernel (:mod:`._nnls_numba`) solves this problem."""
+    if backend == "numpy" or ub is not None:
+        return False
+    try:
+        from . import _nnls_numba
+    except ImportError:                                         # pragma: no cover
+        return False
+    if backend == "numba" and not _nnls_numba.available():
+        raise MissingDependencyError("backend='numba' asked for but numba is not installed "
+                               "(pip install 'faceretarget[fast]')")
+    return _nnls_numba.available()
+
+
+def _compiled_box_qp(G: np.ndarray, B: np.ndarray, tol: float, max_iter: int, refine,
+                     inverse: bool) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_box_qp` without upper bounds by the compiled Lawson-Hanson kernel (:mod:`._nnls_numba`)."""
+    from ._nnls_numba import free_set_solve, lawson_hanson_frames
+
+    # with cond(G) > 1e10 the kernel decides the active set at a tighter tolerance, its answers
+    # are refined on the free set with gradients from K itself and checked against the exact
+    # KKT conditions; frames that fail that check, or stop at max_iter, go to the NumPy methods
+    X, free, st = lawson_hanson_frames(G, B, tol if refine is None else tol * 1e-4, max_iter)
+    bad = st.copy()
+    if refine is not None:
+        g = refine(X)                                       # exact b - G x
+        dX = free_set_solve(G, g, free)
+        X += dX
+        g -= dX @ G                                         # the correction is small: Gram form is exact enough
+        xs = tol * np.maximum(np.abs(X).max(axis=1), 1.0)[:, None]
+        ys = tol * np.maximum(np.abs(B).max(axis=1), 1e-300)[:, None]
+        bad |= (free & (X < -xs)).any(axis=1) | (~free & (g > ys)).any(axis=1)
+    bad = np.flatnonzero(bad)
+    stuck = np.zeros(0, dtype=np.int64)
+    if bad.size:
+        sub = None if refine is None else (lambda Y, rows=bad: refine(Y, rows))
+        X[bad], st_bad = _box_qp(G, B[bad], None, tol, max_iter, sub, inverse, backend="numpy")
+        stuck = bad[st_bad]
+    np.maximum(X, 0.0, out=X)
+    return X, stuck
+
+def _box_qp(G: np.ndarray, B: np.ndarray, ub
+: np.ndarray | None, tol: float, max_iter: int,
+            refine=None, inverse: bool = True, backend: str = "auto") -> tuple[np.ndarray, np.ndarray]:
+    """Solve ``min 1/2 x'Gx - b_t'x, 0 <= x <= ub`` exactly for every row ``b_t`` of ``B``.
+
+    Block principal pivoting (few iterations over large batches), unless on a probe of 32 rows it
+    needs more than 8 solves per row, or more than 5 and more than Lawson-Hanson with chunks of 8
+    consecutive rows needs (probed on 4 runs of 8 rows): strongly correlated keys, sparse
+    solutions, where full exchanges oscillate.  Rows that pivoting has not settled after 20
+    iterations are finished by Lawson-Hanson.
+
+    Parameters
+    ----------
+    G : (N, N) float, symmetric positive definite
+    B : (n, N) float
+    ub : (N,) float or None
+        Upper bounds (``inf`` for none).
+    tol : float
+        Relative KKT tolerance.
+    max_iter : int
+        Iterations per row (pivoting stops at ``min(20, max_iter)``, Lawson-Hanson at ``max_iter``).
+    refine : callable, optional
+        ``refine(X)`` returns the exact negative gradient ``b_t - G x_t`` ``(n, N)``, computed from
+        the original least-squares data; used for one step of iterative refinement.
+    inverse : bool
+        Allow solving through ``G^-1`` on the fixed set (when ``G`` is well conditioned).
+
+    Returns
+    -------
+    X : (n, N) float
+    unconverged : (k,) int
+        Rows stopped by ``max_iter``.
+    """
+    n, N = B.shape
+    if n == 0:
+        return np.zeros((0, N)), np.zeros(0, dtype=np.int64)
+    if _use_compiled(backend, ub):
+        # the compiled Lawson-Hanson enters one key per step, so its cost grows steeply with the
+        # number of non-zero weights; block pivoting (below) wins on dense solutions.  A probe of
+        # 32 frames (microseconds in compiled code) decides.
+        use = n <= 64
+        if not use:
+            from ._nnls_numba import lawson_hanson_frames
+
+            probe = np.unique(np.linspace(0, n - 1, 32).astype(np.int64))
+            Xp = lawson_hanson_frames(G, B[probe], tol, max_iter, warm=False)[0]
+            use = (Xp > 0).sum(axis=1).mean() <= _COMPILED_MAX_NONZERO
+        if use:
+            return _compiled_box_qp(G, B, tol, max_iter, refine, inverse)
+    H = None
+    if inverse:
+        H = np.linalg.inv(G)
+        H = 0.5 * (H + H.T)
+    use_bpp = True
+    if n > 64:                                                  # probe: which method needs fewer solves?
+        probe = np.unique(np.linspace(0, n - 1, 32).astype(np.int64))
+        sb: dict = {}
+        _, _, slow = _bpp(G, H, B[probe], ub, tol, min(12, max_iter), sb)
+        per_bpp = sb["solves"] / len(probe) + 4 * slow.size / len(probe)
+        if per_bpp > 8:
+            use_bpp = False
+        elif per_bpp > 5:
+            runs = np.linspace(0, n - 8, 4).astype(np.int64)[:, None] + np.arange(8)
+            sl: dict = {}
+            _lh(G, H, B[runs.ravel()], ub, tol, max_iter, 8, sl)
+            use_bpp = per_bpp <= sl["solves"] / runs.size
+    if use_bpp:
+        X, free, todo = _bpp(G, H, B, ub, tol, min(20, max_iter))
+        stuck = np.zeros(0, dtype=np.int64)
+        if todo.size:
+            X[todo], free[todo], st = _lh(G, H, B[todo], ub, tol, max_iter)
+            stuck = todo[st]
+    else:
+        X, free, stuck = _lh(G, H, B, ub, tol, max_iter, chunk=8)
+    if refine is not None:                                      # one step of iterative refinement
+        R = np.where(free, refine(X), 0.0)
+        X += _solve_fixed(G, H, R, free)[0]
+    np.maximum(X, 0.0, out=X)
+    if ub is not None:
+        np.minimum(X, np.where(np.isfinite(ub), ub, np.inf), out=X)
+    return X, stuck
+
+
+# ----------------------------------------------------------------------------- temporal coupling
+def _admm_start(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, s: float, X0: np.ndarray,
+                iters: int = 150, rtol: float = 1e-4) -> np.ndarray:
+    """Approximate solution of the temporally coupled QP by ADMM, to start the active-set method.
+
+    With one Gram matrix for all frames the Hessian ``I (x) G + s L (x) I`` is diagonalised by the
+    eigenvectors of ``G`` and the DCT-II over frames (the eigenvectors of the path Laplacian ``L``),
+    so every ADMM step ``x = (H + rho I)^-1 (b + rho (z - u))``, ``z = clip(x + u)`` costs two DCTs
+    and two ``(T, N) x (N, N)`` products.
+    """
+    T, N = B.shape
+    lam, V = np.linalg.eigh(G)
+    ev = lam[None, :] + s * (2.0 - 2.0 * np.cos(np.pi * np.arange(T) / T))[:, None]
+    rho = float(np.sqrt(max(ev.min(), 1e-12 * ev.max()) * ev.max()))
+    inv = 1.0 / (ev + rho)
+    hi = np.inf if ub is None else ub
+    z = np.clip(X0, 0.0, hi)
+    u = np.zeros_like(z)
+    scale = max(float(np.abs(z).max()), 1.0)
+    for _ in range(iters):
+        R = dct(B + rho * (z - u), type=2, norm="ortho", axis=0) @ V
+        x = idct((R * inv) @ V.T, type=2, norm="ortho", axis=0)
+        zn = np.clip(x + u, 0.0, hi)
+        u += x - zn
+        done = max(float(np.abs(x - zn).max()), float(np.abs(zn - z).max())) <= rtol * scale
+        z = zn
+        if done:
+            break
+    return z
+
+
+def _smooth_qp(Gs: list[np.ndarray], pat: np.ndarray, B: np.ndarray, ub: np.ndarray | None, s: float,
+               X0: np.ndarray, tol: float, max_iter: int, pdas: bool = True) -> tuple[np.ndarray, bool]:
+    """Exact solution of the take-wide QP with temporal coupling ``s``.
+
+    Minimises ``sum_t 1/2 x_t'G_{pat[t]}x_t - b_t'x_t + s/2 sum_t ||x_t - x_{t-1}||^2`` over
+    ``0 <= x <= ub``.  The Hessian is banded (bandwidth ``N``, frame-major order); every step
+    factorises it restricted to the free variables (the others get identity rows).  Primal-dual
+    active-set iterations from an ADMM start (one pattern) or from ``X0``; projected Newton
+    (Bertsekas 1982) if they stall.
+
+    Parameters
+    ----------
+    Gs : list of (N, N) float
+        Gram matrices, one per mask pattern.
+    pat : (T,) int
+        Pattern of every frame.
+    B : (T, N) float
+    ub : (N,) float or None
+    s : float
+    X0 : (T, N) float
+        Starting point (the per-frame solution).
+    pdas : bool
+        Try the primal-dual active-set iteration first (otherwise projected Newton only).
+
+    Returns
+    -------
+    X : (T, N) float
+    converged : bool
+    """
+    T, N = B.shape
+    n = T * N
+    Gst = np.stack(Gs)
+    Gl = np.zeros((len(Gs), N, N))                              # Gl[p, d, j] = G_p[j + d, j]
+    for d in range(N):
+        Gl[:, d, : N - d] = np.diagonal(Gst, offset=-d, axis1=1, axis2=2)
+    base = np.zeros((N + 1, n))
+    base[:N] = Gl[pat].transpose(1, 0, 2).reshape(N, n)
+    deg = np.full(T, 2.0)
+    deg[[0, -1]] = 1.0
+    if T == 1:
+        deg[:] = 0.0
+    base[0] += s * np.repeat(deg, N)
+    base[N, : n - N] = -s
+    diag = base[0].reshape(T, N)
+    hi = np.inf if ub is None else ub
+    groups = [(p, np.flatnonzero(pat == p)) for p in range(len(Gs))]
+
+    def hess(X: np.ndarray) -> np.ndarray:
+        Y = np.empty_like(X)
+        for p, rows in groups:
+            Y[rows] = X[rows] @ Gs[p]
+        dX = np.diff(X, axis=0)
+        Y[:-1] -= s * dX
+        Y[1:] += s * dX
+        return Y
+
+    def fval(X: np.ndarray, HX: np.ndarray) -> float:
+        return float(np.sum(X * (0.5 * HX - B)))
+
+    gs = max(float(np.abs(B).max()), float(np.abs(Gst).max()) * 1e-12, 1e-300)
+    fin = np.zeros(N, dtype=bool) if ub is None else np.isfinite(ub)
+    ubf = np.zeros(N) if ub is None else np.where(fin, ub, 0.0)
+
+    def solve_fixed(fixed: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """Solve ``M y = rhs`` on the free variables, ``y = rhs`` on the ``fixed`` ones."""
+        ff = fixed.ravel()
+        ab = base.copy()
+        for d in range(1, N + 1):
+            ab[d, : n - d][ff[: n - d] | ff[d:]] = 0.0
+        ab[0, ff] = 1.0
+        cb = cholesky_banded(ab, lower=True, check_finite=False)
+        return cho_solve_banded((cb, True), rhs.ravel(), check_finite=False).reshape(T, N)
+
+    def kkt(X: np.ndarray, g: np.ndarray) -> float:
+        v = np.where(X <= 0.0, np.maximum(-g, 0.0), np.where(X >= hi, np.maximum(g, 0.0), np.abs(g)))
+        return float(v.max()) / gs
+
+    if pdas and len(Gs) == 1 and T > 1:
+        X0 = _admm_start(Gs[0], B, ub, s, X0)
+    # primal-dual active set (block principal pivoting on the whole take)
+    lo = X0 <= 0.0
+    up = (X0 >= hi) & ~lo
+    best = (np.inf, None)
+    stall = 0
+    it = 0
+    while pdas and it < max_iter:
+        it += 1
+        Xfix = np.where(up, ubf, 0.0)
+        fixed = lo | up
+        rhs = np.where(fixed, Xfix, B - hess(Xfix))
+        X = solve_fixed(fixed, rhs)
+        X[fixed] = Xfix[fixed]
+        g = hess(X) - B
+        tl = tol * gs
+        v_neg = ~fixed & (X < 0.0)
+        v_over = ~fixed & fin & (X > ubf)
+        v_in = lo & (g < -tl)
+        v_out = up & (g > tl)
+        nv = int(v_neg.sum() + v_over.sum() + v_in.sum() + v_out.sum())
+        if nv == 0:
+            return np.clip(X, 0.0, hi), True
+        if nv < best[0]:
+            best, stall = (nv, X), 0
+        else:
+            stall += 1
+            if stall >= 3:
+                break
+        lo = (lo & ~v_in) | v_neg
+        up = (up & ~v_out) | v_over
+
+    # fallback: projected Newton (Bertsekas 1982) with an Armijo search, globally convergent
+    X = np.clip(best[1] if best[1] is not None else X0, 0.0, hi)
+    HX = hess(X)
+    fx = fval(X, HX)
+    eps0 = 1e-3 * (1.0 if ub is None else float(np.min(np.where(fin, ub, 1.0))))
+    while it < max_iter:
+        it += 1
+        g = HX - B
+        if kkt(X, g) <= tol:
+            return X, True
+        w = float(np.abs(X - np.clip(X - g / diag, 0.0, hi)).max())
+        eps = min(eps0, w)
+        bind = ((X <= eps) & (g > 0)) | ((X >= hi - eps) & (g < 0))
+        step = solve_fixed(bind, np.where(bind, -g / diag, -g))
+        free = ~bind
+        slope = float(np.sum(-g[free] * step[free]))
+        alpha = 1.0
+        for _ls in range(40):
+            Xa = np.clip(X + alpha * step, 0.0, hi)
+            HXa = hess(Xa)
+            fa = fval(Xa, HXa)
+            need = 1e-4 * (alpha * slope + float(np.sum(g[bind] * (X[bind] - Xa[bind]))))
+            if fx - fa >= need - 1e-15 * abs(fx):
+                break
+            alpha *= 0.5
+        else:
+            return X, False
+        X, HX, fx = Xa, HXa, fa
+    return X, kkt(X, HX - B) <= tol
+
+
+# ----------------------------------------------------------------------------- public API
+def _as_float(name: str, value) -> float:
+    v = float(value)
+    if not np.isfinite(v) or v < 0:
+        raise InvalidDataError(f"{name} must be a finite number >= 0, got {value}")
+    return v
+
+
+def _check_inputs(K, F, upper, mask):
+    K = np.asarray(K, dtype=np.float64)
+    if K.ndim != 2 or K.shape[0] == 0 or K.shape[1] == 0:
+        raise InvalidDataError(f"keyshape matrix K must be (D, N) with D, N > 0, got shape {K.shape}")
+    D, N = K.shape
+    bad = ~np.isfinite(K).all(axis=0)
+    if bad.any():
+        raise InvalidDataError(f"keyshape matrix K has NaN or infinite values in key column(s) "
+                               f"{', '.join(map(str, np.flatnonzero(bad)[:10]))}")
+    F = np.asarray(F, dtype=np.float64)
+    single = F.ndim == 1
+    if single:
+        F = F[None, :]
+    if F.ndim != 2 or F.shape[1] != D:
+        raise InvalidDataError(f"frames F must be (T, {D}) to match K ({D} rows, {N} keys), "
+                               f"got shape {F.shape if not single else F.shape[1:]}")
+    T = len(F)
+    rows = None
+    if mask is not None:
+        m = np.asarray(mask)
+        if single and m.ndim == 1:
+            m = m[None, :]
+        if m.ndim != 2 or m.shape[0] != T or m.shape[1] == 0 or D % m.shape[1]:
+            raise InvalidDataError(f"mask must be (T, D) = ({T}, {D}) or per marker (T, P) with D a multiple "
+                                   f"of P, got shape {np.shape(mask)}")
+        rows = np.repeat(m.astype(bool), D // m.shape[1], axis=1)
+    finite = np.isfinite(F)
+    bad = ~finite if rows is None else (~finite & rows)
+    if bad.any():
+        frames = np.flatnonzero(bad.any(axis=1))
+        raise InvalidDataError(f"frame {frames[0]} has NaN or infinite feature values"
+                               + (f" ({len(frames)} frames in all)" if len(frames) > 1 else "")
+                               + (" where the mask says they are present" if rows is not None else "")
+                               + "; mark missing markers with mask=")
+    ub = None
+    if upper is not None:
+        ub = np.broadcast_to(np.asarray(upper, dtype=np.float64), (N,)).copy() if np.ndim(upper) == 0 \
+            else np.asarray(upper, dtype=np.float64)
+        if ub.shape != (N,):
+            raise InvalidDataError(f"upper must be a scalar or have one bound per key ({N}), "
+                                   f"got shape {ub.shape}")
+        if np.isnan(ub).any() or (ub <= 0).any():
+            raise InvalidDataError("upper bounds must be > 0 (inf for none); drop a key to switch it off")
+        if np.isinf(ub).all():
+            ub = None
+    return K, F, single, rows, ub
+
+
+def solve_nnls(K: np.ndarray, F: np.ndarray, *, upper=None, l2: float = 0.0, l1: float = 0.0,
+               smooth: float = 0.0, mask: np.ndarray | None = None, tol: float = 1e-10,
+               max_iter: int | None = None, backend: str = "auto") -> np.ndarray:
+    """Non-negative keyshape weights of every frame of a take (Chuang Eq. 3.1/3.2).
+
+    Minimises, over ``W`` with ``0 <= W <= upper``::
+
+        sum_t [ 1/2 ||K w_t - f_t||^2 + l2/2 ||w_t||^2 + l1 sum_i w_ti ] + smooth/2 sum_t ||w_t - w_{t-1}||^2
+
+    With the defaults this is ``scipy.optimize.nnls(K, f_t)`` for every frame, solved for the
+    whole take at once (see the module docstring for the algorithms).
+
+    Parameters
+    ----------
+    K : (D, N) float
+        Keyshapes, one column per keyshape (its feature displacements from the neutral).
+    F : (T, D) or (D,) float
+        Frames, one row per frame (feature displacements).
+    upper : float or (N,) float, optional
+        Upper bounds of the weights (e.g. 1); ``inf`` for none.
+    l2 : float
+        Ridge weight: shares weight among similar keyshapes.
+    l1 : float
+        Sparsity weight (in units of ``K'f``): switches weakly used keyshapes off.
+    smooth : float
+        Temporal smoothness weight (in units of ``K'K``); couples consecutive rows of ``F``, which
+        must then be consecutive frames of one take.
+    mask : (T, D) or (T, P) bool, optional
+        Which feature coordinates (or which markers, ``D / P`` coordinates each, in the order of
+        ``F``'s columns) are present.  Missing values are ignored and may be NaN.
+    tol : float
+        Relative tolerance of the optimality (KKT) conditions.
+    max_iter : int, optional
+        Pivoting iterations per frame (default ``50 + 10 N``), or with ``smooth`` active-set and
+        Newton iterations of the whole take (default 100).  Weights that do not converge are
+        returned as they are, with a :class:`~faceretarget.errors.FitWarning`.
+    backend : {"auto", "numpy", "numba"}
+        Without an upper bound, ``"auto"`` solves frame after frame with a compiled Lawson-Hanson
+        kernel warm-started from the previous frame (:mod:`._nnls_numba`) when ``numba`` is
+        installed (``pip install 'faceretarget[fast]'``), else with the vectorised NumPy methods;
+        the results agree to rounding.
+
+    Returns
+    -------
+    W : (T, N) or (N,) float
+
+    Raises
+    ------
+    faceretarget.errors.InvalidDataError
+        Mismatched shapes, NaN/infinite values that are not masked, negative weights of terms or
+        non-positive upper bounds.
+
+    Examples
+    --------
+    >>> K = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    >>> solve_nnls(K, np.array([[2.0, -1.0, 1.0]])).round(6)
+    array([[1.5, 0. ]])
+    """
+    K, F, single, rows, ub = _check_inputs(K, F, upper, mask)
+    l2, l1, smooth = _as_float("l2", l2), _as_float("l1", l1), _as_float("smooth", smooth)
+    tol = float(tol)
+    if backend not in ("auto", "numpy", "numba"):
+        raise InvalidDataError(f"unknown backend '{backend}', use auto, numpy or numba")
+    if not tol > 0:
+        raise InvalidDataError(f"tol must be > 0, got {tol}")
+    D, N = K.shape
+    T = len(F)
+    if T == 0:
+        return np.zeros((0, N))
+    if max_iter is None:
+        max_iter = 100 if smooth > 0 else 50 + 10 * N
+    G_all = K.T @ K
+    floor = _RIDGE * max(float(np.linalg.eigvalsh(G_all)[-1]), 1e-300)
+    if rows is None:
+        pats, pat = [None], np.zeros(T, dtype=np.int64)
+    else:
+        pats, pat = np.unique(rows, axis=0, return_inverse=True)
+        pat = pat.ravel()
+        F = np.where(rows, F, 0.0)
+    Gs: list[np.ndarray] = []
+    Graw: list[np.ndarray] = []                                 # without the rank ridge
+    B = np.empty((T, N))
+    W = np.empty((T, N))
+    stuck: list[np.ndarray] = []
+    for p, r in enumerate(pats):
+        if r is None:
+            frames, Kp, Fp, G = np.arange(T), K, F, G_all.copy()
+        else:
+            frames = np.flatnonzero(pat == p)
+            Kp, Fp = K[r], F[frames][:, r]
+            G = Kp.T @ Kp
+        G[np.diag_indices(N)] += l2
+        Bp = Fp @ Kp - l1
+        B[frames] = Bp
+        # keys that do not move any observed row: weight 0 (any value fits equally; 0 is the smallest)
+        live = np.flatnonzero(np.diag(G) > floor)
+        Gl = G[np.ix_(live, live)]
+        ev = np.linalg.eigvalsh(Gl) if live.size else np.ones(1)
+        ridge = l2
+        if ev[0] < floor:                                       # keys the observed rows cannot tell apart
+            Gl[np.diag_indices(len(live))] += floor
+            ridge += floor
+            ev = ev + floor
+        Graw.append(G)
+        Gs.append(G + floor * np.eye(N) if (ridge != l2 or live.size < N) else G)
+        W[frames] = 0.0
+        if live.size == 0:
+            continue
+        Kl, ubl = Kp[:, live], (None if ub is None else ub[live])
+        refine = None
+        if ev[-1] > 1e10 * ev[0]:                               # normal equations lose digits: refine
+            def refine(X, rows=None, Fp=Fp, Kl=Kl, ridge=ridge):
+                Fr = Fp if rows is None else Fp[rows]
+                return (Fr - X @ Kl.T) @ Kl - ridge * X - l1
+        Wp, bad = _box_qp(Gl, Bp[:, live], ubl, tol, max_iter, refine, inverse=ev[-1] < _INVERSE_COND * ev[0],
+                          backend=backend)
+        W[np.ix_(frames, live)] = Wp
+        stuck.append(frames[bad])
+    if smooth > 0:
+        try:                                                    # smoothing may resolve rank deficiency
+            W, ok = _smooth_qp(Graw, pat, B, ub, smooth, W, tol, max_iter)
+        except np.linalg.LinAlgError:
+            W, ok = _smooth_qp(Gs, pat, B, ub, smooth, W, tol, max_iter)
+        if not ok:
+            warnings.warn(f"solve_nnls: the temporally smoothed solution did not converge in {max_iter} "
+                          "iterations; the weights are approximate", FitWarning,
+                          stacklevel=2)
+    else:
+        bad = np.sort(np.concatenate(stuck))
+        if bad.size:
+            warnings.warn(f"solve_nnls: {bad.size} frame(s) did not converge in {max_iter} iterations "
+                          f"(first: frame {bad[0]}); their weights are approximate", FitWarning,
+                          stacklevel=2)
+    return W[0] if single else W
+
+
+# ----------------------------------------------------------------------------- filtering
+def filter_cutoff_hz(level: float) -> float:
+    """Cutoff frequency (-3 dB) of :func:`temporal_filter` at ``level``: ``10 Hz / level``.
+
+    Level 1 keeps motion up to 10 Hz (removes frame-to-frame jitter, keeps speech articulation),
+    2 up to 5 Hz, 5 up to 2 Hz, 10 up to 1 Hz (only slow expression changes); 0 is no filtering
+    (``inf``).
+    """
+    level = _as_float("level", level)
+    return np.inf if level == 0 else 10.0 / level
+
+
+def temporal_filter(W: np.ndarray, level: float, fps: float) -> np.ndarray:
+    """Zero-phase Gaussian low-pass filtering of weight curves, with an adjustable level.
+
+    The filter is the heat kernel of the frame sequence, ``exp(-tau L)`` with ``L`` the path
+    Laplacian (reflecting ends), applied exactly in the DCT domain: a discrete Gaussian of variance
+    ``2 tau`` frames^2, frequency response ``exp(-tau (2 - 2 cos w))`` ~ ``exp(-tau w^2)``.
+    ``tau = ln(2) / (2 w_c^2)`` puts the -3 dB point of that Gaussian at ``w_c = 2 pi f_c / fps``,
+    ``f_c`` = :func:`filter_cutoff_hz` ``(level)``; ``tau`` grows continuously from 0 with the
+    level.  Its kernel is
+    non-negative and sums to one, so filtered weights stay within the range of the input (bounds
+    such as ``0 <= w <= 1`` are kept) and every curve's peak-to-peak shrinks monotonically as the
+    level grows.
+
+    Parameters
+    ----------
+    W : (T, N) float
+        Weight curves, one row per frame.
+    level : float
+        0 for none; larger is smoother (see :func:`filter_cutoff_hz`).
+    fps : float
+        Frame rate of ``W``.
+
+    Returns
+    -------
+    (T, N) float
+    """
+    W = np.asarray(W, dtype=np.float64)
+    level = _as_float("level", level)
+    fps = float(fps)
+    if not (np.isfinite(fps) and fps > 0):
+        raise InvalidDataError(f"fps must be > 0, got {fps}")
+    if W.ndim != 2:
+        raise InvalidDataError(f"weights must be (T, N), got shape {W.shape}")
+    if not np.isfinite(W).all():
+        frame = int(np.flatnonzero(~np.isfinite(W).all(axis=1))[0])
+        raise InvalidDataError(f"frame {frame} has NaN or infinite weights")
+    T = len(W)
+    if level == 0 or T < 2:
+        return W.copy()
+    wc = 2.0 * np.pi * filter_cutoff_hz(level) / fps
+    tau = 0.5 * np.log(2.0) / wc**2
+    gain = np.exp(-tau * (2.0 - 2.0 * np.cos(np.pi * np.arange(T) / T)))
+    out = idct(dct(W, type=2, norm="ortho", axis=0) * gain[:, None], type=2, norm="ortho", axis=0)
+    return np.clip(out, W.min(axis=0), W.max(axis=0))          # rounding only
+
+
+def extremes_removed(W: np.ndarray, Wf: np.ndarray) -> float:
+    """How much of the weight curves' extremes filtering removed, in percent.
+
+    The mean over curves (columns) that move at all of ``100 (1 - ptp(Wf) / ptp(W))``: the share of
+    each curve's peak-to-peak range lost.  0 means untouched, 100 flattened.
+
+    Parameters
+    ----------
+    W, Wf : (T, N) float
+        Curves before and after filtering.
+    """
+    W = np.asarray(W, dtype=np.float64)
+    Wf = np.asarray(Wf, dtype=np.float64)
+    if W.shape != Wf.shape or W.ndim != 2:
+        raise InvalidDataError(f"weights before {W.shape} and after {Wf.shape} filtering must be "
+                               "equal (T, N)")
+    r0 = np.ptp(W, axis=0)
+    moving = r0 > 0
+    if not moving.any():
+        return 0.0
+    return float(np.mean(100.0 * (1.0 - np.ptp(Wf, axis=0)[moving] / r0[moving])))

@@ -1,0 +1,383 @@
+"""``BlendshapeRetargeter``: Chuang's keyshape retargeting (Ch. 3) for any take, as one estimator.
+
+Source keyshapes ``S_k`` (frames of a source take, or a rig's shapes) and the artist's target
+counterparts ``B_k`` are paired by name.  Every source frame is decomposed into keyshape weights
+and the same weights play the target keyshapes::
+
+    f_t ~ sum_k w_tk (S_k - S_0)        B(t) = B_0 + sum_k w_tk (B_k - B_0)
+
+Solvers (``solver=``):
+
+``"nnls"`` (the thesis, Eq. 3.1/3.2)
+    ``w_t >= 0`` by :func:`~faceretarget.retarget.nnls.solve_nnls`, with its optional upper
+    bound, L2, L1 and temporal terms and per-frame masks for missing markers.  Exact and
+    interpretable when the keyshapes come from the take being retargeted (the thesis's workflow):
+    every frame then lies in the cone of the keys.  A *new* take usually does not (a jaw-open frame
+    is not a non-negative sum of ROM frames that each mix jaw and smile), and there it loses
+    a third of the motion (P1: 29-37 % ``rel_motion_pct``).
+``"signed"`` (default)
+    Least squares in the keys' span, weights of either sign, so a new take is expressed by
+    differences of keys as well as sums; the minimum-norm solution where keys are dependent.
+    Per-frame masks are honoured (each mask pattern solved on the rows present).
+
+Denoising (``denoise="auto"``): the capture noise of the take is estimated from its own spectrum
+(:func:`~faceretarget.cloning.temporal.estimate_noise_sigma`) and the coordinates of the frames in
+the keys' span are smoothed by the take-adaptive SURE/Whittaker ensemble of
+:func:`~faceretarget.cloning.temporal.denoise_take` (the same as ``ExpressionCloner``'s
+``"temporal"`` method).  ``denoise=False`` disables it, a float gives the noise sigma.  With
+``"signed"`` it acts on the solved span coordinates, so masked frames are denoised too; with
+``"nnls"`` it acts on the frames before the solve and needs a complete take.
+
+Regions (``regions=``): a :class:`~faceretarget.retarget.regions.Regions`, ``"upper-lower"`` for
+the default split, or ``None``.  Each region is solved on its own feature points and the target
+keyshapes are split by the regions' smooth memberships, so :attr:`target_keys` then holds ``R x K``
+shapes named ``key@region`` and :meth:`transform` returns ``(T, R x K)`` weights.
+
+After the solve ``filter_level`` (0 = none) low-passes the weight curves
+(:func:`~faceretarget.retarget.nnls.temporal_filter`) and ``extremes_removed_`` reports what that
+cost the curves' peaks.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..errors import InvalidDataError, MissingShapeError, SingularKeysError, TopologyError
+from ..numerics import (
+    RigidAligner,
+    denoise_take,
+    estimate_noise_sigma,
+    extremes_removed,
+    fit_rigid,
+    solve_nnls,
+    temporal_filter,
+)
+from ..performance import Performance
+from ..rig import Rig, resolve_features
+from ._regions import Regions, default_regions
+
+__all__ = ["BlendshapeRetargeter", "SOLVERS"]
+
+SOLVERS = ("signed", "nnls")
+
+
+class BlendshapeRetargeter:
+    """Retarget takes through paired source and target keyshapes.
+
+    Parameters
+    ----------
+    solver : {"signed", "nnls"}
+        See the module docstring.
+    features : ``"auto"``, ``"landmarks"``, ``"all"`` or (P,) int
+        Source points the solve looks at: ``"auto"`` takes the rig's 68 landmarks when the source
+        keys have them, else every point (marker sets).
+    upper, l2, l1, smooth : float
+        Optional terms of :func:`solve_nnls` (``"nnls"`` only, except ``l2``: ridge for both).
+    denoise : ``"auto"``, bool or float
+        See the module docstring.
+    filter_level : float
+        Low-pass level of the weight curves after the solve (0 = none).
+    regions : Regions, ``"upper-lower"`` or None
+        Face regions solved separately.
+    align : bool
+        Remove rigid head motion of marker takes (:class:`RigidAligner` onto the source neutral)
+        before solving.
+    rigid_subset : sequence of str or int, optional
+        The markers that move with the skull (chosen automatically when omitted).
+
+    Attributes
+    ----------
+    names_ : list of str
+        Keyshape names (weight columns without regions).
+    weight_names_ : list of str
+        Names of the columns :meth:`transform` returns.
+    noise_sigma_ : float
+        Capture noise estimated (or given) in the last take.
+    extremes_removed_ : float
+        Share of the weight curves' extremes removed by ``filter_level`` in the last take.
+    aligner_ : RigidAligner or None
+        The head-motion remover used in the last marker take.
+    """
+
+    def __init__(self, solver: str = "signed", *, features="auto", upper: float | None = None,
+                 l2: float = 0.0, l1: float = 0.0, smooth: float = 0.0, denoise="auto",
+                 filter_level: float = 0.0, regions: Regions | str | None = None, align: bool = True,
+                 rigid_subset=None) -> None:
+        if solver not in SOLVERS:
+            raise InvalidDataError(f"unknown solver '{solver}', use one of {', '.join(SOLVERS)}")
+        self.solver = solver
+        self.features = features
+        self.upper = upper
+        self.l2 = l2
+        self.l1 = l1
+        self.smooth = smooth
+        self.denoise = denoise
+        self.filter_level = filter_level
+        self.regions = regions
+        self.align = align
+        self.rigid_subset = rigid_subset
+
+    # ------------------------------------------------------------------ fitting
+    def fit(self, source_keys: Rig, target_keys: Rig, source_labels: list[str] | None = None) -> BlendshapeRetargeter:
+        """Pair the keyshapes by name and prepare the solve.
+
+        Parameters
+        ----------
+        source_keys : Rig
+            Source neutral and keyshapes (a rig, or point sets read with
+            :func:`~faceretarget.retarget.export.read_target_keyshapes`).
+        target_keys : Rig
+            Target neutral and keyshapes; every source keyshape needs one of the same name.
+        source_labels : list of str, optional
+            Marker labels of the source points (to match takes and regions by label).
+        """
+        names = list(source_keys.names)
+        if not names:
+            raise InvalidDataError(f"{source_keys.name}: no keyshapes besides the neutral")
+        missing = [n for n in names if n not in target_keys]
+        if missing:
+            raise MissingShapeError(f"{target_keys.name}: no target keyshape for source keyshape(s) "
+                                    f"{', '.join(missing[:8])}{' ...' if len(missing) > 8 else ''}")
+        spec = self.features
+        if isinstance(spec, str) and spec == "auto":
+            spec = "landmarks" if source_keys.landmarks is not None and len(source_keys.landmarks) else "all"
+        idx = resolve_features(spec, source_keys.n_vertices, source_keys.landmarks, who=source_keys.name)
+        tk = target_keys.subset(names) if list(target_keys.names) != names else target_keys
+        self.names_ = names
+        self.feature_idx_ = idx
+        self.source_labels_ = list(source_labels or [])
+        self.source_neutral_ = source_keys.neutral.vertices.copy()
+        self.source_unit_ = source_keys.unit
+        K = source_keys.deltas[:, idx].reshape(len(names), -1).T              # (D, N)
+        self.K_ = K
+        scale = float(np.sqrt((K**2).sum(axis=0).mean()))
+        if scale == 0:
+            raise SingularKeysError(f"{source_keys.name}: every keyshape equals the neutral at the feature points")
+        self.key_scale_ = scale
+        # regions
+        reg = self.regions
+        pts0 = self.source_neutral_[idx]
+        if isinstance(reg, str):
+            if reg not in ("upper-lower", "default"):
+                raise InvalidDataError(f"unknown regions '{reg}': use 'upper-lower', a Regions or a JSON file")
+            lm68 = (source_keys.landmarks is not None and len(idx) == 68
+                    and np.array_equal(idx, np.asarray(source_keys.landmarks)))
+            reg = default_regions(pts0, landmarks68=lm68)
+        if reg is not None:
+            labels = self.source_labels_ or None
+            rows = reg.resolve(len(idx), labels)
+            reg.fit_target(tk.neutral.vertices, tk.deltas, tk.landmarks, pts0)
+            self.regions_ = reg
+            self.region_rows_ = rows
+            R = len(reg)
+            M = reg.masks_                                                    # (R, Vt)
+            deltas = (M[:, None, :, None] * tk.deltas[None]).reshape(R * len(names), -1, 3)
+            wnames = [f"{n}@{r}" for r in reg.names for n in names]
+            self._target_rig = Rig(tk.neutral, wnames, deltas, tk.unit, tk.landmarks, None,
+                                   f"{tk.name}:regions")
+            self.weight_names_ = wnames
+        else:
+            self.regions_ = None
+            self.region_rows_ = [np.arange(len(idx))]
+            self._target_rig = tk
+            self.weight_names_ = names
+        self._prepare()
+        return self
+
+    def _prepare(self) -> None:
+        """Per-region span bases of the keys (for the signed solve and the denoiser)."""
+        self.spans_ = []
+        for rows in self.region_rows_:
+            cols = (rows[:, None] * 3 + np.arange(3)).reshape(-1)
+            Kr = self.K_[cols]
+            U, S, Vt = np.linalg.svd(Kr, full_matrices=False)
+            tol = 1e-9 * S[0] if S.size and S[0] > 0 else 0.0
+            rank = int((S > tol).sum())
+            self.spans_.append((cols, U[:, :rank], S[:rank], Vt[:rank]))
+
+    @property
+    def target_keys(self) -> Rig:
+        """The target keyshapes in the order of :meth:`transform`'s columns (split by region)."""
+        return self._target_rig
+
+    # ------------------------------------------------------------------ applying
+    def source_features(self, perf_or_array, labels: list[str] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """Feature displacements ``(T, D)`` of a take (NaN where a marker is missing) and its times."""
+        times = None
+        src = "input"
+        if isinstance(perf_or_array, Performance):
+            perf = perf_or_array
+            src = perf.source
+            times = perf.times
+            if perf.kind == "weights":
+                raise InvalidDataError(f"{src}: a weight take must be played on its source rig first "
+                                       "(faceretarget retarget --source-rig, or Rig.evaluate)")
+            flat = perf.kind == "points" and perf.points.shape[2] == 2
+            if perf.kind == "points" and not flat and self.align and perf.points.shape[1] >= 4:
+                perf = self._aligned(perf)
+            arr = perf.data()
+            if flat:                              # 2-D tracks: image-plane keyshapes (z = 0)
+                if np.abs(self.source_neutral_[:, 2]).max() > 0:
+                    raise InvalidDataError(f"{src}: the take has 2-D points but the source keyshapes are 3-D; "
+                                           "select keyshapes from a 2-D take (they are exported with z = 0)")
+                arr = np.concatenate([arr, np.zeros(arr.shape[:2] + (1,))], axis=2)
+            labels = perf.labels if perf.kind == "points" else None
+        else:
+            arr = np.asarray(perf_or_array, dtype=np.float64)
+        if arr.ndim == 2:
+            arr = arr[None]
+        if arr.ndim != 3 or arr.shape[2] != 3:
+            raise InvalidDataError(f"{src}: expected frames of shape (T, V, 3), got {arr.shape}")
+        V, P = len(self.source_neutral_), len(self.feature_idx_)
+        if labels and self.source_labels_ and labels != self.source_labels_:
+            missing = [s for s in self.source_labels_ if s not in labels]
+            if missing:
+                raise TopologyError(f"{src}: marker(s) {', '.join(missing[:8])} of the source keyshapes are "
+                                    "not in the take")
+            arr = arr[:, [labels.index(s) for s in self.source_labels_]]
+        if arr.shape[1] == V:
+            pts = arr[:, self.feature_idx_]
+            rest = self.source_neutral_[self.feature_idx_]
+        elif arr.shape[1] == P:
+            pts = arr
+            rest = self.source_neutral_[self.feature_idx_]
+        else:
+            raise TopologyError(f"{src}: frames have {arr.shape[1]} points; the source keyshapes have {V} "
+                                f"vertices and {P} feature points")
+        return (pts - rest).reshape(len(pts), -1), times
+
+    def _aligned(self, perf: Performance) -> Performance:
+        """Remove the take's head motion, then place its head frame on the source keys' neutral."""
+        al = RigidAligner(subset=self.rigid_subset)
+        out = al.fit_transform(perf)
+        self.aligner_ = al
+        if len(self.source_neutral_) == perf.points.shape[1]:
+            # one rigid move of the whole aligned take: its rigid subset onto the keys' neutral
+            sub = al.subset_
+            R, t, _ = fit_rigid(al.reference_, self.source_neutral_[sub][None])[:3]
+            if np.isfinite(R).all():
+                pts = out.points @ R[0].T + t[0]
+                out = out.with_points(pts) if hasattr(out, "with_points") else Performance.from_points(
+                    pts, out.labels, times=out.times, unit=out.unit, source=out.source)
+        return out
+
+    def _sigma(self, F: np.ndarray) -> float:
+        if self.denoise is False or self.denoise is None:
+            return 0.0
+        if self.denoise is True or (isinstance(self.denoise, str) and self.denoise == "auto"):
+            Fc = F[np.isfinite(F).all(axis=1)]
+            return estimate_noise_sigma(Fc) if len(Fc) >= 8 else 0.0
+        s = float(self.denoise)
+        if s < 0:
+            raise InvalidDataError(f"denoise sigma must be >= 0, got {s}")
+        return s
+
+    def transform(self, perf_or_array, times: np.ndarray | None = None) -> np.ndarray:
+        """Keyshape weights ``(T, len(weight_names_))`` of a take.
+
+        Parameters
+        ----------
+        perf_or_array : Performance or (T, V, 3) / (T, P, 3) array
+            Source meshes, feature points or markers (NaN for a missing marker).
+        times : (T,) float, optional
+            Frame times for arrays (the denoiser and the filter need them; default 60 fps).
+        """
+        F, ptimes = self.source_features(perf_or_array)
+        if times is None:
+            times = ptimes if ptimes is not None else np.arange(len(F)) / 60.0
+        times = np.asarray(times, dtype=np.float64)
+        sigma = self._sigma(F)
+        self.noise_sigma_ = sigma
+        finite = np.isfinite(F)
+        present = finite.reshape(len(F), -1, 3).all(axis=2)                   # (T, P)
+        out = []
+        for cols, U, S, Vt in self.spans_:
+            rows = cols[::3] // 3
+            Fr = F[:, cols]
+            pr = present[:, rows]
+            if self.solver == "signed":
+                W = self._signed(Fr, pr, U, S, Vt, cols, times, sigma)
+            else:
+                W = self._nnls(Fr, pr, U, cols, times, sigma)
+            out.append(W)
+        W = np.hstack(out)
+        self.extremes_removed_ = 0.0
+        if self.filter_level and len(W) >= 4:
+            fps = 1.0 / float(np.median(np.diff(times))) if len(times) > 1 else 60.0
+            Wf = temporal_filter(W, self.filter_level, fps)
+            self.extremes_removed_ = extremes_removed(W, Wf)
+            W = Wf
+        return W
+
+    def _signed(self, Fr, pr, U, S, Vt, cols, times, sigma):
+        K = self.K_[cols]
+        l2 = float(self.l2)
+        T = len(Fr)
+        if pr.all():
+            if l2 > 0:
+                C = (Fr @ U) * (S**2 / (S**2 + l2))
+            else:
+                C = Fr @ U
+        else:
+            # each mask pattern on its own rows: coordinates of the least-squares fit in the span
+            C = np.zeros((T, U.shape[1]))
+            pats, inv = np.unique(pr, axis=0, return_inverse=True)
+            inv = inv.reshape(-1)
+            for p_i, pat in enumerate(pats):
+                fr = np.flatnonzero(inv == p_i)
+                if not pat.any():
+                    continue
+                rc = np.flatnonzero(np.repeat(pat, 3))
+                Kp = K[rc]
+                G = Kp.T @ Kp
+                G += (l2 + 1e-12 * max(np.trace(G), 1e-300)) * np.eye(G.shape[0])
+                Wp = np.linalg.solve(G, Kp.T @ Fr[np.ix_(fr, rc)].T).T        # (n, N)
+                C[fr] = Wp @ (Vt.T * S)
+        if sigma > 0 and T >= 8:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                C, _ = denoise_take(C, times, sigma=sigma)
+        return (C / S) @ Vt
+
+    def _nnls(self, Fr, pr, U, cols, times, sigma):
+        K = self.K_[cols]
+        if sigma > 0 and pr.all() and len(Fr) >= 8:
+            C = Fr @ U
+            Cd, _ = denoise_take(C, times, sigma=sigma)
+            Fr = Fr + (Cd - C) @ U.T                                          # denoise inside the span only
+        mask = None if pr.all() else pr
+        Fr = np.where(np.isfinite(Fr), Fr, 0.0) if mask is not None else Fr
+        return solve_nnls(K, Fr, upper=self.upper, l2=self.l2, l1=self.l1, smooth=self.smooth, mask=mask)
+
+    def blend(self, weights: np.ndarray) -> np.ndarray:
+        """Target meshes ``(T, Vt, 3)`` for weights ``(T, len(weight_names_))``: one matrix product."""
+        rig = self._target_rig
+        w = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+        if w.shape[1] != rig.n_shapes:
+            raise InvalidDataError(f"{w.shape[1]} weight columns for {rig.n_shapes} target keyshapes")
+        return (w @ rig.deltas.reshape(rig.n_shapes, -1)).reshape(len(w), -1, 3) + rig.neutral.vertices
+
+    def retarget(self, perf: Performance) -> Performance:
+        """Retarget a take: a weight Performance on :attr:`target_keys`."""
+        w = self.transform(perf)
+        return Performance(perf.times, perf.fps, weights=w, names=list(self.weight_names_),
+                           head_rotation=perf.head_rotation, head_translation=perf.head_translation,
+                           audio=perf.audio, audio_rate=perf.audio_rate, source=perf.source)
+
+    def key_weights(self, weights: np.ndarray) -> np.ndarray:
+        """Weights ``(T, K)`` per keyshape from region weights ``(T, R x K)``.
+
+        Each key's region weights are averaged by how much of the key's target motion lies in each
+        region (what a rig without split shapes, or a Live Link Face CSV, can hold).
+        """
+        w = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+        if self.regions_ is None:
+            return w
+        R, N = len(self.regions_), len(self.names_)
+        rig = self._target_rig
+        mass = np.abs(rig.deltas).sum(axis=(1, 2)).reshape(R, N)
+        share = mass / np.maximum(mass.sum(axis=0, keepdims=True), 1e-300)
+        return (w.reshape(len(w), R, N) * share[None]).sum(axis=1)
+
