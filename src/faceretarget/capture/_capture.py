@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._optional import optional_import
+from ..optional import optional_import
 from ..errors import InputFileError, InvalidDataError
 from ..files import atomic_path, check_output_path
 from ..io import iter_frames, probe_video, read_video_audio, write_video

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._optional import optional_import
+from ..optional import optional_import
 from ..errors import FaceRetargetError, InputFileError
 
 __all__ = ["find_model", "FaceTracker", "N_LANDMARKS", "INSTALL_HINT"]

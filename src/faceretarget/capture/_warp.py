@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._optional import optional_import
+from ..optional import optional_import
 from ..errors import InvalidDataError
 
 __all__ = ["PiecewiseAffineWarp", "rasterize_triangles"]

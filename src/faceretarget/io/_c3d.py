@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._optional import optional_import
+from ..optional import optional_import
 from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError
 from ..files import atomic_path, check_output_path, input_file
 from ..performance import Performance

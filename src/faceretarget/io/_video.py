@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._optional import optional_import
+from ..optional import optional_import
 from ..errors import InputFileError, OutputError
 
 __all__ = ["VideoInfo", "probe_video", "iter_frames", "read_video_audio", "write_video"]

@@ -1,0 +1,204 @@
+"""The package's layers, enforced by walking every import in its source (module level and inside
+functions alike).
+
+core (data model, errors, units, time, head pose, files, model protocol)
+  -> numerics (shared solvers and signal tools) -> render (pictures) -> io (every file format)
+  -> methods (cloning, retarget, style, headmotion, capture; none imports another)
+  -> evaluation (metrics, datasets) -> applications (pipelines) -> cli
+
+A module may import only from its own layer or below; a private module (``pkg._mod``) only from
+inside its package; and no group of modules may import each other in a cycle.  See
+``docs/architecture.md``.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "faceretarget"
+ROOT = "faceretarget"
+
+CORE = {"__init__", "errors", "units", "timebase", "names", "mesh", "rig", "headpose", "performance", "files",
+        "base", "optional"}
+LAYERS = {**{m: 0 for m in CORE}, "numerics": 1, "render": 2, "io": 3,
+          "cloning": 4, "retarget": 4, "style": 4, "headmotion": 4, "capture": 4,
+          "metrics": 5, "datasets": 5, "pipelines": 6, "cli": 7}
+METHODS = {"cloning", "retarget", "style", "headmotion", "capture"}
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(SRC.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _is_package(path: Path) -> bool:
+    return path.name == "__init__.py"
+
+
+def _resolve(module: str, is_pkg: bool, node: ast.ImportFrom) -> list[str]:
+    """Absolute names a ``from ... import ...`` refers to (a submodule when one exists)."""
+    if node.level:
+        base = module.split(".") if is_pkg else module.split(".")[:-1]
+        base = base[: len(base) - (node.level - 1)]
+        target = ".".join(base + ([node.module] if node.module else []))
+    else:
+        target = node.module or ""
+    out = []
+    for alias in node.names:
+        sub = f"{target}.{alias.name}"
+        out.append(sub if _exists(sub) else target)
+    return out
+
+
+def _exists(name: str) -> bool:
+    if not name.startswith(ROOT):
+        return False
+    rel = Path(*name.split(".")[1:]) if "." in name else Path()
+    return (SRC / rel).with_suffix(".py").is_file() or (SRC / rel / "__init__.py").is_file()
+
+
+def import_graph(src: Path = SRC) -> dict[str, set[str]]:
+    """``{module: {faceretarget modules it imports}}`` for every module under ``src``."""
+    graph: dict[str, set[str]] = {}
+    for path in sorted(src.rglob("*.py")):
+        mod = _module_name(path)
+        deps: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, ast.Import):
+                deps.update(a.name for a in node.names if a.name.split(".")[0] == ROOT)
+            elif isinstance(node, ast.ImportFrom):
+                deps.update(d for d in _resolve(mod, _is_package(path), node) if d.split(".")[0] == ROOT)
+        deps.discard(mod)
+        graph[mod] = deps
+    return graph
+
+
+def unit_of(module: str) -> str:
+    """The layer unit of a module: the subpackage, or the core module's name."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def layer_violations(graph: dict[str, set[str]]) -> list[str]:
+    bad = []
+    for mod, deps in graph.items():
+        u = unit_of(mod)
+        if u not in LAYERS:
+            bad.append(f"{mod}: not in any layer (add it to LAYERS and docs/architecture.md)")
+            continue
+        for d in deps:
+            v = unit_of(d)
+            if v not in LAYERS:
+                continue
+            if LAYERS[v] > LAYERS[u]:
+                bad.append(f"{mod} (layer {LAYERS[u]}) imports {d} (layer {LAYERS[v]})")
+            elif u in METHODS and v in METHODS and u != v:
+                bad.append(f"{mod} imports {d}: methods must not import each other")
+    return sorted(bad)
+
+
+def private_violations(graph: dict[str, set[str]]) -> list[str]:
+    """A private module ``faceretarget.pkg._mod`` (or a private core module) used outside its package."""
+    bad = []
+    for mod, deps in graph.items():
+        for d in deps:
+            parts = d.split(".")
+            priv = [i for i, p in enumerate(parts) if p.startswith("_") and not p.startswith("__")]
+            if not priv:
+                continue
+            owner = ".".join(parts[: priv[0]])
+            if not (mod == owner or mod.startswith(owner + ".")) or owner == ROOT:
+                bad.append(f"{mod} imports the private module {d}")
+    return sorted(bad)
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle (a list of modules, first repeated at the end), or None."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(n: str) -> list[str] | None:
+        state[n] = 1
+        stack.append(n)
+        for m in sorted(graph.get(n, ())):
+            if state.get(m) == 1:
+                return stack[stack.index(m):] + [m]
+            if state.get(m) is None:
+                c = visit(m)
+                if c:
+                    return c
+        stack.pop()
+        state[n] = 2
+        return None
+
+    for n in sorted(graph):
+        if state.get(n) is None:
+            c = visit(n)
+            if c:
+                return c
+    return None
+
+
+def unit_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """Subpackages and core modules as nodes (a package's own modules folded into it)."""
+    g: dict[str, set[str]] = {}
+    for mod, deps in graph.items():
+        u = unit_of(mod)
+        g.setdefault(u, set()).update(unit_of(d) for d in deps if unit_of(d) != u)
+    return g
+
+
+def module_graph_without_package_inits(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """Module graph with the edges into a package's own ``__init__`` removed (its re-exports), so a
+    cycle here is a cycle between real modules."""
+    pkgs = {m for m in graph if (SRC.parent / Path(*m.split("."))).is_dir()}
+    g = {}
+    for mod, deps in graph.items():
+        g[mod] = {d for d in deps if not (d in pkgs and mod.startswith(d + "."))}
+    return g
+
+
+@pytest.fixture(scope="module")
+def graph():
+    return import_graph()
+
+
+def test_every_module_is_in_a_layer_and_imports_only_downwards(graph):
+    assert len(graph) > 60
+    assert layer_violations(graph) == []
+
+
+def test_no_private_module_is_imported_from_outside_its_package(graph):
+    assert private_violations(graph) == []
+
+
+def test_no_import_cycle_between_layers_or_modules(graph):
+    assert find_cycle(unit_graph(graph)) is None
+    assert find_cycle(module_graph_without_package_inits(graph)) is None
+
+
+def test_the_checks_catch_what_they_are_for(graph):
+    """A reintroduced cloning <-> retarget cycle, a method reaching into another, a private import
+    across packages and a core module importing a method are all reported."""
+    g = {k: set(v) for k, v in graph.items()}
+    g["faceretarget.cloning._keysets"].add("faceretarget.retarget._retargeter")
+    g["faceretarget.retarget._retargeter"].add("faceretarget.cloning._features")
+    g["faceretarget.performance"].add("faceretarget.style")
+    bad = layer_violations(g) + private_violations(g)
+    assert any("methods must not import each other" in b for b in bad)
+    assert any(b.startswith("faceretarget.performance (layer 0) imports faceretarget.style") for b in bad)
+    assert any("private module faceretarget.cloning._features" in b for b in bad)
+    assert find_cycle(unit_graph(g)) is not None
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_relative_imports_resolve_to_real_modules(graph):
+    missing = sorted(f"{m} -> {d}" for m, deps in graph.items() for d in deps if not _exists(d))
+    assert missing == []
