@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..optional import optional_import
 from ..errors import InputFileError, InvalidDataError
 from ..files import atomic_path, check_output_path
 from ..io import iter_frames, probe_video, read_video_audio, write_video
 from ..numerics import runs
+from ..optional import optional_import
 from ..performance import Performance
 from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
 from ._pose import matrix_to_pose, pose_to_matrix

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..optional import optional_import
 from ..errors import FaceRetargetError, InputFileError
+from ..optional import optional_import
 
 __all__ = ["find_model", "FaceTracker", "N_LANDMARKS", "INSTALL_HINT"]
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..optional import optional_import
 from ..errors import InvalidDataError
+from ..optional import optional_import
 
 __all__ = ["PiecewiseAffineWarp", "rasterize_triangles"]
 

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..optional import optional_import
 from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError
 from ..files import atomic_path, check_output_path, input_file
+from ..optional import optional_import
 from ..performance import Performance
 
 __all__ = ["read_c3d", "write_c3d"]

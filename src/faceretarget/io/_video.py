@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..optional import optional_import
 from ..errors import InputFileError, OutputError
+from ..optional import optional_import
 
 __all__ = ["VideoInfo", "probe_video", "iter_frames", "read_video_audio", "write_video"]
 
