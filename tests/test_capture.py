@@ -18,13 +18,12 @@ from faceretarget.capture import (
     calibrate_neutral,
     fill_gaps,
     find_model,
-    matrix_to_pose,
     neutral_baseline,
     one_euro,
-    pose_to_matrix,
     procrustes_align,
 )
 from faceretarget.errors import FaceRetargetError, InputFileError, InvalidDataError
+from faceretarget.headpose import HeadPose
 from faceretarget.names import ARKIT_NAMES
 
 VIDEOS = ("WDA_AOC_000.mp4", "WDA_KatieHill_000.mp4")
@@ -102,25 +101,20 @@ def test_neutral_calibration():
         neutral_baseline(w, frames=(2, 9))
 
 
-def test_yaw_pitch_roll_against_scipy():
+def test_live_link_face_angles_against_scipy():
     rng = np.random.default_rng(0)
     ypr = rng.uniform([-1.2, -0.6, -1.0], [1.2, 0.6, 1.0], (200, 3))
     # convention: R = Ry(yaw) Rx(-pitch) Rz(roll), intrinsic
     R = Rotation.from_euler("YXZ", ypr * [1, -1, 1]).as_matrix()
-    M = np.zeros((200, 4, 4))
-    M[:, :3, :3] = R * 1.3  # MediaPipe's matrix may carry a scale: removed
-    M[:, :3, 3] = rng.normal(0, 10, (200, 3))
-    M[:, 3, 3] = 1
-    rot, tr = matrix_to_pose(M)
-    np.testing.assert_allclose(rot, ypr, atol=1e-9)
-    np.testing.assert_allclose(tr, M[:, :3, 3])
-    np.testing.assert_allclose(pose_to_matrix(ypr)[:, :3, :3], R, atol=1e-12)
+    pose = HeadPose.from_matrix(R)
+    np.testing.assert_allclose(pose.to_livelinkface(), ypr, atol=1e-9)
+    np.testing.assert_allclose(HeadPose.from_livelinkface(ypr).as_matrix(), R, atol=1e-12)
     # signs: a turn to the performer's left moves the nose (+z) toward +x (image right)
-    nose = pose_to_matrix(np.array([0.3, 0, 0]))[:3, :3] @ [0, 0, 1]
+    nose = HeadPose.from_livelinkface([0.3, 0, 0]).as_matrix()[0] @ [0, 0, 1]
     assert nose[0] > 0
     # looking up (pitch > 0) moves the nose up (+y)
-    assert (pose_to_matrix(np.array([0, 0.3, 0]))[:3, :3] @ [0, 0, 1])[1] > 0
-    assert np.isnan(matrix_to_pose(np.full((4, 4), np.nan))[0]).all()
+    assert (HeadPose.from_livelinkface([0, 0.3, 0]).as_matrix()[0] @ [0, 0, 1])[1] > 0
+    assert np.isnan(HeadPose.from_matrix(np.full((1, 3, 3), np.nan)).to_livelinkface()).all()
 
 
 def test_procrustes_recovers_a_similarity():
@@ -180,7 +174,7 @@ def test_appearance_model_exact_with_all_variance_and_round_trip(tmp_path):
     pytest.importorskip("cv2")
     frames, lms = _synthetic_faces()
     m = AppearanceModel(shape_variance=1.0, texture_variance=1.0, width=60, points=np.arange(20)).fit(frames, lms)
-    vec = m.encode(frames, lms)
+    vec = m.transform(frames, lms)
     assert vec.shape == (24, len(m.names_)) and m.names_[0] == "shape0"
     assert any(n.startswith("tex_r") for n in m.names_) and any(n.startswith("tex_b") for n in m.names_)
     ev = m.evaluate(frames, lms)
@@ -199,12 +193,12 @@ def test_appearance_model_exact_with_all_variance_and_round_trip(tmp_path):
     # save / load
     p = m.save(tmp_path / "model.npz")
     m2 = AppearanceModel.load(p)
-    np.testing.assert_allclose(m2.encode(frames, lms), vec, atol=1e-4)
+    np.testing.assert_allclose(m2.transform(frames, lms), vec, atol=1e-4)
     assert m2.names_ == m.names_
-    img = m2.reconstruct(vec[:2])
+    img = m2.inverse_transform(vec[:2])
     pad = m.width // 8
     assert img.shape == (2, m.warp_.shape[0] + 2 * pad, m.warp_.shape[1] + 2 * pad, 3) and img.dtype == np.uint8
-    assert img.max() > 0 and m2.reconstruct(vec[:1], shape_free=True).shape[1:3] == m.warp_.shape
+    assert img.max() > 0 and m2.inverse_transform(vec[:1], shape_free=True).shape[1:3] == m.warp_.shape
     perf = m.to_performance(vec, np.arange(24) / 25.0)
     assert perf.kind == "weights" and perf.names == m.names_
     with pytest.raises(InputFileError):
@@ -215,15 +209,17 @@ def _fake_capture(T=60, seed=6):
     rng = np.random.default_rng(seed)
     names = [n for n in ARKIT_NAMES if n != "tongueOut"]
     rot = rng.normal(0, 0.1, (T, 3))
-    tr = rng.normal(0, 1, (T, 3)) + [0, 0, -40]
+    tr = (rng.normal(0, 1, (T, 3)) + [0, 0, -40]) / 100.0
     det = np.ones(T, bool)
     det[[7, 8]] = False
     det[20:30] = False
+    rot[~det] = np.nan
+    tr[~det] = np.nan
     cap = Capture(times=np.arange(T) / 25.0, fps=25.0, image_size=(64, 48),
                   landmarks=rng.uniform(0, 40, (T, 478, 3)), weights=rng.uniform(0, 1, (T, 51)), names=names,
-                  head_rotation=rot, head_translation=tr, matrices=pose_to_matrix(rot, tr), detected=det,
+                  head=HeadPose.from_livelinkface(rot, tr), detected=det,
                   interpolated=np.zeros(T, bool), source="fake.mp4")
-    for a in (cap.landmarks, cap.weights, cap.head_rotation, cap.head_translation):
+    for a in (cap.landmarks, cap.weights):
         a[~det] = np.nan
     return cap
 
@@ -242,7 +238,7 @@ def test_capture_postprocess_performance_csv_and_npz(tmp_path):
     np.testing.assert_allclose(back.times, perf.times - perf.times[0], atol=1e-3)
     idx = [back.names.index(n) for n in cap.names]
     np.testing.assert_allclose(back.weights[:, idx], perf.weights, atol=1e-9)
-    np.testing.assert_allclose(back.head_rotation, perf.head_rotation, atol=1e-9)
+    np.testing.assert_allclose(back.head.to_livelinkface(), perf.head.to_livelinkface(), atol=1e-9)
     assert back.weights[:, back.names.index("tongueOut")].max() == 0
     q = cap.save_npz(tmp_path / "take.npz")
     c2 = Capture.load_npz(q)
@@ -318,9 +314,10 @@ def test_tracking_the_shared_videos(tracked):
         w = raw.weights[ok]
         assert (w >= 0).all() and (w <= 1).all()
         assert w[:, raw.names.index("jawOpen")].max() > 0.2  # they talk
-        yaw = np.degrees(raw.head_rotation[ok, 0])
+        yaw = np.degrees(raw.head.to_livelinkface()[ok, 0])
         assert np.abs(yaw).max() < 30 and yaw.std() > 0.5, v  # facing the camera, moving a little
-        assert (raw.head_translation[ok, 2] < -10).all() and (raw.head_translation[ok, 2] > -100).all()
+        z = raw.head.translation[ok, 2]
+        assert (z < -0.10).all() and (z > -1.0).all()          # 10 cm to 1 m in front of the camera
         assert raw.audio is not None and raw.audio_rate == 16000 and abs(raw.audio.size / 16000 - 8.0) < 0.1
 
 
@@ -335,7 +332,7 @@ def test_capture_csv_reads_back(tracked, tmp_path):
     assert back.n_frames == perf.n_frames and abs(back.fps - 25.0) < 1e-6
     idx = [back.names.index(n) for n in cap.names]
     np.testing.assert_allclose(back.weights[:, idx], perf.weights, atol=1e-9)  # %.10f in the CSV
-    np.testing.assert_allclose(back.head_rotation, perf.head_rotation, atol=1e-9)
+    np.testing.assert_allclose(back.head.to_livelinkface(), perf.head.to_livelinkface(), atol=1e-9)
 
 
 def test_frames_without_a_face_are_flagged_and_short_gaps_filled(video_dir, tmp_path, capsys):
@@ -372,11 +369,12 @@ def test_head_pose_agrees_with_the_landmarks(tracked):
     L = raw.landmarks[ok]
     # where the nose tip sits between the cheeks follows the yaw (nose to image right = yaw > 0)
     rel = (L[:, 1, 0] - L[:, 234, 0]) / (L[:, 454, 0] - L[:, 234, 0]) - 0.5
-    assert np.corrcoef(rel, raw.head_rotation[ok, 0])[0, 1] > 0.8
+    llf = raw.head.to_livelinkface()
+    assert np.corrcoef(rel, llf[ok, 0])[0, 1] > 0.8
     # in-plane tilt of the eye line follows the roll
     d = L[:, 263, :2] - L[:, 33, :2]
     tilt = -np.arctan2(d[:, 1], d[:, 0])  # counter-clockwise on screen is positive
-    assert np.corrcoef(tilt, raw.head_rotation[ok, 2])[0, 1] > 0.8
+    assert np.corrcoef(tilt, llf[ok, 2])[0, 1] > 0.8
 
 
 def _run(argv):

@@ -18,20 +18,18 @@ from scipy.spatial.transform import Rotation
 from faceretarget.errors import InputFileError, InvalidDataError
 from faceretarget.headmotion import (
     HeadMotionDatabase,
-    HeadTake,
     PathWeights,
     blend_segments,
     extract_pitch,
-    head_motion_from_bvh,
-    head_motion_from_smplx,
-    mirror_head_motion,
     segment_speech,
     viterbi,
 )
 from faceretarget.headmotion._viterbi import path_cost
-from faceretarget.io import head_quaternions, read_audio
+from faceretarget.headpose import HeadPose, mirror_yxz
+from faceretarget.io import read_audio, read_bvh_head, read_marker_head, read_smplx_head
 from faceretarget.io._bvh import bvh_chain, make_head_bvh, read_bvh, write_bvh
 from faceretarget.metrics import angular_speed, beat_alignment
+from faceretarget.performance import Performance
 
 REPO = Path(__file__).resolve().parents[1]
 SR = 16000
@@ -72,7 +70,7 @@ def _syllables(seconds: float, seed: int) -> list[tuple[float, float]]:
     return out
 
 
-def _synthetic_take(seconds: float = 24.0, seed: int = 1) -> HeadTake:
+def _synthetic_take(seconds: float = 24.0, seed: int = 1) -> Performance:
     """Speech-like audio with head motion that moves at every voiced onset (a nod and a turn)."""
     iv = _syllables(seconds, seed)
     audio = _speech(iv, duration=seconds, seed=seed)
@@ -83,14 +81,15 @@ def _synthetic_take(seconds: float = 24.0, seed: int = 1) -> HeadTake:
         amp = rng.normal(0, 0.05, 3)
         rot += amp * np.exp(-0.5 * ((t - a - 0.12) / 0.08) ** 2)[:, None]
     rot += 0.03 * np.sin(2 * np.pi * 0.3 * t)[:, None] * [1.0, 0.5, 0.3]
-    tr = np.stack([np.sin(t), 0.5 * np.cos(0.7 * t), 0.2 * np.sin(1.3 * t)], axis=1)
-    return HeadTake(audio, SR, rot, FPS, tr, name=f"synthetic{seed}")
+    tr = np.stack([np.sin(t), 0.5 * np.cos(0.7 * t), 0.2 * np.sin(1.3 * t)], axis=1) / 100.0   # metres
+    return Performance(t, FPS, head=HeadPose.from_euler("YXZ", rot, tr), audio=audio, audio_rate=SR,
+                       source=f"synthetic{seed}")
 
 
 @pytest.fixture(scope="module")
 def synth_db():
     take = _synthetic_take()
-    return HeadMotionDatabase(fps=FPS).build([take]), take
+    return HeadMotionDatabase(fps=FPS).fit([take]), take
 
 
 def _rigid_bvh_text(orders: dict[str, str], offsets: dict[str, tuple], T: int, seed: int) -> tuple[str, dict]:
@@ -124,7 +123,7 @@ def test_bvh_head_round_trip(tmp_path):
     rng = np.random.default_rng(0)
     ang = rng.uniform(-80, 80, (50, 3))
     tr = rng.normal(0, 3, (50, 3))
-    out = write_bvh(tmp_path / "h.bvh", make_head_bvh(ang, 30.0, tr))
+    out = write_bvh(tmp_path / "h.bvh", make_head_bvh(HeadPose.from_euler("YXZ", ang, tr / 100.0, degrees=True), 30.0))
     b = read_bvh(out)
     assert b.names == ["Head"] and b.joints[0].channels[3:] == ("Yrotation", "Xrotation", "Zrotation")
     np.testing.assert_allclose(b.motion[:, 3:], ang, atol=1e-6)
@@ -151,9 +150,9 @@ def test_bvh_chain_matches_scipy(tmp_path):
     o = {n: np.array(offsets[n], float) for n in offsets}
     p_exp = o["Neck"] + loc["Neck"].apply(o["Neck1"] + loc["Neck1"].apply(o["Head"]))
     np.testing.assert_allclose(pos, p_exp, atol=1e-9)
-    rot, trans, fps = head_motion_from_bvh(b)
-    np.testing.assert_allclose(Rotation.from_euler("YXZ", rot).as_matrix(), expect, atol=1e-9)
-    np.testing.assert_allclose(trans, p_exp - (o["Neck"] + o["Neck1"] + o["Head"]), atol=1e-9)
+    head = read_bvh_head(b).head
+    np.testing.assert_allclose(head.as_matrix(), expect, atol=1e-9)
+    np.testing.assert_allclose(head.translation * 100.0, p_exp - (o["Neck"] + o["Neck1"] + o["Head"]), atol=1e-9)
     # and the whole file survives a write/read round trip
     b2 = read_bvh(write_bvh(tmp_path / "s2.bvh", b))
     np.testing.assert_allclose(b2.motion, b.motion, atol=1e-6)
@@ -186,23 +185,24 @@ def test_smplx_reading(tmp_path):
     poses[:, 0:3] = rng.normal(0, 1, (T, 3))  # global orientation: must not matter
     np.savez(tmp_path / "a.npz", poses=poses, mocap_frame_rate=np.int32(60))
     np.savez(tmp_path / "b.npz", poses=poses)
-    rot, trans, fps = head_motion_from_smplx(tmp_path / "a.npz", neck_length=10.0)
+    take = read_smplx_head(tmp_path / "a.npz", neck_length=0.1)
     Rn = Rotation.from_rotvec(poses[:, 36:39].astype(float))
     Rh = Rotation.from_rotvec(poses[:, 45:48].astype(float))
-    np.testing.assert_allclose(Rotation.from_euler("YXZ", rot).as_matrix(), (Rn * Rh).as_matrix(), atol=1e-6)
-    np.testing.assert_allclose(trans, Rn.apply([0, 10.0, 0]) - [0, 10.0, 0], atol=1e-5)
-    assert fps == 60.0
-    assert head_motion_from_smplx(tmp_path / "b.npz")[2] == 30.0
+    np.testing.assert_allclose(take.head.as_matrix(), (Rn * Rh).as_matrix(), atol=1e-6)
+    np.testing.assert_allclose(take.head.translation, Rn.apply([0, 0.1, 0]) - [0, 0.1, 0], atol=1e-7)
+    assert take.fps == 60.0
+    assert read_smplx_head(tmp_path / "b.npz").fps == 30.0
     np.savez(tmp_path / "c.npz", other=np.zeros(3))
     with pytest.raises(InputFileError, match="no 'poses'"):
-        head_motion_from_smplx(tmp_path / "c.npz")
+        read_smplx_head(tmp_path / "c.npz")
 
 
 def test_smplx_agrees_with_bvh_on_shared_take(data_dir):
     """The same BEAT take as BVH (Neck>Neck1>Head) and SMPL-X (neck*head): same head motion."""
     base = data_dir / "headmotion" / "beat_2_scott_0_1_1"
-    r1, _, f1 = head_motion_from_bvh(str(base) + ".bvh")
-    r2, _, f2 = head_motion_from_smplx(str(base) + "_smplx.npz")
+    b, s = read_bvh_head(str(base) + ".bvh"), read_smplx_head(str(base) + "_smplx.npz")
+    r1, f1 = b.head.to_euler("YXZ"), b.fps
+    r2, f2 = s.head.to_euler("YXZ"), s.fps
     assert (f1, f2) == (pytest.approx(15.0, rel=1e-5), 30.0)
     t = np.arange(len(r2)) / f2
     r1i = np.stack([np.interp(t, np.arange(len(r1)) / f1, r1[:, k]) for k in range(3)], axis=1)
@@ -215,20 +215,19 @@ def test_mirror():
     rng = np.random.default_rng(2)
     r = rng.uniform(-0.8, 0.8, (30, 3))
     t = rng.normal(size=(30, 3))
-    r2, t2 = mirror_head_motion(*mirror_head_motion(r, t))
+    r2, t2 = mirror_yxz(*mirror_yxz(r, t))
     np.testing.assert_array_equal(r2, r)
     np.testing.assert_array_equal(t2, t)
     # it is the reflection x -> -x applied to the rotation: M R M
     M = np.diag([-1.0, 1.0, 1.0])
     R = Rotation.from_euler("YXZ", r).as_matrix()
-    Rm = Rotation.from_euler("YXZ", mirror_head_motion(r)[0]).as_matrix()
+    Rm = Rotation.from_euler("YXZ", mirror_yxz(r)[0]).as_matrix()
     np.testing.assert_allclose(Rm, M @ R @ M, atol=1e-12)
+    pose = HeadPose.from_euler("YXZ", r, t)
+    np.testing.assert_allclose(pose.mirrored().as_matrix(), M @ R @ M, atol=1e-12)
 
 
 def test_markers_rigid_cluster():
-    from faceretarget.headmotion import head_motion_from_markers
-    from faceretarget.performance import Performance
-
     rng = np.random.default_rng(4)
     T = 60
     cap = rng.normal(0, 60, (6, 3)) + [0, 1500, 0]  # markers on a head, millimetres
@@ -240,10 +239,10 @@ def test_markers_rigid_cluster():
     R = Rotation.from_euler("YXZ", ypr).as_matrix()
     pts = np.einsum("tij,pj->tpi", R, cap - c) + c + move[:, None]
     perf = Performance.from_points(pts, fps=60.0, unit="mm")
-    rot, trans, fps = head_motion_from_markers(perf)
-    np.testing.assert_allclose(rot, ypr, atol=1e-6)
-    np.testing.assert_allclose(trans, move / 10.0, atol=1e-6)  # centimetres
-    assert fps == 60.0
+    take = read_marker_head(perf)
+    np.testing.assert_allclose(take.head.to_euler("YXZ"), ypr, atol=1e-6)
+    np.testing.assert_allclose(take.head.translation, move / 1000.0, atol=1e-9)  # metres
+    assert take.fps == 60.0
 
 
 def test_octave_jumps_and_short_gaps_are_repaired():
@@ -338,19 +337,20 @@ def test_synthesis_length_continuity_determinism(synth_db):
     db, take = synth_db
     assert db.n_segments_ > 40 and db.take_names_ == ["synthetic1", "synthetic1~mirror"]
     new = _speech(_syllables(9.0, seed=11), duration=9.0, seed=11)
-    perf = db.synthesize(new, SR)
+    res = db.transform(new, SR)
+    perf, info = res.take, res.info
     n = int(np.floor(9.0 * FPS + 1e-9)) + 1
-    assert perf.n_frames == n and perf.head_rotation.shape == (n, 3) and perf.head_translation.shape == (n, 3)
+    assert perf.n_frames == n and perf.head.n_frames == n and perf.head.translation.shape == (n, 3)
     assert perf.times[-1] == pytest.approx((n - 1) / FPS)
-    info = db.last_synthesis_
     assert info.joins.size == info.segmentation.n_segments - 1 >= 10
     # continuity: the step across each join is as smooth as the recorded motion
-    data_step = np.percentile(angular_speed(take.rotation, take.fps) / take.fps, 99)
-    v = np.diff(np.degrees(perf.head_rotation), axis=0)
+    data_step = np.percentile(angular_speed(take.head, take.fps) / take.fps, 99)
+    rot = perf.head.to_euler("YXZ")
+    v = np.diff(np.degrees(rot), axis=0)
     j = info.joins[(info.joins >= 2) & (info.joins < n - 1)]
     jump = np.linalg.norm(v[j - 1] - 0.5 * (v[j - 2] + v[j]), axis=1)
     assert jump.max() < 0.5 * data_step, (jump.max(), data_step)
-    assert angular_speed(perf.head_rotation, FPS).max() / FPS < 2.0 * angular_speed(take.rotation, FPS).max() / FPS
+    assert angular_speed(perf.head, FPS).max() / FPS < 2.0 * angular_speed(take.head, FPS).max() / FPS
     # without chaining (the database poses laid end to end) the joins do jump
     raw = np.concatenate([db.motion_[db.seg_frames_[s, 0]:db.seg_frames_[s, 0] + b - a, :3]
                           for s, a, b in zip(info.path, info.start_frames, np.r_[info.start_frames[1:], n],
@@ -360,44 +360,43 @@ def test_synthesis_length_continuity_determinism(synth_db):
                                                                    + vr[j - info.start_frames[0]]), axis=1)
     assert jr.max() > 3 * jump.max()
     # deterministic by default, different with a seed, reproducible per seed
-    again = db.synthesize(new, SR)
-    np.testing.assert_array_equal(again.head_rotation, perf.head_rotation)
-    s1 = db.synthesize(new, SR, seed=1)
-    assert not np.allclose(s1.head_rotation, perf.head_rotation)
-    np.testing.assert_array_equal(db.synthesize(new, SR, seed=1).head_rotation, s1.head_rotation)
+    def rot_of(**kw):
+        return db.transform(new, SR, **kw).take.head.to_euler("YXZ")
+
+    np.testing.assert_array_equal(rot_of(), rot)
+    s1 = rot_of(seed=1)
+    assert not np.allclose(s1, rot)
+    np.testing.assert_array_equal(rot_of(seed=1), s1)
     # controls
-    still = db.synthesize(new, SR, amplitude=0.0)
-    np.testing.assert_allclose(still.head_rotation, np.broadcast_to(db.mean_pose_[:3], (n, 3)), atol=1e-12)
-    half = db.synthesize(new, SR, amplitude=0.5)
-    np.testing.assert_allclose(half.head_rotation - db.mean_pose_[:3],
-                               0.5 * (perf.head_rotation - db.mean_pose_[:3]), atol=1e-12)
-    off = db.synthesize(new, SR, rotation=False, translation=False)
-    assert off.head_translation is None and not off.head_rotation.any()
+    np.testing.assert_allclose(rot_of(amplitude=0.0), np.broadcast_to(db.mean_pose_[:3], (n, 3)), atol=1e-12)
+    np.testing.assert_allclose(rot_of(amplitude=0.5) - db.mean_pose_[:3], 0.5 * (rot - db.mean_pose_[:3]),
+                               atol=1e-12)
+    off = db.transform(new, SR, rotation=False, translation=False).take.head
+    assert off.translation is None and not off.to_euler("YXZ").any()
 
 
 def test_synthesis_follows_the_database_take(synth_db):
     """Fed its own audio, the search mostly replays the take's own (or mirrored) segments in order."""
     db, take = synth_db
-    perf = db.synthesize(take.audio, take.rate)
-    path = db.last_synthesis_.path
+    res = db.transform(take)
+    path = res.info.path
     consecutive = np.mean(db.seg_next_[path[:-1]] == path[1:])
     assert consecutive > 0.5, consecutive
-    assert np.abs(np.degrees(perf.head_rotation)).max() < 60
+    assert np.abs(res.take.head.to_euler("YXZ", degrees=True)).max() < 60
 
 
 def test_no_voice_and_save_load(synth_db, tmp_path):
     db, _ = synth_db
     with pytest.raises(InvalidDataError, match="no voiced speech"):
-        db.synthesize(np.zeros(SR, np.float32), SR)
+        db.transform(np.zeros(SR, np.float32), SR)
     out = db.save(tmp_path / "db.npz")
     db2 = HeadMotionDatabase.load(out)
     assert db2.weights == db.weights and db2.n_segments_ == db.n_segments_
     new = _speech(_syllables(4.0, seed=12), duration=4.0, seed=12)
-    np.testing.assert_allclose(db2.synthesize(new, SR).head_rotation, db.synthesize(new, SR).head_rotation)
-    with np.load(out) as z:
-        assert str(z["format"]) == "faceretarget-headmotion" and z["motion"].shape[1] == 6
+    np.testing.assert_array_equal(db2.transform(new, SR).take.head.quaternions,
+                                  db.transform(new, SR).take.head.quaternions)
     np.savez(tmp_path / "other.npz", x=np.zeros(2))
-    with pytest.raises(InputFileError, match="not a head-motion database"):
+    with pytest.raises(InputFileError, match="not a faceretarget model file"):
         HeadMotionDatabase.load(tmp_path / "other.npz")
     weights = PathWeights(velocity=0.0, reuse=5.0)
     assert HeadMotionDatabase(weights=weights).weights.reuse == 5.0
@@ -504,10 +503,11 @@ def test_gltf_head_animation_round_trip(tmp_path):
     rng = np.random.default_rng(9)
     T = 40
     ypr = np.cumsum(rng.normal(0, 0.05, (T, 3)), axis=0)
-    q = head_quaternions(ypr)
     tr = rng.normal(0, 0.01, (T, 3))
+    pose = HeadPose.from_euler("YXZ", ypr, tr)
+    q = pose.as_quat()
     times = 2.0 + np.arange(T) / 30
-    out = write_glb_head(tmp_path / "h.glb", times, q, tr)
+    out = write_glb_head(tmp_path / "h.glb", times, pose)
     g = pygltflib.GLTF2().load(str(out))
     node = next(i for i, n in enumerate(g.nodes) if n.name == "head")
     blob = g.binary_blob()
@@ -528,19 +528,18 @@ def test_gltf_head_animation_round_trip(tmp_path):
     np.testing.assert_allclose(np.abs((qr * q).sum(axis=1)), 1.0, atol=1e-6)
     np.testing.assert_allclose(Rotation.from_quat(qr).as_euler("YXZ"), ypr, atol=1e-5)
     np.testing.assert_allclose(acc(ch["translation"].output), tr, atol=1e-7)
-    _, q2, tr2 = read_glb_head(out)
-    np.testing.assert_allclose(q2, qr)
+    _, h2 = read_glb_head(out)
+    np.testing.assert_allclose(h2.as_quat(), qr / np.linalg.norm(qr, axis=1, keepdims=True))
     _validate(out)
     # combined with a face: the face node turns with its parent 'head'; weights unchanged
     rig = make_demo_character("ada")
     w = rng.random((T, rig.n_shapes))
-    both = write_glb(tmp_path / "face.glb", rig, w, times, head_rotation=q, head_translation=tr,
-                     head_pivot=(0.0, -0.1, 0.0))
+    both = write_glb(tmp_path / "face.glb", rig, w, times, head=pose, head_pivot=(0.0, -0.1, 0.0))
     names, tw, w2 = read_glb_weights(both)
     np.testing.assert_allclose(w2, w, atol=1e-6)
-    th, q3, tr3 = read_glb_head(both)
-    np.testing.assert_allclose(np.abs((q3 * q).sum(axis=1)), 1.0, atol=1e-6)
-    np.testing.assert_allclose(tr3, tr + [0.0, -0.1, 0.0], atol=1e-6)
+    th, h3 = read_glb_head(both)
+    np.testing.assert_allclose(np.abs((h3.as_quat() * q).sum(axis=1)), 1.0, atol=1e-6)
+    np.testing.assert_allclose(h3.translation, tr + [0.0, -0.1, 0.0], atol=1e-6)
     g2 = pygltflib.GLTF2().load(str(both))
     head = next(n for n in g2.nodes if n.name == "head")
     assert head.children == [0] and g2.scenes[0].nodes == [g2.nodes.index(head)]
@@ -578,12 +577,13 @@ def test_cli_build_and_synth(data_dir, tmp_path, capsys):
     rad = np.radians(b.motion[:, 3:])
     llf = read_livelinkface(outs["csv"])
     # the CSV holds radians, with Live Link Face's chin-up-positive HeadPitch (as capture writes it)
-    np.testing.assert_allclose(llf.head_rotation, rad * [1, -1, 1], atol=1e-6)
+    np.testing.assert_allclose(llf.head.to_livelinkface(), rad * [1, -1, 1], atol=1e-6)
     from faceretarget.io._gltf import read_glb_head
 
-    _, q, tr = read_glb_head(outs["glb"])
-    np.testing.assert_allclose(np.abs((q * head_quaternions(rad)).sum(axis=1)), 1.0, atol=1e-5)
-    np.testing.assert_allclose(tr, b.motion[:, :3] / 100, atol=1e-6)  # cm -> m
+    _, h = read_glb_head(outs["glb"])
+    np.testing.assert_allclose(np.abs((h.as_quat() * HeadPose.from_euler("YXZ", rad).as_quat()).sum(axis=1)), 1.0,
+                               atol=1e-5)
+    np.testing.assert_allclose(h.translation, b.motion[:, :3] / 100, atol=1e-6)  # cm -> m
     _validate(outs["glb"])
     # seeds and switches
     o2 = tmp_path / "h2.bvh"
@@ -603,7 +603,7 @@ def test_cli_errors(data_dir, tmp_path, capsys):
     assert rc == 2 and f"{missing}: file not found" in err and len(err.strip().splitlines()) == 1
     # a database from a synthetic take, then a WAV with no voice
     take = _synthetic_take(8.0, seed=2)
-    db = HeadMotionDatabase().build([take]).save(tmp_path / "db.npz")
+    db = HeadMotionDatabase().fit([take]).save(tmp_path / "db.npz")
     silent = tmp_path / "silent.wav"
     rng = np.random.default_rng(0)
     wavfile.write(silent, SR, (rng.normal(0, 0.01, 2 * SR) * 32767).astype(np.int16))
@@ -615,9 +615,9 @@ def test_cli_errors(data_dir, tmp_path, capsys):
     assert rc == 2 and "unknown output format" in capsys.readouterr().err
     rc = _cli(["headmotion", "synth", "--db", str(d / "beat_2_scott_0_1_1.bvh"), "--audio", str(silent),
                "--out", str(tmp_path / "h.bvh")])
-    assert rc == 2 and "not an .npz archive" in capsys.readouterr().err
+    assert rc == 2 and "not a readable .npz file" in capsys.readouterr().err
     motion = tmp_path / "take.bvh"
-    write_bvh(motion, make_head_bvh(np.zeros((10, 3)), 30.0))
+    write_bvh(motion, make_head_bvh(HeadPose.identity(10), 30.0))
     before = motion.read_bytes()
     rc = _cli(["headmotion", "build", "--take", str(silent), str(motion), "--out", str(motion)])
     assert rc == 2 and "refusing to write over the input" in capsys.readouterr().err

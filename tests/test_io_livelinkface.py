@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from faceretarget.errors import InputFileError, InvalidDataError
+from faceretarget.headpose import HeadPose
 from faceretarget.io import read_livelinkface, write_livelinkface
 from faceretarget.io._livelinkface import EYE_COLUMNS, HEAD_COLUMNS, LLF_NAMES
 from faceretarget.mesh import Mesh
@@ -61,7 +62,7 @@ def test_real_takes(data_dir, name):
     assert perf.fps == pytest.approx(fps, rel=0.01)
     assert perf.names == list(ARKIT_NAMES)
     assert perf.times[0] == 0.0 and np.all(np.diff(perf.times) > 0)
-    assert perf.head_rotation.shape == (n, 3) and info.eye_rotation.shape == (n, 6)
+    assert perf.head.n_frames == n and info.eye_rotation.shape == (n, 6)
     assert info.timecode_rate == 60
     assert 0.0 <= perf.weights.min() and perf.weights.max() < 1.2
     if name == "apfel.csv":  # 35 rows where the app lost the face, one warning for all of them
@@ -106,7 +107,7 @@ def test_write_read_round_trip(tmp_path):
     T = 50
     times = np.arange(T) / 30.0 + 0.004  # sub-frame offsets
     perf = Performance.from_weights(rng.random((T, 52)), ARKIT_NAMES, times=times,
-                                    head_rotation=rng.normal(size=(T, 3)) * 0.1)
+                                    head=HeadPose.from_livelinkface(rng.normal(size=(T, 3)) * 0.1))
     out = write_livelinkface(tmp_path / "rt.csv", perf, start="10:00:00:00.000")
     text = out.read_text().splitlines()
     assert text[0] == HEADER and text[1].startswith("10:00:00:00.000,61,")
@@ -116,7 +117,7 @@ def test_write_read_round_trip(tmp_path):
     assert back.names == list(ARKIT_NAMES)
     np.testing.assert_allclose(back.weights, perf.weights, atol=1e-9)
     np.testing.assert_allclose(back.times, perf.times - perf.times[0], atol=1e-6)
-    np.testing.assert_allclose(back.head_rotation, perf.head_rotation, atol=1e-9)
+    np.testing.assert_allclose(back.head.to_livelinkface(), perf.head.to_livelinkface(), atol=1e-9)
     assert back.fps == pytest.approx(30.0)
 
 

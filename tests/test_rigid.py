@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from faceretarget.errors import InvalidDataError
+from faceretarget.errors import DataWarning, InvalidDataError, NotFittedError
 from faceretarget.io import read_c3d
 from faceretarget.numerics import RigidAligner, fit_rigid, select_rigid_markers
 from faceretarget.performance import Performance
@@ -50,28 +50,29 @@ def _angle_deg(Ra, Rb):
 def test_recovers_known_motion(reference):
     perf, R, t, h = _synthetic()
     al = RigidAligner(n_auto=N_RIGID, reference=reference)
-    out = al.fit_transform(perf)
+    res = al.fit_transform(perf)
+    out = res.take
     assert al.subset_.tolist() == list(range(N_RIGID))  # the skull markers, not the moving face
     assert al.subset_labels_ == [f"skull{i}" for i in range(N_RIGID)]
-    assert _angle_deg(al.rotations_, R).max() < 0.1
-    # translations_ is the move of the subset centroid c (origin-free: 0.1 degree at the capture
+    assert _angle_deg(res.rotations, R).max() < 0.1
+    # translations is the move of the subset centroid c (origin-free: 0.1 degree at the capture
     # origin 0.8 m away would be 1.4 mm)
     c = al.center_
-    assert np.abs(al.translations_ - (t + np.einsum("tij,j->ti", R, c) - c)).max() < 0.01
-    M = al.pose_matrices()
-    np.testing.assert_allclose(M[:, :3, :3], al.rotations_)
+    assert np.abs(res.translations - (t + np.einsum("tij,j->ti", R, c) - c)).max() < 0.01
+    M = res.pose_matrices()
+    np.testing.assert_allclose(M[:, :3, :3], res.rotations)
     world = np.einsum("tij,pj->tpi", M[:, :3, :3], h[0, :N_RIGID]) + M[:, None, :3, 3]
     assert np.abs(world - perf.points[:, :N_RIGID]).max() < 0.01
     # head coordinates: skull markers still, facial markers keep only their own motion
     assert np.abs(out.points - h).max() < 0.01
-    np.testing.assert_allclose(out.head_rotation, Rotation.from_matrix(R).as_euler("YXZ", degrees=True),
-                               atol=0.1)
-    np.testing.assert_allclose(out.head_translation, al.translations_)
+    np.testing.assert_allclose(out.head.to_euler("YXZ", degrees=True),
+                               Rotation.from_matrix(R).as_euler("YXZ", degrees=True), atol=0.1)
+    np.testing.assert_allclose(out.head.translation, res.translations / 1000.0)  # mm -> m
     assert out.labels == perf.labels and out.unit == "mm" and out.fps == 60.0
     # the residual reports the jitter of the subset (0.002 mm per coordinate)
-    assert al.residual_.shape == (perf.n_frames,)
-    assert np.median(al.residual_[1:]) < 0.01
-    assert "RMS residual median" in al.report("mm")
+    assert res.residual.shape == (perf.n_frames,)
+    assert np.median(res.residual[1:]) < 0.01
+    assert "RMS residual median" in res.report("mm")
 
 
 def test_head_rotation_angles_name_the_axes():
@@ -81,8 +82,14 @@ def test_head_rotation_angles_name_the_axes():
     for k, axis in enumerate("YXZ", start=1):  # yaw about Y (up), pitch about X, roll about Z
         moved[k] = still[k] @ Rotation.from_euler(axis, 10, degrees=True).as_matrix().T
     out = RigidAligner(subset=list(range(N_RIGID)), reference=0).fit_transform(
-        Performance.from_points(moved, fps=60))
-    np.testing.assert_allclose(out.head_rotation, [[0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 10]],
+        Performance.from_points(moved, fps=60)).take
+    np.testing.assert_allclose(out.head.to_euler("YXZ", degrees=True),
+                               [[0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 10]], atol=1e-9)
+    # a Z-up capture (+Y forward, +X right) gives the same pose in the package's axes
+    A = np.array([[-1.0, 0, 0], [0, 0, 1], [0, 1, 0]])             # capture -> package axes
+    zup = Performance.from_points(moved @ A, fps=60)                # A is its own inverse
+    out_z = RigidAligner(subset=list(range(N_RIGID)), reference=0, axes=A).fit_transform(zup).take
+    np.testing.assert_allclose(out_z.head.to_euler("YXZ", degrees=True), out.head.to_euler("YXZ", degrees=True),
                                atol=1e-9)
 
 
@@ -91,14 +98,14 @@ def test_user_subset_by_label_or_index_and_other_take():
     by_label = RigidAligner(subset=["skull0", "skull2", "skull3", "skull5"]).fit(perf)
     by_index = RigidAligner(subset=[0, 2, 3, -7]).fit(perf)  # -7 is marker 5 of 12
     assert by_label.subset_.tolist() == by_index.subset_.tolist() == [0, 2, 3, 5]
-    np.testing.assert_allclose(by_label.rotations_, by_index.rotations_)
+    np.testing.assert_allclose(by_label.transform(perf).rotations, by_index.transform(perf).rotations)
     # a take with the markers in another order is matched by label
     order = np.random.default_rng(3).permutation(perf.points.shape[1])
     other = Performance(perf.times, perf.fps, points=perf.points[:, order],
                         labels=[perf.labels[i] for i in order], unit="mm")
-    out = by_label.transform(other)
-    np.testing.assert_allclose(by_label.rotations_, by_index.rotations_, atol=1e-9)
-    np.testing.assert_allclose(out.points, h[:, order], atol=0.03)  # 4 markers: noisier
+    res = by_label.transform(other)
+    np.testing.assert_allclose(res.rotations, by_index.transform(perf).rotations, atol=1e-9)
+    np.testing.assert_allclose(res.take.points, h[:, order], atol=0.03)  # 4 markers: noisier
 
 
 def test_missing_markers():
@@ -109,19 +116,20 @@ def test_missing_markers():
     X[50, 8] = np.nan  # a facial marker gap stays a gap
     gappy = Performance(perf.times, perf.fps, points=X, labels=perf.labels, unit="mm", source="gappy.c3d")
     al = RigidAligner(n_auto=N_RIGID)
-    with pytest.warns(UserWarning, match=r"gappy.c3d: 4 frame\(s\) have fewer than 3 usable of the 6 rigid "
+    with pytest.warns(DataWarning, match=r"gappy.c3d: 4 frame\(s\) have fewer than 3 usable of the 6 rigid "
                                          r"markers, frame\(s\) 40-43"):
-        out = al.fit_transform(gappy)
+        res = al.fit_transform(gappy)
+    out = res.take
     assert al.subset_.tolist() == list(range(N_RIGID))
     good = np.ones(perf.n_frames, bool)
     good[40:44] = False
-    assert np.isnan(al.rotations_[~good]).all() and np.isnan(al.residual_[~good]).all()
-    assert np.isnan(out.points[~good]).all() and np.isnan(out.head_rotation[~good]).all()
-    assert _angle_deg(al.rotations_[good], R[good]).max() < 0.1
+    assert np.isnan(res.rotations[~good]).all() and np.isnan(res.residual[~good]).all()
+    assert np.isnan(out.points[~good]).all() and not out.head.valid[~good].any() and out.head.valid[good].all()
+    assert _angle_deg(res.rotations[good], R[good]).max() < 0.1
     c = al.center_
     d_true = t + np.einsum("tij,j->ti", R, c) - c
-    assert np.abs(al.translations_[good] - d_true[good]).max() < 0.01
-    assert al.n_used_[25] == 5 and al.n_used_[41] == 2
+    assert np.abs(res.translations[good] - d_true[good]).max() < 0.01
+    assert res.n_used[25] == 5 and res.n_used[41] == 2
     finite = np.isfinite(X).all(axis=2) & good[:, None]
     assert np.abs(out.points[finite] - h[finite]).max() < 0.01
     assert np.isnan(out.points[50, 8]).all()
@@ -133,12 +141,12 @@ def test_no_complete_frame():
     for k in range(len(X)):  # every frame misses one rigid marker
         X[k, k % N_RIGID] = np.nan
     gappy = Performance(perf.times, perf.fps, points=X, labels=perf.labels)
-    al = RigidAligner(subset=list(range(N_RIGID))).fit(gappy)  # median works from the per-marker median
-    assert np.isfinite(al.rotations_).all()
-    assert np.median(al.residual_) < 0.01
+    res = RigidAligner(subset=list(range(N_RIGID))).fit_transform(gappy)  # median from the per-marker median
+    assert np.isfinite(res.rotations).all()
+    assert np.median(res.residual) < 0.01
     # head coordinates are now the per-marker median of the raw take, not frame 0: compare the
     # rotations from frame 0, R[t] R[0]^T, which do not depend on them
-    rel_est = np.einsum("tij,kj->tik", al.rotations_, al.rotations_[0])
+    rel_est = np.einsum("tij,kj->tik", res.rotations, res.rotations[0])
     rel_true = np.einsum("tij,kj->tik", R, R[0])
     assert _angle_deg(rel_est, rel_true).max() < 0.1
     with pytest.raises(InvalidDataError, match="no frame has every rigid subset marker"):
@@ -195,7 +203,7 @@ def test_errors():
     w = Performance.from_weights(np.zeros((3, 1)), ["jawOpen"], fps=30)
     with pytest.raises(InvalidDataError, match="needs 3D marker points, this take holds weights"):
         RigidAligner().fit(w)
-    with pytest.raises(InvalidDataError, match="call fit"):
+    with pytest.raises(NotFittedError, match="call fit"):
         RigidAligner().transform(perf)
     with pytest.raises(InvalidDataError, match="reference must be"):
         RigidAligner(reference="mean").fit(perf)
@@ -210,15 +218,16 @@ def test_errors():
 def test_real_takes(data_dir, name):
     perf = read_c3d(data_dir / "facial-mocap" / f"{name}.c3d")
     al = RigidAligner()
-    out = al.fit_transform(perf)
-    print(f"{name}: {al.report('mm')}")
-    r = al.residual_
+    res = al.fit_transform(perf)
+    out = res.take
+    print(f"{name}: {res.report('mm')}")
+    r = res.residual
     assert np.isfinite(r).all() and al.subset_.size == 8
     assert np.median(r) < 0.45
     assert np.percentile(r, 95) < 1.6
     # the head moved by centimetres and a few degrees; in head coordinates the markers move less
-    assert np.ptp(out.head_translation, axis=0).max() > 5.0
-    assert 1.0 < np.ptp(out.head_rotation, axis=0).max() < 20.0
+    assert np.ptp(res.translations, axis=0).max() > 5.0               # mm
+    assert 1.0 < np.ptp(out.head.to_euler("YXZ", degrees=True), axis=0).max() < 20.0
     assert np.std(out.points, axis=0).mean() < 0.9 * np.std(perf.points, axis=0).mean()
     sub = out.points[:, al.subset_]
     assert np.median(np.linalg.norm(sub - np.median(sub, axis=0), axis=2)) < 0.5

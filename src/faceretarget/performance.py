@@ -1,4 +1,22 @@
-"""``Performance``: one take sampled in time, as weights, points or vertices."""
+"""``Performance``: one take sampled in time, with whichever channels its source gives.
+
+The one take type of the package.  A take holds at least one channel:
+
+============= ======================================= ===========================================
+channel       arrays                                  comes from
+============= ======================================= ===========================================
+weights       ``(T, K)`` + ``names`` (ARKit names)    Live Link Face CSV, video capture, a solve
+points        ``(T, P, 2|3)`` + ``labels``, NaN =     C3D markers, landmarks (video capture)
+              a sample that is missing
+vertices      ``(T, V, 3)`` + ``mesh``                OBJ sequences, ``.npz``
+head          :class:`~faceretarget.headpose.HeadPose` Live Link Face head columns, video capture,
+                                                      BVH / SMPL-X, rigid markers, synthesis
+audio         ``(N,)`` float32 in [-1, 1] + rate      WAV, the video's sound
+============= ======================================= ===========================================
+
+Each channel is validated once, here: shapes against the frame count, finite weights and
+vertices, strictly increasing finite times.  ``unit`` is the length unit of points and vertices.
+"""
 
 from __future__ import annotations
 
@@ -7,25 +25,19 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .errors import InvalidDataError
+from .headpose import HeadPose
 from .mesh import Mesh
+from .timebase import check_times, infer_fps
 
-__all__ = ["Performance"]
+__all__ = ["Performance", "CHANNELS"]
 
-
-def _check_times(times: np.ndarray, source: str) -> np.ndarray:
-    t = np.asarray(times, dtype=np.float64).reshape(-1)
-    if not np.isfinite(t).all():
-        raise InvalidDataError(f"{source}: frame {int(np.flatnonzero(~np.isfinite(t))[0])} has a non-finite time")
-    d = np.diff(t)
-    if d.size and (d <= 0).any():
-        k = int(np.flatnonzero(d <= 0)[0]) + 1
-        raise InvalidDataError(f"{source}: frame {k} time {t[k]:.6f} s does not increase after {t[k - 1]:.6f} s")
-    return t
+#: The face channels, in the order :attr:`Performance.kind` prefers them.
+CHANNELS = ("vertices", "points", "weights")
 
 
 @dataclass(eq=False)
 class Performance:
-    """A take: what a face did over time, in exactly one of three representations.
+    """A take: what a face (and head) did over time.
 
     Parameters
     ----------
@@ -33,25 +45,24 @@ class Performance:
         Time of each frame in seconds, strictly increasing (starts where the take starts; not
         necessarily at 0).
     fps : float
-        Nominal frame rate (the median rate when frames are irregular).
+        Nominal frame rate (the median rate when frames are irregular, :func:`~faceretarget.timebase.infer_fps`).
     weights : (T, K) float, optional
         Blendshape weights, columns named by ``names`` (ARKit camelCase).
     names : list of str
         Weight column names.
     points : (T, P, 2|3) float, optional
-        Feature point tracks (markers, landmarks); NaN marks an occluded sample.
+        Feature point tracks (markers, landmarks); NaN marks a missing sample.
     labels : list of str
         Point labels.
     vertices : (T, V, 3) float, optional
         A mesh sequence; ``mesh`` gives its faces.
     mesh : Mesh, optional
         Topology (and rest shape) for ``vertices``.
-    audio : (N,) float, optional
-        Mono audio samples in [-1, 1] synchronous with ``times[0]``; ``audio_rate`` in Hz.
-    head_rotation : (T, 3) float, optional
-        Head yaw, pitch, roll as the source gives them (a Live Link Face CSV's ``HeadYaw``,
-        ``HeadPitch``, ``HeadRoll`` columns unchanged; see that reader for their units).
-    head_translation : (T, 3) float, optional
+    head : HeadPose, optional
+        Head rotation (and translation in metres) per frame, in the package's one frame
+        (:mod:`faceretarget.headpose`).
+    audio : (N,) float32, optional
+        Mono samples in [-1, 1] synchronous with ``times[0]``; ``audio_rate`` in Hz.
     unit : str, optional
         Unit of points / vertices.
     source : str
@@ -66,65 +77,83 @@ class Performance:
     labels: list[str] = field(default_factory=list)
     vertices: np.ndarray | None = None
     mesh: Mesh | None = None
+    head: HeadPose | None = None
     audio: np.ndarray | None = None
     audio_rate: float | None = None
-    head_rotation: np.ndarray | None = None
-    head_translation: np.ndarray | None = None
     unit: str | None = None
     source: str = "performance"
 
     def __post_init__(self) -> None:
-        self.times = _check_times(self.times, self.source)
+        self.times = check_times(self.times, self.source)
         T = self.times.size
-        kinds = [x is not None for x in (self.weights, self.points, self.vertices)]
-        if sum(kinds) != 1:
-            raise InvalidDataError(f"{self.source}: a performance holds exactly one of weights, points or vertices")
+        if all(x is None for x in (self.weights, self.points, self.vertices, self.head)):
+            raise InvalidDataError(f"{self.source}: a performance holds weights, points, vertices or a head pose")
         if not (np.isfinite(self.fps) and self.fps > 0):
             raise InvalidDataError(f"{self.source}: fps must be positive, got {self.fps}")
+        self.fps = float(self.fps)
         if self.weights is not None:
-            w = np.asarray(self.weights, dtype=np.float64)
-            if w.ndim != 2 or w.shape[0] != T or w.shape[1] != len(self.names):
-                raise InvalidDataError(
-                    f"{self.source}: weights must be ({T}, {len(self.names)}) for {len(self.names)} names, got {w.shape}"
-                )
-            bad = ~np.isfinite(w)
-            if bad.any():
-                f, k = (int(x[0]) for x in np.nonzero(bad))
-                raise InvalidDataError(
-                    f"{self.source}: frame {f} (t={self.times[f]:.3f} s) weight '{self.names[k]}' is {w[f, k]}"
-                )
-            self.weights = w
-            self.names = list(self.names)
+            self._check_weights(T)
         if self.points is not None:
-            p = np.asarray(self.points, dtype=np.float64)
-            if p.ndim != 3 or p.shape[0] != T or p.shape[2] not in (2, 3):
-                raise InvalidDataError(f"{self.source}: points must be ({T}, P, 2|3), got {p.shape}")
-            if np.isinf(p).any():
-                f = int(np.nonzero(np.isinf(p))[0][0])
-                raise InvalidDataError(f"{self.source}: frame {f} has an infinite point coordinate")
-            if self.labels and len(self.labels) != p.shape[1]:
-                raise InvalidDataError(f"{self.source}: {len(self.labels)} labels for {p.shape[1]} points")
-            self.points = p
+            self._check_points(T)
         if self.vertices is not None:
-            v = np.asarray(self.vertices, dtype=np.float64)
-            if v.ndim != 3 or v.shape[0] != T or v.shape[2] != 3:
-                raise InvalidDataError(f"{self.source}: vertices must be ({T}, V, 3), got {v.shape}")
-            bad = ~np.isfinite(v)
-            if bad.any():
-                f, j = (int(x[0]) for x in np.nonzero(bad)[:2])
-                raise InvalidDataError(f"{self.source}: frame {f} vertex {j} is not finite")
-            if self.mesh is not None and self.mesh.n_vertices != v.shape[1]:
-                raise InvalidDataError(
-                    f"{self.source}: frames have {v.shape[1]} vertices but the mesh has {self.mesh.n_vertices}"
-                )
-            self.vertices = v
-        for attr in ("head_rotation", "head_translation"):
-            a = getattr(self, attr)
-            if a is not None:
-                a = np.asarray(a, dtype=np.float64)
-                if a.shape != (T, 3):
-                    raise InvalidDataError(f"{self.source}: {attr} must be ({T}, 3), got {a.shape}")
-                setattr(self, attr, a)
+            self._check_vertices(T)
+        if self.head is not None:
+            if not isinstance(self.head, HeadPose):
+                raise InvalidDataError(f"{self.source}: head must be a HeadPose, got {type(self.head).__name__}")
+            if self.head.n_frames != T:
+                raise InvalidDataError(f"{self.source}: the head pose has {self.head.n_frames} frames, the take {T}")
+        if self.audio is not None:
+            self._check_audio()
+
+    def _check_weights(self, T: int) -> None:
+        w = np.asarray(self.weights, dtype=np.float64)
+        if w.ndim != 2 or w.shape[0] != T or w.shape[1] != len(self.names):
+            raise InvalidDataError(
+                f"{self.source}: weights must be ({T}, {len(self.names)}) for {len(self.names)} names, got {w.shape}"
+            )
+        bad = ~np.isfinite(w)
+        if bad.any():
+            f, k = (int(x[0]) for x in np.nonzero(bad))
+            raise InvalidDataError(
+                f"{self.source}: frame {f} (t={self.times[f]:.3f} s) weight '{self.names[k]}' is {w[f, k]}"
+            )
+        self.weights = w
+        self.names = list(self.names)
+
+    def _check_points(self, T: int) -> None:
+        p = np.asarray(self.points, dtype=np.float64)
+        if p.ndim != 3 or p.shape[0] != T or p.shape[2] not in (2, 3):
+            raise InvalidDataError(f"{self.source}: points must be ({T}, P, 2|3), got {p.shape}")
+        if np.isinf(p).any():
+            f = int(np.nonzero(np.isinf(p))[0][0])
+            raise InvalidDataError(f"{self.source}: frame {f} has an infinite point coordinate")
+        if self.labels and len(self.labels) != p.shape[1]:
+            raise InvalidDataError(f"{self.source}: {len(self.labels)} labels for {p.shape[1]} points")
+        self.points = p
+        self.labels = list(self.labels)
+
+    def _check_vertices(self, T: int) -> None:
+        v = np.asarray(self.vertices, dtype=np.float64)
+        if v.ndim != 3 or v.shape[0] != T or v.shape[2] != 3:
+            raise InvalidDataError(f"{self.source}: vertices must be ({T}, V, 3), got {v.shape}")
+        bad = ~np.isfinite(v)
+        if bad.any():
+            f, j = (int(x[0]) for x in np.nonzero(bad)[:2])
+            raise InvalidDataError(f"{self.source}: frame {f} vertex {j} is not finite")
+        if self.mesh is not None and self.mesh.n_vertices != v.shape[1]:
+            raise InvalidDataError(
+                f"{self.source}: frames have {v.shape[1]} vertices but the mesh has {self.mesh.n_vertices}"
+            )
+        self.vertices = v
+
+    def _check_audio(self) -> None:
+        a = np.asarray(self.audio, dtype=np.float32).reshape(-1)
+        if not np.isfinite(a).all():
+            raise InvalidDataError(f"{self.source}: the audio holds non-finite samples")
+        if self.audio_rate is None or not (np.isfinite(self.audio_rate) and self.audio_rate > 0):
+            raise InvalidDataError(f"{self.source}: audio needs a positive audio_rate, got {self.audio_rate}")
+        self.audio = a
+        self.audio_rate = float(self.audio_rate)
 
     # ------------------------------------------------------------------ constructors
     @staticmethod
@@ -135,8 +164,7 @@ class Performance:
             return np.arange(n) / float(fps), float(fps)
         t = np.asarray(times, dtype=np.float64)
         if fps is None:
-            d = np.diff(t)
-            fps = 1.0 / float(np.median(d)) if d.size else 30.0
+            fps = infer_fps(t, default=30.0)
         return t, float(fps)
 
     @classmethod
@@ -157,15 +185,28 @@ class Performance:
         t, f = cls._times_fps(len(v), times, fps)
         return cls(times=t, fps=f, vertices=v, mesh=mesh, **kw)
 
+    @classmethod
+    def from_head(cls, head: HeadPose, times=None, fps=None, **kw) -> Performance:
+        t, f = cls._times_fps(head.n_frames, times, fps)
+        return cls(times=t, fps=f, head=head, **kw)
+
     # ------------------------------------------------------------------ properties
     @property
+    def channels(self) -> tuple[str, ...]:
+        """The channels present, of ``"weights"``, ``"points"``, ``"vertices"``, ``"head"``, ``"audio"``."""
+        have = [c for c in ("weights", "points", "vertices", "head") if getattr(self, c) is not None]
+        if self.audio is not None:
+            have.append("audio")
+        return tuple(have)
+
+    @property
     def kind(self) -> str:
-        """``"weights"``, ``"points"`` or ``"vertices"``."""
-        if self.weights is not None:
-            return "weights"
-        if self.points is not None:
-            return "points"
-        return "vertices"
+        """The face channel methods work on: ``"vertices"``, ``"points"`` or ``"weights"`` (the first
+        present, in that order), or ``"head"`` for a take of head motion only."""
+        for c in CHANNELS:
+            if getattr(self, c) is not None:
+                return c
+        return "head"
 
     @property
     def n_frames(self) -> int:
@@ -176,27 +217,53 @@ class Performance:
         return float(self.times[-1] - self.times[0]) if self.n_frames else 0.0
 
     def data(self) -> np.ndarray:
-        """The take's array, whatever its kind."""
-        return {"weights": self.weights, "points": self.points, "vertices": self.vertices}[self.kind]
+        """The array of the face channel :attr:`kind` names."""
+        if self.kind == "head":
+            raise InvalidDataError(f"{self.source}: a take of head motion only has no face data")
+        return getattr(self, self.kind)
+
+    # ------------------------------------------------------------------ new takes from this one
+    def replace(self, **changes) -> Performance:
+        """A copy with ``changes`` (field names), validated again."""
+        return replace(self, **changes)
+
+    def select(self, *channels: str) -> Performance:
+        """A take with only ``channels`` (names of :attr:`channels`; ``"audio"`` included)."""
+        unknown = set(channels) - {"weights", "points", "vertices", "head", "audio"}
+        if unknown:
+            raise InvalidDataError(f"unknown channel(s) {', '.join(sorted(unknown))}")
+        drop: dict = {}
+        if "weights" not in channels:
+            drop.update(weights=None, names=[])
+        if "points" not in channels:
+            drop.update(points=None, labels=[])
+        if "vertices" not in channels:
+            drop.update(vertices=None, mesh=None)
+        if "head" not in channels:
+            drop["head"] = None
+        if "audio" not in channels:
+            drop.update(audio=None, audio_rate=None)
+        return replace(self, **drop)
 
     def slice(self, start: int, stop: int | None = None) -> Performance:
         """Frames ``start:stop`` as a new performance (audio is dropped)."""
         s = slice(start, stop)
-        kw = {self.kind: self.data()[s]}
-        out = replace(
-            self, times=self.times[s], audio=None, audio_rate=None,
-            head_rotation=None if self.head_rotation is None else self.head_rotation[s],
-            head_translation=None if self.head_translation is None else self.head_translation[s],
-            **kw,
-        )
-        return out
+        kw = {c: getattr(self, c)[s] for c in CHANNELS if getattr(self, c) is not None}
+        head = None if self.head is None else self.head[s]
+        return replace(self, times=self.times[s], audio=None, audio_rate=None, head=head, **kw)
 
     def with_weights(self, weights: np.ndarray, names: list[str]) -> Performance:
-        return Performance(self.times, self.fps, weights=weights, names=list(names),
-                           head_rotation=self.head_rotation, head_translation=self.head_translation,
+        """This take's times, head and audio with new weights as its only face channel."""
+        return Performance(self.times, self.fps, weights=weights, names=list(names), head=self.head,
                            audio=self.audio, audio_rate=self.audio_rate, source=self.source)
 
+    def with_points(self, points: np.ndarray, labels: list[str] | None = None, unit: str | None = None) -> Performance:
+        """This take's times, head and audio with new points as its only face channel."""
+        return Performance(self.times, self.fps, points=points, labels=list(self.labels if labels is None else labels),
+                           head=self.head, audio=self.audio, audio_rate=self.audio_rate,
+                           unit=self.unit if unit is None else unit, source=self.source)
+
     def with_vertices(self, vertices: np.ndarray, mesh: Mesh | None = None, unit: str | None = None) -> Performance:
-        return Performance(self.times, self.fps, vertices=vertices, mesh=mesh, unit=unit,
-                           head_rotation=self.head_rotation, head_translation=self.head_translation,
+        """This take's times, head and audio with new vertices as its only face channel."""
+        return Performance(self.times, self.fps, vertices=vertices, mesh=mesh, unit=unit, head=self.head,
                            audio=self.audio, audio_rate=self.audio_rate, source=self.source)

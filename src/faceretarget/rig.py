@@ -106,25 +106,35 @@ class Rig:
         )
 
     # ------------------------------------------------------------------ evaluation
-    def evaluate(self, weights: np.ndarray) -> np.ndarray:
+    def evaluate(self, weights: np.ndarray, vertices: np.ndarray | None = None) -> np.ndarray:
         """Vertices for weights in this rig's shape order.
 
         Parameters
         ----------
         weights : (K,) or (T, K) float
+        vertices : (P,) int, optional
+            Evaluate only these vertices (feature points: a take's landmarks cost ``T x P``, not
+            ``T x V``).
 
         Returns
         -------
-        (V, 3) or (T, V, 3) float
+        (V, 3) or (T, V, 3) float (``P`` instead of ``V`` with ``vertices``)
         """
         w = np.asarray(weights, dtype=np.float64)
         if w.shape[-1] != self.n_shapes:
             raise InvalidDataError(
                 f"{self.name}: weights have {w.shape[-1]} columns but the rig has {self.n_shapes} shapes"
             )
-        flat = w.reshape(-1, self.n_shapes) @ self.deltas.reshape(self.n_shapes, -1)
-        out = flat.reshape(w.shape[:-1] + (self.n_vertices, 3))
-        return out + self.neutral.vertices
+        if vertices is None:
+            D, rest = self.deltas, self.neutral.vertices
+        else:
+            idx = np.asarray(vertices, dtype=np.int64).reshape(-1)
+            if idx.size and (idx.min() < 0 or idx.max() >= self.n_vertices):
+                raise InvalidDataError(f"{self.name}: a vertex index is outside 0..{self.n_vertices - 1}")
+            D, rest = self.deltas[:, idx], self.neutral.vertices[idx]
+        flat = w.reshape(-1, self.n_shapes) @ D.reshape(self.n_shapes, -1)
+        out = flat.reshape(w.shape[:-1] + (len(rest), 3))
+        return out + rest
 
     def map_weights(self, names: list[str], weights: np.ndarray, *, source: str = "performance",
                     warn: bool = True) -> np.ndarray:

@@ -19,7 +19,6 @@ needs them, only running a tracker does.  See ``docs/capture.md``.
 from ._appearance import AppearanceModel, procrustes_align
 from ._capture import Capture, capture_video, draw_overlay, track_video, write_preview
 from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
-from ._pose import matrix_to_pose, pose_to_matrix
 from ._tracker import FaceTracker, find_model
 from ._warp import PiecewiseAffineWarp
 
@@ -36,8 +35,6 @@ __all__ = [
     "fill_gaps",
     "neutral_baseline",
     "calibrate_neutral",
-    "matrix_to_pose",
-    "pose_to_matrix",
     "PiecewiseAffineWarp",
     "AppearanceModel",
     "procrustes_align",

@@ -21,19 +21,17 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable
-from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, InvalidDataError
+from ..base import Model
+from ..errors import InvalidDataError
 from ..performance import Performance
 from ._warp import PiecewiseAffineWarp
 
 __all__ = ["AppearanceModel", "procrustes_align"]
 
-_VERSION = 1
 _CHANNELS = "rgb"
 #: MediaPipe's 468 face-mesh points (the 10 iris points move inside the eye and are left out).
 MESH_POINTS = np.arange(468)
@@ -147,7 +145,7 @@ def _pca(X: np.ndarray, retain: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return mean, basis, var[:k]
 
 
-class AppearanceModel:
+class AppearanceModel(Model):
     """Appearance model of a face in video: shape and texture PCA (Chuang, thesis Sec. 2.2.1).
 
     Parameters
@@ -171,8 +169,12 @@ class AppearanceModel:
         Mean of the aligned shapes in canvas pixels (PCA mean; the texture canvas' shape).
     shape_basis_ : (Ks, 2P) float
         Orthonormal shape modes (x0, y0, x1, y1, ...); ``shape_var_`` (Ks,) their variances.
+    points_ : (P,) int
+        The landmark indices modelled.
+    triangles_ : (F, 3) int
+        Triangulation of the mean shape; ``canvas_`` (height, width) the texture canvas.
     warp_ : PiecewiseAffineWarp
-        Triangulation of the mean shape and the per-pixel barycentric map (mask ``warp_.mask``).
+        The per-pixel barycentric map of that triangulation (mask ``warp_.mask``; rebuilt on load).
     texture_mean_ : (N, 3) float
         Mean shape-free texture, grey levels.
     texture_basis_ : list of 3 (Kc, N) float
@@ -189,7 +191,7 @@ class AppearanceModel:
     >>> lm = base + rng.normal(0, 1, (30, 12, 2))
     >>> frames = rng.integers(0, 255, (30, 64, 64, 3)).astype(np.uint8)
     >>> m = AppearanceModel(1.0, 1.0, width=40, points=np.arange(12)).fit(frames, lm)
-    >>> v = m.encode(frames, lm)
+    >>> v = m.transform(frames, lm)
     >>> v.shape[0], len(m.names_) == v.shape[1]
     (30, True)
     """
@@ -214,14 +216,17 @@ class AppearanceModel:
             L = L[None]
         if L.ndim != 3 or L.shape[2] < 2:
             raise InvalidDataError(f"landmarks must be (N, P, 2|3), got {L.shape}")
-        idx = self.points if self.points is not None else (MESH_POINTS if L.shape[1] >= 468 else np.arange(L.shape[1]))
+        idx = getattr(self, "points_", None)
+        if idx is None:
+            idx = self.points if self.points is not None else (MESH_POINTS if L.shape[1] >= 468 else np.arange(L.shape[1]))
         if idx.max() >= L.shape[1]:
             raise InvalidDataError(f"landmarks have {L.shape[1]} points, the model uses index {int(idx.max())}")
         return L[:, idx, :2]
 
-    def _check(self) -> None:
-        if not hasattr(self, "mean_shape_"):
-            raise InvalidDataError("the appearance model is not fitted (call fit or load)")
+    @property
+    def warp_(self) -> PiecewiseAffineWarp:
+        self._check_fitted("warp_")
+        return self._warp
 
     @property
     def n_shape(self) -> int:
@@ -250,8 +255,8 @@ class AppearanceModel:
         N = S.shape[0]
         if N < 2:
             raise InvalidDataError(f"an appearance model needs at least 2 frames, got {N}")
-        if self.points is None:
-            self.points = MESH_POINTS if np.asarray(landmarks).shape[1] >= 468 else np.arange(S.shape[1])
+        self.points_ = (self.points if self.points is not None
+                        else MESH_POINTS if np.asarray(landmarks).shape[1] >= 468 else np.arange(S.shape[1]))
         _, unit_mean, _, _ = procrustes_align(S)
         # canvas: mean shape upright as in the first frame, `width` pixels wide, `margin` around
         lo, hi = unit_mean.min(axis=0), unit_mean.max(axis=0)
@@ -264,8 +269,9 @@ class AppearanceModel:
         self.shape_mean_flat_ = m
         self.mean_shape_ = m.reshape(-1, 2)
         self.shape_basis_, self.shape_var_ = basis, var
-        self.warp_ = PiecewiseAffineWarp(self.mean_shape_, shape=size)
-        tex = np.empty((N, self.warp_.n_pixels, 3), dtype=np.float32)
+        self._warp = PiecewiseAffineWarp(self.mean_shape_, shape=size)
+        self.triangles_, self.canvas_ = self._warp.triangles, self._warp.shape
+        tex = np.empty((N, self._warp.n_pixels, 3), dtype=np.float32)
         n = 0
         for img in frames:
             if n >= N:
@@ -274,7 +280,7 @@ class AppearanceModel:
             n += 1
         if n != N:
             raise InvalidDataError(f"{n} frames for {N} landmark sets")
-        self.texture_mean_ = np.empty((self.warp_.n_pixels, 3))
+        self.texture_mean_ = np.empty((self._warp.n_pixels, 3))
         self.texture_basis_, self.texture_var_ = [], []
         for c in range(3):
             mc, bc, vc = _pca(tex[:, :, c].astype(np.float64), self.texture_variance)
@@ -294,12 +300,12 @@ class AppearanceModel:
         img = np.asarray(img)
         if img.ndim != 3 or img.shape[2] != 3:
             raise InvalidDataError(f"frame {n}: expected an (H, W, 3) RGB image, got {img.shape}")
-        return self.warp_.sample(img, shape)
+        return self._warp.sample(img, shape)
 
     # ------------------------------------------------------------------ analysis
     def shape_params(self, landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Shape coefficients (N, Ks) of landmark sets, with each set's similarity ``a``, ``c`` (N,) complex."""
-        self._check()
+        self._check_fitted()
         S = self._pts(landmarks)
         aligned, _, a, c = procrustes_align(S, self.reference_)
         b = (aligned.reshape(S.shape[0], -1) - self.shape_mean_flat_) @ self.shape_basis_.T
@@ -307,7 +313,7 @@ class AppearanceModel:
 
     def texture_params(self, frames: np.ndarray | Iterable[np.ndarray], landmarks: np.ndarray) -> np.ndarray:
         """Texture coefficients (N, Kr + Kg + Kb), unscaled, of frames with their landmarks."""
-        self._check()
+        self._check_fitted()
         S = self._pts(landmarks)
         out = np.zeros((S.shape[0], sum(self.n_texture)))
         n = 0
@@ -321,7 +327,7 @@ class AppearanceModel:
             raise InvalidDataError(f"{n} frames for {S.shape[0]} landmark sets")
         return out
 
-    def encode(self, frames: np.ndarray | Iterable[np.ndarray], landmarks: np.ndarray) -> np.ndarray:
+    def transform(self, frames: np.ndarray | Iterable[np.ndarray], landmarks: np.ndarray) -> np.ndarray:
         """Configuration vectors (Eq. 2.3): ``[shape coefficients, texture_scale_ * texture coefficients]``.
 
         Parameters
@@ -337,11 +343,10 @@ class AppearanceModel:
         t = self.texture_params(frames, landmarks)
         return np.concatenate([b, self.texture_scale_ * t], axis=1)
 
-    transform = encode
 
     def split(self, vectors: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
         """Shape coefficients (N, Ks) and unscaled per-channel texture coefficients of vectors."""
-        self._check()
+        self._check_fitted()
         v = np.atleast_2d(np.asarray(vectors, dtype=np.float64))
         if v.shape[1] != len(self.names_):
             raise InvalidDataError(f"configuration vectors must have {len(self.names_)} columns, got {v.shape[1]}")
@@ -366,7 +371,7 @@ class AppearanceModel:
             out[:, :, c] += tex[c] @ self.texture_basis_[c]
         return out
 
-    def reconstruct(self, vectors: np.ndarray, shape_free: bool = False) -> np.ndarray:
+    def inverse_transform(self, vectors: np.ndarray, shape_free: bool = False) -> np.ndarray:
         """Images of configuration vectors, for inspection.
 
         Parameters
@@ -424,63 +429,8 @@ class AppearanceModel:
     def to_performance(self, vectors: np.ndarray, times: np.ndarray, fps: float | None = None,
                        source: str = "appearance") -> Performance:
         """Configuration vectors as a weights :class:`~faceretarget.Performance` named by :attr:`names_`."""
-        self._check()
+        self._check_fitted()
         return Performance.from_weights(vectors, self.names_, times=times, fps=fps, source=source)
 
-    # ------------------------------------------------------------------ persistence
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the model to ``.npz`` (no pickles), whole or not at all.
-
-        Keys: ``version`` (1), ``shape_variance``, ``texture_variance``, ``width``, ``margin``,
-        ``points`` (P,) landmark indices, ``reference`` (P, 2) Procrustes target and ``mean_shape``
-        (P, 2) PCA mean in canvas pixels, ``shape_basis``
-        (Ks, 2P), ``shape_var`` (Ks,), ``triangles`` (F, 3), ``canvas`` (2,) height, width,
-        ``texture_mean`` (N, 3), ``texture_basis_r|g|b`` (Kc, N) float32, ``texture_var_r|g|b``
-        (Kc,), ``texture_scale`` (), ``names`` (D,).  The per-pixel triangle and barycentric map is
-        recomputed from ``mean_shape``, ``triangles`` and ``canvas`` on load.
-        """
-        from ..files import check_output_path
-
-        self._check()
-        path = check_output_path(path)
-        arrays = dict(version=np.int64(_VERSION), shape_variance=np.float64(self.shape_variance),
-                      texture_variance=np.float64(self.texture_variance), width=np.int64(self.width),
-                      margin=np.int64(self.margin), points=self.points, mean_shape=self.mean_shape_,
-                      reference=self.reference_,
-                      shape_basis=self.shape_basis_, shape_var=self.shape_var_, triangles=self.warp_.triangles,
-                      canvas=np.array(self.warp_.shape, dtype=np.int64), texture_mean=self.texture_mean_,
-                      texture_scale=np.float64(self.texture_scale_), names=np.array(self.names_))
-        for ch, b, v in zip(_CHANNELS, self.texture_basis_, self.texture_var_, strict=True):
-            arrays[f"texture_basis_{ch}"] = b.astype(np.float32)
-            arrays[f"texture_var_{ch}"] = v
-        from ..files import save_npz_arrays
-
-        return save_npz_arrays(path, arrays)
-
-    @classmethod
-    def load(cls, path: str | os.PathLike) -> AppearanceModel:
-        """Read a model written by :meth:`save`."""
-
-        from ..files import load_npz_arrays
-
-        path = Path(path)
-        d = load_npz_arrays(path)
-        need = {"version", "mean_shape", "reference", "shape_basis", "triangles", "canvas", "texture_mean", "texture_basis_r"}
-        if missing := sorted(need - set(d)):
-            raise InputFileError(f"{path}: not an appearance model (missing {', '.join(missing)})")
-        if int(d["version"]) > _VERSION:
-            raise InputFileError(f"{path}: appearance model version {int(d['version'])} is newer than this reader")
-        m = cls(float(d["shape_variance"]), float(d["texture_variance"]), int(d["width"]), d["points"],
-                int(d["margin"]))
-        m.mean_shape_ = d["mean_shape"].astype(np.float64)
-        m.reference_ = d["reference"].astype(np.float64)
-        m.shape_mean_flat_ = m.mean_shape_.reshape(-1)
-        m.shape_basis_ = d["shape_basis"].astype(np.float64)
-        m.shape_var_ = d["shape_var"].astype(np.float64)
-        m.warp_ = PiecewiseAffineWarp(m.mean_shape_, d["triangles"], shape=tuple(int(x) for x in d["canvas"]))
-        m.texture_mean_ = d["texture_mean"].astype(np.float64)
-        m.texture_basis_ = [d[f"texture_basis_{ch}"].astype(np.float64) for ch in _CHANNELS]
-        m.texture_var_ = [d[f"texture_var_{ch}"].astype(np.float64) for ch in _CHANNELS]
-        m.texture_scale_ = float(d["texture_scale"])
-        m._names()
-        return m
+    def _after_load(self) -> None:
+        self._warp = PiecewiseAffineWarp(self.mean_shape_, self.triangles_, shape=tuple(self.canvas_))

@@ -11,22 +11,24 @@ import numpy as np
 
 from ..errors import InputFileError, InvalidDataError
 from ..files import atomic_path, check_output_path
+from ..headpose import HeadPose
 from ..io import iter_frames, probe_video, read_video_audio, write_video
-from ..numerics import runs
+from ..numerics import nearest_rotation, runs
 from ..optional import optional_import
 from ..performance import Performance
 from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
-from ._pose import matrix_to_pose, pose_to_matrix
 from ._tracker import N_LANDMARKS, FaceTracker
 
-__all__ = ["Capture", "track_video", "capture_video", "write_preview", "draw_overlay", "FACE_WIDTH_CM",
+__all__ = ["Capture", "track_video", "capture_video", "write_preview", "draw_overlay", "FACE_WIDTH_M",
            "DEFAULT_SMOOTH"]
 
 #: Landmarks at the left and right cheek edges of the face oval (face width).
 _CHEEKS = (234, 454)
-#: Typical face width in centimetres: scale of the head translation for the One Euro ``beta``.
-FACE_WIDTH_CM = 15.0
-_NPZ_VERSION = 1
+#: Typical face width in metres: scale of the head translation for the One Euro ``beta``.
+FACE_WIDTH_M = 0.15
+#: The Euler angles the head pose is filtered in (intrinsic yaw, pitch, roll).
+HEAD_EULER = "YXZ"
+_NPZ_VERSION = 2
 #: Default smoothing of :func:`capture_video` (and ``faceretarget capture``).
 DEFAULT_SMOOTH = OneEuroParams()
 
@@ -50,13 +52,11 @@ class Capture:
         ARKit blendshape scores in [0, 1], named by ``names`` (MediaPipe's 51 ARKit channels, its
         ``_neutral`` dropped; it has no ``tongueOut``); NaN without a face.
     names : list of str
-    head_rotation : (T, 3) float
-        Yaw, pitch, roll in radians (Live Link Face ``HeadYaw, HeadPitch, HeadRoll``; convention in
-        :mod:`faceretarget.capture._pose`).
-    head_translation : (T, 3) float
-        Centimetres in MediaPipe's camera frame (x right, y up, z toward the viewer).
-    matrices : (T, 4, 4) float
-        Facial transformation matrices (after post-processing: rebuilt from the pose curves).
+    head : HeadPose
+        The head's rotation from MediaPipe's facial transformation matrices (its canonical face
+        looks down +Z with +X on the performer's left: the package's frame, rest = facing the
+        camera) and its position in metres in the camera frame (x to the image's right, y up, z
+        toward the viewer); NaN in frames without a face.
     detected : (T,) bool
         MediaPipe found a face in the frame.
     interpolated : (T,) bool
@@ -76,9 +76,7 @@ class Capture:
     landmarks: np.ndarray
     weights: np.ndarray
     names: list[str]
-    head_rotation: np.ndarray
-    head_translation: np.ndarray
-    matrices: np.ndarray
+    head: HeadPose
     detected: np.ndarray
     interpolated: np.ndarray
     source: str = "video"
@@ -94,6 +92,16 @@ class Capture:
     def valid(self) -> np.ndarray:
         """(T,) bool: frames with data (detected or interpolated)."""
         return self.detected | self.interpolated
+
+    @property
+    def matrices(self) -> np.ndarray:
+        """(T, 4, 4) facial transformation matrices (MediaPipe's layout: translation in centimetres)."""
+        M = np.zeros((self.n_frames, 4, 4))
+        M[:, :3, :3] = self.head.as_matrix()
+        M[:, :3, 3] = self.head.translation_in("cm")
+        M[:, 3, 3] = 1.0
+        M[~self.head.valid] = np.nan
+        return M
 
     @property
     def face_fraction(self) -> float:
@@ -137,8 +145,8 @@ class Capture:
         det = self.detected
         lm, filled = fill_gaps(self.landmarks, det, max_gap, t)
         w, _ = fill_gaps(self.weights, det, max_gap, t)
-        rot, _ = fill_gaps(self.head_rotation, det, max_gap, t)
-        tr, _ = fill_gaps(self.head_translation, det, max_gap, t)
+        rot, _ = fill_gaps(self.head.to_euler(HEAD_EULER), det, max_gap, t)
+        tr, _ = fill_gaps(self.head.translation, det, max_gap, t)
         valid = det | filled
         info: dict = {"max_gap": int(max_gap)}
         if neutral_frames is not None or neutral_percentile is not None:
@@ -157,13 +165,13 @@ class Capture:
                 lm[s] = one_euro(lm[s], t[s], smooth, vector_axis=-1, scale=fw)
                 w[s] = np.clip(one_euro(w[s], t[s], smooth), 0.0, 1.0)
                 rot[s] = one_euro(rot[s], t[s], smooth)
-                tr[s] = one_euro(tr[s], t[s], smooth, vector_axis=-1, scale=FACE_WIDTH_CM)
+                tr[s] = one_euro(tr[s], t[s], smooth, vector_axis=-1, scale=FACE_WIDTH_M)
             info["smooth"] = {"min_cutoff": smooth.min_cutoff, "beta": smooth.beta,
                               "d_cutoff": smooth.d_cutoff, "face_width_px": fw}
-        mats = pose_to_matrix(rot, tr)
-        mats[~valid] = np.nan
-        return replace(self, landmarks=lm, weights=w, head_rotation=rot, head_translation=tr,
-                       matrices=mats, interpolated=filled, processing=info)
+        rot[~valid] = np.nan
+        tr[~valid] = np.nan
+        head = HeadPose.from_euler(HEAD_EULER, rot, tr, source=self.source)
+        return replace(self, landmarks=lm, weights=w, head=head, interpolated=filled, processing=info)
 
     # ------------------------------------------------------------------ views
     def to_performance(self, kind: str = "weights") -> Performance:
@@ -174,10 +182,10 @@ class Capture:
 
         Parameters
         ----------
-        kind : {"weights", "points"}
+        kind : {"weights", "points", "all"}
             ``weights``: the 51 ARKit scores with ``names``; ``points``: the (T, 478, 2) image
-            landmarks in pixels labelled ``lm0`` .. ``lm477``.  Both carry the head pose and the
-            audio (cut to start at the first kept frame).
+            landmarks in pixels labelled ``lm0`` .. ``lm477``; ``all``: both.  Every kind carries
+            the head pose and the audio (cut to start at the first kept frame).
         """
         v = self.valid
         if not v.any():
@@ -185,16 +193,16 @@ class Capture:
         audio = self.audio
         if audio is not None and self.audio_rate:  # Performance audio starts at its first frame
             audio = audio[int(round(self.times[v][0] * self.audio_rate)):]
-        kw = dict(times=self.times[v], fps=self.fps, head_rotation=self.head_rotation[v],
-                  head_translation=self.head_translation[v], audio=audio,
+        kw = dict(times=self.times[v], fps=self.fps, head=self.head[v], audio=audio,
                   audio_rate=None if self.audio_rate is None else float(self.audio_rate),
                   source=self.source)
-        if kind == "weights":
-            return Performance(weights=self.weights[v], names=list(self.names), **kw)
-        if kind == "points":
-            return Performance(points=self.landmarks[v, :, :2], labels=[f"lm{i}" for i in range(N_LANDMARKS)],
-                               unit="px", **kw)
-        raise InvalidDataError(f"kind must be 'weights' or 'points', got {kind!r}")
+        if kind not in ("weights", "points", "all"):
+            raise InvalidDataError(f"kind must be 'weights', 'points' or 'all', got {kind!r}")
+        if kind in ("weights", "all"):
+            kw.update(weights=self.weights[v], names=list(self.names))
+        if kind in ("points", "all"):
+            kw.update(points=self.landmarks[v, :, :2], labels=[f"lm{i}" for i in range(N_LANDMARKS)], unit="px")
+        return Performance(**kw)
 
     # ------------------------------------------------------------------ files
     def write_csv(self, path: str | os.PathLike, *, rate: int = 60) -> Path:
@@ -220,16 +228,16 @@ class Capture:
         ``image_size``        (2,) i64          width, height
         ``blendshapes``       (T, 51) f32       ARKit scores, NaN without a face
         ``blendshape_names``  (51,) str
-        ``head_rotation``     (T, 3) f64        yaw, pitch, roll, radians
-        ``head_translation``  (T, 3) f64        centimetres, camera frame
-        ``matrices``          (T, 4, 4) f64     facial transformation matrices
+        ``head_quaternions``  (T, 4) f64        head rotation ``x, y, z, w`` (:mod:`faceretarget.headpose`)
+        ``head_translation``  (T, 3) f64        metres, camera frame
         ``detected``          (T,) bool         MediaPipe found a face
         ``interpolated``      (T,) bool         filled by gap interpolation
         ``source``            () str            the video
         ``processing``        () str            JSON: gap, neutral and smoothing settings
         ``audio``             (N,) f32          mono audio (when the video has some)
         ``audio_rate``        () i64
-        ``version``           () i64            format version (1)
+        ``version``           () i64            format version (2; version 1 files, with
+                                                Live Link Face angles and centimetres, read too)
         ===================== ================= ==========================================
 
         The scores are deliberately not stored as ``weights``: frames without a face hold NaN,
@@ -241,8 +249,8 @@ class Capture:
         arrays = dict(landmarks=self.landmarks.astype(np.float32), times=self.times, fps=np.float64(self.fps),
                       image_size=np.array(self.image_size, dtype=np.int64),
                       blendshapes=self.weights.astype(np.float32), blendshape_names=np.array(self.names),
-                      head_rotation=self.head_rotation, head_translation=self.head_translation,
-                      matrices=self.matrices, detected=self.detected, interpolated=self.interpolated,
+                      head_quaternions=self.head.quaternions, head_translation=self.head.translation,
+                      detected=self.detected, interpolated=self.interpolated,
                       source=np.array(self.source), processing=np.array(json.dumps(self.processing)),
                       version=np.int64(_NPZ_VERSION))
         if self.audio is not None:
@@ -261,15 +269,20 @@ class Capture:
 
         path = Path(path)
         d = load_npz_arrays(path)
-        need = {"landmarks", "times", "fps", "image_size", "blendshapes", "blendshape_names", "head_rotation",
-                "head_translation", "matrices", "detected", "interpolated"}
+        need = {"landmarks", "times", "fps", "image_size", "blendshapes", "blendshape_names", "head_translation",
+                "detected", "interpolated"}
         if missing := sorted(need - set(d)):
             raise InputFileError(f"{path}: not a capture .npz (missing {', '.join(missing)})")
+        if "head_quaternions" in d:
+            head = HeadPose(d["head_quaternions"], d["head_translation"], source=str(path))
+        elif "head_rotation" in d:          # version 1: Live Link Face angles and centimetres
+            head = HeadPose.from_livelinkface(d["head_rotation"], d["head_translation"] / 100.0, source=str(path))
+        else:
+            raise InputFileError(f"{path}: not a capture .npz (missing head_quaternions)")
         return cls(times=d["times"].astype(np.float64), fps=float(d["fps"]),
                    image_size=tuple(int(x) for x in d["image_size"]),
                    landmarks=d["landmarks"].astype(np.float64), weights=d["blendshapes"].astype(np.float64),
-                   names=[str(n) for n in d["blendshape_names"]], head_rotation=d["head_rotation"],
-                   head_translation=d["head_translation"], matrices=d["matrices"],
+                   names=[str(n) for n in d["blendshape_names"]], head=head,
                    detected=d["detected"].astype(bool), interpolated=d["interpolated"].astype(bool),
                    source=str(d.get("source", path)), audio=d.get("audio"),
                    audio_rate=int(d["audio_rate"]) if "audio_rate" in d else None,
@@ -350,13 +363,14 @@ def track_video(path: str | os.PathLike, *, model: str | os.PathLike | None = No
     M = np.full((T, 4, 4), np.nan)
     for i in np.flatnonzero(det):
         L[i], W[i], M[i] = lms[i], scores[i], mats[i]
-    rot, tr = matrix_to_pose(M)
+    head = HeadPose.from_matrix(nearest_rotation(np.where(np.isfinite(M[:, :3, :3]), M[:, :3, :3], np.eye(3))),
+                                M[:, :3, 3] / 100.0, source=str(path))
+    head = HeadPose(np.where(det[:, None], head.quaternions, np.nan), head.translation, source=str(path))
     au = read_video_audio(path, duration=(times[-1] + 1.0 / info.fps)) if audio and info.has_audio else None
     if timings is not None:
         timings.update(decode_s=decode_s, track_s=track_s, frames=T)
     return Capture(times=np.asarray(times), fps=info.fps, image_size=(info.width, info.height), landmarks=L,
-                   weights=W, names=list(names), head_rotation=rot, head_translation=tr, matrices=M,
-                   detected=det, interpolated=np.zeros(T, bool), source=str(path),
+                   weights=W, names=list(names), head=head, detected=det, interpolated=np.zeros(T, bool), source=str(path),
                    audio=None if au is None else au[0], audio_rate=None if au is None else au[1])
 
 
@@ -406,7 +420,7 @@ def draw_overlay(rgb: np.ndarray, landmarks: np.ndarray | None, *, interpolated:
     interpolated : bool
         Draw in yellow (a gap-filled frame) instead of green.
     pose : (3,) float, optional
-        Yaw, pitch, roll in radians, printed in degrees.
+        Live Link Face's yaw, pitch (chin up +), roll in radians, printed in degrees.
     label : str
         Text for the top-left corner (frame number, time).
     """
@@ -450,12 +464,13 @@ def write_preview(capture: Capture, video: str | os.PathLike, out: str | os.Path
     out = check_output_path(out)
     T = capture.n_frames
     v = capture.valid
+    pose = capture.head.to_livelinkface()
 
     def frames():
         for i, t, rgb in iter_frames(video, max_frames=T):
             lm = capture.landmarks[i] if v[i] else None
             yield draw_overlay(rgb, lm, interpolated=bool(capture.interpolated[i]),
-                               pose=capture.head_rotation[i], label=f"frame {i}  {t:6.2f} s")
+                               pose=pose[i], label=f"frame {i}  {t:6.2f} s")
 
     with atomic_path(out, protect=protect) as tmp, _progress(T, progress, "preview") as bar:
         return write_video(tmp, frames(), capture.fps, audio_from=video,

@@ -179,7 +179,7 @@ def _appearance_encode(args, log) -> int:
     [(_, cap)] = list(_tracked([video], args, log))
     v = cap.valid
     t0 = time.perf_counter()
-    vec = model.encode(_valid_frames(video, cap), cap.landmarks[v])
+    vec = model.transform(_valid_frames(video, cap), cap.landmarks[v])
     perf = model.to_performance(vec, cap.times[v], fps=cap.fps, source=str(video))
     log(f"encoded {perf.n_frames} frames in {time.perf_counter() - t0:.1f} s")
     with atomic_path(out) as tmp, open(tmp, "wb") as f:

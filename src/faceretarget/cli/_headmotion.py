@@ -30,7 +30,8 @@ __all__ = ["register", "cmd_headmotion_build", "cmd_headmotion_synth", "main"]
 
 def cmd_headmotion_build(args, log) -> int:
     """``headmotion build``: analyse takes and write a database ``.npz``."""
-    from ..headmotion import HeadMotionDatabase, read_head_take
+    from ..headmotion import HeadMotionDatabase, take_duration
+    from ..io import read_head_take
 
     out = Path(args.out)
     takes_in = [(Path(a), Path(m)) for a, m in args.take]
@@ -38,7 +39,7 @@ def cmd_headmotion_build(args, log) -> int:
     db = HeadMotionDatabase(fps=args.fps, f0_min=args.f0_min, f0_max=args.f0_max, pause=args.pause,
                             mirror=not args.no_mirror)
     t0 = time.perf_counter()
-    takes, used = [], set()
+    takes, pitches, used = [], [], set()
     with warnings_to_log(log):
         for audio, motion in takes_in:
             name = motion.stem
@@ -47,18 +48,19 @@ def cmd_headmotion_build(args, log) -> int:
                 name, k = f"{motion.stem}_{k}", k + 1
             used.add(name)
             take = read_head_take(audio, motion, name=name)
-            take.pitch = db.pitch(take.audio, take.rate)
-            n_voiced = int(np.isfinite(take.pitch.f0).sum())
-            log(f"{audio.name} + {motion.name}: {take.duration:.1f} s, head motion at {take.fps:g} fps, "
-                f"{n_voiced * take.pitch.time_step:.1f} s voiced")
+            pitch = db.pitch(take.audio, take.audio_rate)
+            n_voiced = int(np.isfinite(pitch.f0).sum())
+            log(f"{audio.name} + {motion.name}: {take_duration(take):.1f} s, head motion at {take.fps:g} fps, "
+                f"{n_voiced * pitch.time_step:.1f} s voiced")
             if n_voiced == 0:
                 log(f"warning: {audio}: no voiced speech found; take skipped")
                 continue
             takes.append(take)
+            pitches.append(pitch)
         if not takes:
             raise InvalidDataError("no take has voiced speech: "
                                    + ", ".join(str(a) for a, _ in takes_in))
-        db.build(takes)
+        db.fit(takes, pitch=pitches)
     db.save(out)
     log(f"wrote {out}: {db.summary()} ({time.perf_counter() - t0:.1f} s)")
     return 0
@@ -78,21 +80,21 @@ def cmd_headmotion_synth(args, log) -> int:
     db = HeadMotionDatabase.load(args.db)
     audio, rate = read_audio(args.audio)
     try:
-        perf = db.synthesize(audio, rate, amplitude=args.amplitude, rotation=not args.no_rotation,
-                             translation=not args.no_translation, seed=args.seed, fps=args.fps,
-                             source=str(args.audio))
+        res = db.transform(audio, rate, amplitude=args.amplitude, rotation=not args.no_rotation,
+                           translation=not args.no_translation, seed=args.seed, fps=args.fps,
+                           source=str(args.audio))
     except InvalidDataError as e:
         raise InvalidDataError(f"{args.audio}: {e}") from e
-    info = db.last_synthesis_
+    perf, info = res.take, res.info
     write_head_motion(out, perf, protect=(args.db, args.audio))
-    deg = np.degrees(perf.head_rotation)
+    deg = perf.head.to_euler("YXZ", degrees=True)
     rng = np.percentile(deg, 95, axis=0) - np.percentile(deg, 5, axis=0)
     log(f"{args.audio}: {perf.duration:.1f} s, {info.segmentation.n_phrases} phrase(s), "
         f"{info.segmentation.n_segments} segment(s); pitch {info.pitch_seconds:.2f} s, search and blend "
         f"{info.search_seconds:.3f} s")
     log(f"wrote {out} ({perf.n_frames} frames at {perf.fps:g} fps; yaw/pitch/roll 5-95% range "
         f"{rng[0]:.1f}/{rng[1]:.1f}/{rng[2]:.1f} deg"
-        + (", no translation" if perf.head_translation is None else "") + ")")
+        + (", no translation" if perf.head.translation is None else "") + ")")
     return 0
 
 

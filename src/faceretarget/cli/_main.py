@@ -10,14 +10,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
-import warnings
 from pathlib import Path
 
-import numpy as np
-
 from .. import __version__
-from ..errors import InvalidDataError, OutputError
+from ..errors import InvalidDataError
+from ..performance import Performance
 from ._support import protect, run_command, warnings_to_log
 
 __all__ = ["main"]
@@ -26,24 +23,10 @@ __all__ = ["main"]
 _protect = protect
 
 
-def _write_clone(out: Path, cloner, weights: np.ndarray, times: np.ndarray, log) -> None:
-    from ..io import write_animation
+def _rig(path, neutral=None, landmarks=None):
+    from ..io import load_rig
 
-    rig = cloner.target_keys
-    write_animation(out, rig=rig, weights=weights, names=list(cloner.names_), times=times)
-    log(f"wrote {out} ({len(times)} frames, {len(cloner.names_)} target key-models)")
-
-
-def _source_frames(perf, source_rig, log):
-    """Source meshes (or feature points) of a performance, playing weight takes on their rig."""
-    if perf.kind == "weights":
-        if source_rig is None:
-            raise InvalidDataError(
-                f"{perf.source}: a weight take needs the source rig it was captured for (--source-rig DIR)"
-            )
-        log(f"playing {perf.n_frames} frames of weights on {source_rig.name}")
-        return source_rig.evaluate(source_rig.map_weights(perf.names, perf.weights, source=perf.source))
-    return perf.data()
+    return load_rig(path, neutral=neutral, landmarks=landmarks) if path else None
 
 
 def cmd_clone(args, log) -> int:
@@ -51,171 +34,85 @@ def cmd_clone(args, log) -> int:
         return _clone(args, log)
 
 
-def _clone(args, log) -> int:
-    from ..cloning import ExpressionCloner, keymodel_pair
-    from ..io import load_rig, read_performance
+def _clone_keys(args, perf, source_rig, log):
+    """The key-model pair of ``clone``: two folders paired by file name, or a standard set of two rigs."""
+    from ..cloning import keymodel_pair
+    from ..io import read_performance
 
-    out = Path(args.out)
-    inputs = [args.performance, args.source_keys, args.target_keys, args.source_rig, args.target_rig, args.keys_from]
-    _protect(out, inputs)
-    t0 = time.perf_counter()
-    perf = read_performance(args.performance, fps=args.fps)
-    source_rig = load_rig(args.source_rig, neutral=args.source_neutral) if args.source_rig else None
     if args.source_keys or args.target_keys:
         if not (args.source_keys and args.target_keys):
             raise InvalidDataError("give both --source-keys and --target-keys")
-        sk = load_rig(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks)
-        tk = load_rig(args.target_keys, neutral=args.target_neutral, landmarks=args.target_landmarks)
+        sk = _rig(args.source_keys, args.source_neutral, args.source_landmarks)
+        tk = _rig(args.target_keys, args.target_neutral, args.target_landmarks)
         log(f"key-models: {sk.n_shapes} pairs from {args.source_keys} and {args.target_keys}")
-        if source_rig is None and perf.kind == "weights":
-            source_rig = sk
-    else:
-        if not (args.source_rig and args.target_rig):
-            raise InvalidDataError("give --source-keys/--target-keys, or --source-rig/--target-rig with --keys")
-        target_rig = load_rig(args.target_rig, neutral=args.target_neutral, landmarks=args.target_landmarks)
-        if args.source_landmarks is not None:
-            source_rig = load_rig(args.source_rig, neutral=args.source_neutral, landmarks=args.source_landmarks)
-        rom = read_performance(args.keys_from) if args.keys_from else None
-        if args.keys.startswith("rom-") and rom is None:
-            if perf.kind == "weights":
-                log("no --keys-from take: choosing key frames from the performance itself")
-                rom = perf
-            else:
-                raise InvalidDataError(f"--keys {args.keys} needs a range-of-motion weight take (--keys-from)")
-        sk, tk, _ = keymodel_pair(source_rig, target_rig, args.keys, rom=rom)
-        log(f"key-models: {args.keys}, {sk.n_shapes} pairs generated on {source_rig.name} and {target_rig.name}")
-    frames = _source_frames(perf, source_rig, log)
-    features = args.features
-    cloner = ExpressionCloner(args.method, features=features).fit(sk, tk)
-    w = cloner.transform(frames, perf.times)
-    if cloner.noise_sigma_ > 0:
-        log(f"estimated capture noise {cloner.noise_sigma_ * sk.mm_per_unit:.3f} mm: denoised over time")
-    log(f"cloned {perf.n_frames} frames with '{args.method}' in {time.perf_counter() - t0:.2f} s; "
-        f"frames outside the key-models (>35% unexplained): {(cloner.outside_ > 0.35).mean():.1%}")
-    _write_clone(out, cloner, w, perf.times, log)
+        return sk, tk
+    if not (args.source_rig and args.target_rig):
+        raise InvalidDataError("give --source-keys/--target-keys, or --source-rig/--target-rig with --keys")
+    target_rig = _rig(args.target_rig, args.target_neutral, args.target_landmarks)
+    rom = read_performance(args.keys_from) if args.keys_from else None
+    if args.keys.startswith("rom-") and rom is None:
+        if perf.kind != "weights":
+            raise InvalidDataError(f"--keys {args.keys} needs a range-of-motion weight take (--keys-from)")
+        log("no --keys-from take: choosing key frames from the performance itself")
+        rom = perf
+    sk, tk, _ = keymodel_pair(source_rig, target_rig, args.keys, rom=rom)
+    log(f"key-models: {args.keys}, {sk.n_shapes} pairs generated on {source_rig.name} and {target_rig.name}")
+    return sk, tk
+
+
+def _clone(args, log) -> int:
+    from ..io import read_performance
+    from ..pipelines import clone_take, write_result
+
+    out = Path(args.out)
+    _protect(out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.target_rig,
+                   args.keys_from])
+    perf = read_performance(args.performance, fps=args.fps)
+    source_rig = _rig(args.source_rig, args.source_neutral,
+                      args.source_landmarks if not (args.source_keys or args.target_keys) else None)
+    sk, tk = _clone_keys(args, perf, source_rig, log)
+    job = clone_take(perf, sk, tk, source_rig=source_rig, method=args.method, features=args.features, log=log)
+    write_result(out, job, log=log)
     return 0
 
 
 def cmd_keys_compose(args, log) -> int:
-    from ..cloning import build_key_models
-    from ..io import load_rig, save_rig_obj
-    from ..rig import Rig
+    from ..io import save_rig_obj
+    from ..pipelines import compose_keys
 
     out = Path(args.out)
     _protect(out, [args.rig])
-    rig = load_rig(args.rig, neutral=args.neutral)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        labels, verts = build_key_models(rig)
-    for c in caught:
-        log(f"warning: {c.message}")
-    # the pure "neutral" emotion is the rest face itself: it is written once, as the neutral
-    keep = [i for i, lab in enumerate(labels) if lab != "neutral"]
-    safe = [labels[i].replace("+", "_") for i in keep]
-    keys = Rig(rig.neutral, safe, verts[keep] - rig.neutral.vertices, rig.unit, rig.landmarks, None,
-               f"{rig.name}:composed")
+    keys = compose_keys(_rig(args.rig, args.neutral), log=log)
     save_rig_obj(keys, out)
-    log(f"wrote the neutral and {len(safe)} composed key-models (84 key-models) as OBJ to {out}")
+    log(f"wrote the neutral and {keys.n_shapes} composed key-models (84 key-models) as OBJ to {out}")
     return 0
 
 
-# ----------------------------------------------------------------------------- retargeting (Chuang Ch. 3)
-def _geometry_take(perf, source_rig, log, *, align: bool = True, rigid_subset=None):
-    """``(points (T, P, 3), labels, neutral or None, mesh or None, aligner)`` of a take for keyshape work."""
-    from ..numerics import RigidAligner
-
-    if perf.kind == "weights":
-        if source_rig is None:
-            raise InvalidDataError(f"{perf.source}: a weight take needs the rig it drives (--source-rig DIR)")
-        log(f"playing {perf.n_frames} frames of weights on {source_rig.name}")
-        V = source_rig.evaluate(source_rig.map_weights(perf.names, perf.weights, source=perf.source))
-        return V, [], source_rig.neutral.vertices, source_rig.neutral, None
-    if perf.kind == "vertices":
-        return perf.vertices, [], None, perf.mesh, None
-    pts = perf.points
-    al = None
-    if pts.shape[2] == 2:                       # 2-D landmark tracks: keyshapes in the image plane (z = 0)
-        log(f"{perf.source}: 2-D points; keyshapes are exported with z = 0 and no head-motion removal")
-        pts = np.concatenate([pts, np.zeros(pts.shape[:2] + (1,))], axis=2)
-        return pts, list(perf.labels), None, None, None
-    if align and pts.shape[1] >= 4:
-        subset = [s.strip() for s in rigid_subset.split(",")] if rigid_subset else None
-        al = RigidAligner(subset=subset)
-        perf = al.fit_transform(perf)
-        log(al.report(perf.unit))
-        pts = perf.points
-    return pts, list(perf.labels), None, None, al
+def _subset(text: str | None):
+    return [s.strip() for s in text.split(",")] if text else None
 
 
 def cmd_keys_select(args, log) -> int:
-    from ..io import export_keyshapes, load_rig, read_performance
-    from ..numerics import SELECTION_METHODS, reconstruction_error, select_keyshapes
-    from ..rig import resolve_features
+    from ..io import export_keyshapes, read_performance
+    from ..pipelines import select_keys
 
     out = Path(args.out)
     _protect(out, [args.performance, args.source_rig])
-    method = {"kmeans": "kmeans2", "pca": "pca-extrema", "greedy": "nnls-greedy", "qr": "pivoted-qr"}.get(
-        args.method, args.method)
-    if method not in SELECTION_METHODS:
-        raise InvalidDataError(f"unknown selection method '{args.method}', use one of "
-                               f"{', '.join(SELECTION_METHODS)} (kmeans = kmeans2)")
     if args.k < 1:
         raise InvalidDataError(f"--k must be at least 1, got {args.k}")
-    t0 = time.perf_counter()
     perf = read_performance(args.performance, fps=args.fps)
-    rig = load_rig(args.source_rig, neutral=args.source_neutral) if args.source_rig else None
-    pts, labels, neutral, mesh, _ = _geometry_take(perf, rig, log, align=not args.no_align,
-                                                   rigid_subset=args.rigid_subset)
-    T = len(pts)
-    complete = np.isfinite(pts).all(axis=(1, 2))
-    if not complete.any():
-        raise InvalidDataError(f"{perf.source}: no frame has every marker; fill gaps first")
-    if neutral is None:
-        nf = int(np.flatnonzero(complete)[0]) if args.neutral_frame is None else args.neutral_frame
-        if not 0 <= nf < T:
-            raise InvalidDataError(f"--neutral-frame {nf} is outside the take's frames 0..{T - 1}")
-        if not complete[nf]:
-            raise InvalidDataError(f"{perf.source}: neutral frame {nf} has missing markers; choose another")
-        neutral = pts[nf]
-        log(f"source neutral: frame {nf}")
-    feats = np.arange(pts.shape[1])
-    if rig is not None and args.features != "all":
-        feats = resolve_features(args.features, rig.n_vertices, rig.landmarks, who=rig.name)
-    cand = np.flatnonzero(complete)
-    X = (pts[cand][:, feats] - neutral[feats]).reshape(len(cand), -1)
-    if args.k > len(cand):
-        raise InvalidDataError(f"--k {args.k} is more than the {len(cand)} complete frames of {perf.source}")
-    frames = cand[np.asarray(select_keyshapes(X, args.k, method), dtype=int)]
-    err = reconstruction_error(X, np.searchsorted(cand, frames))
-    log(f"selected {len(frames)} keyshapes with {method} in {time.perf_counter() - t0:.2f} s; "
-        f"non-negative reconstruction error of the take {100 * err:.2f} %")
-    chosen = sorted(frames.tolist())
+    sel = select_keys(perf, args.k, args.method, source_rig=_rig(args.source_rig, args.source_neutral),
+                      features=args.features, neutral_frame=args.neutral_frame, align=not args.no_align,
+                      rigid_subset=_subset(args.rigid_subset), log=log)
+    geo = sel.geometry
     if perf.kind == "points":
-        from ..performance import Performance
-
-        aligned = Performance.from_points(pts, labels, times=perf.times, unit=perf.unit, source=perf.source)
-        export_keyshapes(aligned, chosen, out, neutral=neutral)
+        aligned = Performance.from_points(geo.points, geo.labels, times=perf.times, unit=perf.unit, source=perf.source)
+        export_keyshapes(aligned, sel.frames, out, neutral=sel.neutral)
     else:
-        export_keyshapes(pts, chosen, out, mesh=mesh, neutral=neutral)
-    log(f"wrote {out}: {len(frames)} keyshapes, neutral.obj, keyshapes.txt and contact_sheet.png; model the "
+        export_keyshapes(geo.points, sel.frames, out, mesh=geo.mesh, neutral=sel.neutral)
+    log(f"wrote {out}: {len(sel.frames)} keyshapes, neutral.obj, keyshapes.txt and contact_sheet.png; model the "
         "target counterparts under the same file names (frame_*.obj) beside the target's neutral.obj")
     return 0
-
-
-def _load_keys(folder, neutral, landmarks, rig=None):
-    """Keyshapes from an exported/artist folder (``frame_*.obj``) or an ARKit-style rig folder."""
-    from ..io import is_keyshape_folder, load_rig, read_marker_labels, read_target_keyshapes
-
-    if folder is None:
-        return None, []
-    if Path(folder).is_dir() and is_keyshape_folder(folder):
-        keys = read_target_keyshapes(folder, neutral=neutral)
-        if landmarks is not None:
-            keys.landmarks = np.loadtxt(landmarks, dtype=np.int64, ndmin=1)
-        elif rig is not None and rig.n_vertices == keys.n_vertices:
-            keys.landmarks = rig.landmarks
-        return keys, read_marker_labels(folder)
-    return load_rig(folder, neutral=neutral, landmarks=landmarks), []
 
 
 def cmd_retarget(args, log) -> int:
@@ -224,67 +121,32 @@ def cmd_retarget(args, log) -> int:
 
 
 def _retarget(args, log) -> int:
-    from ..io import load_rig, read_performance, write_animation
-    from ..names import ARKIT_NAMES, normalize_name
-    from ..performance import Performance
-    from ..retarget import BlendshapeRetargeter, check_consistency, load_regions
+    from ..cloning import keymodel_pair
+    from ..io import is_keyshape_folder, read_keys, read_performance
+    from ..pipelines import retarget_take, write_result
+    from ..retarget import load_regions
 
     out = Path(args.out)
     _protect(out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions])
-    t0 = time.perf_counter()
     perf = read_performance(args.performance, fps=args.fps)
-    rig = load_rig(args.source_rig, neutral=args.source_neutral) if args.source_rig else None
-    from ..io import is_keyshape_folder
-
-    sk, labels = _load_keys(args.source_keys, args.source_neutral, args.source_landmarks, rig)
-    tk, _ = _load_keys(args.target_keys, args.target_neutral, args.target_landmarks)
-    rigs = not is_keyshape_folder(args.source_keys) and not is_keyshape_folder(args.target_keys)
-    if rigs:
+    rig = _rig(args.source_rig, args.source_neutral)
+    sk, labels = read_keys(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks, rig=rig)
+    tk, _ = read_keys(args.target_keys, neutral=args.target_neutral, landmarks=args.target_landmarks)
+    if not is_keyshape_folder(args.source_keys) and not is_keyshape_folder(args.target_keys):
         # two ARKit-style rigs: pair their shapes through the ARKit names (split halves, aliases)
-        from ..cloning import keymodel_pair
-
-        if rig is None:
-            rig = sk
+        rig = sk if rig is None else rig
         sk, tk, _ = keymodel_pair(sk, tk, "arkit")
     log(f"keyshapes: {sk.n_shapes} source from {args.source_keys}, {tk.n_shapes} target from {args.target_keys}")
-    if perf.kind == "weights":
-        if rig is None:
-            raise InvalidDataError(f"{perf.source}: a weight take needs the rig it drives (--source-rig DIR)")
-        frames = _source_frames(perf, rig, log)
-        take = Performance.from_vertices(frames, times=perf.times, source=perf.source)
-        take.head_rotation = perf.head_rotation
-    else:
-        take = perf
     regions = None
     if args.regions:
         regions = args.regions if args.regions in ("upper-lower", "default") else load_regions(args.regions)
-    if args.check:
-        rep = check_consistency(sk, tk)
-        log(rep.table())
-    rt = BlendshapeRetargeter(args.solver, upper=args.upper, l1=args.l1, l2=args.l2, smooth=args.temporal,
-                              denoise=not args.no_denoise, filter_level=args.smooth, regions=regions,
-                              align=not args.no_align,
-                              rigid_subset=[s.strip() for s in args.rigid_subset.split(",")] if args.rigid_subset else None)
-    rt.fit(sk, tk, source_labels=labels)
-    W = rt.transform(take)
-    if getattr(rt, "aligner_", None) is not None:
-        log(rt.aligner_.report(perf.unit))
-    if rt.noise_sigma_ > 0:
-        log(f"estimated capture noise {rt.noise_sigma_ * sk.mm_per_unit:.3f} mm: denoised over time")
-    if args.smooth:
-        log(f"weight filter level {args.smooth}: removed {100 * rt.extremes_removed_:.1f} % of the extremes")
-    log(f"retargeted {perf.n_frames} frames with '{args.solver}' in {time.perf_counter() - t0:.2f} s")
-    ext = out.suffix.lower()
-    if ext == ".csv":
-        kw = rt.key_weights(W)
-        arkit = [normalize_name(n) for n in rt.names_]
-        if not all(n in ARKIT_NAMES for n in arkit):
-            raise OutputError(f"{out}: a Live Link Face CSV needs ARKit-named target keys ({rt.names_[0]} is not "
-                              "one); write .glb or .npz instead")
-        write_animation(out, weights=kw, names=arkit, times=perf.times, head_rotation=take.head_rotation)
-    else:
-        write_animation(out, rig=rt.target_keys, weights=W, names=list(rt.weight_names_), times=perf.times)
-    log(f"wrote {out} ({perf.n_frames} frames, {len(rt.weight_names_)} target keyshapes)")
+    if perf.kind == "weights" and rig is None:
+        raise InvalidDataError(f"{perf.source}: a weight take needs the rig it drives (--source-rig DIR)")
+    job = retarget_take(perf, sk, tk, source_labels=labels, source_rig=rig, check=args.check, log=log,
+                        solver=args.solver, upper=args.upper, l1=args.l1, l2=args.l2, smooth=args.temporal,
+                        denoise=not args.no_denoise, filter_level=args.smooth, regions=regions,
+                        align=not args.no_align, rigid_subset=_subset(args.rigid_subset))
+    write_result(out, job, log=log)
     return 0
 
 

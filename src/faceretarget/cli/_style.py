@@ -147,7 +147,8 @@ def cmd_restyle(args, log) -> int:
             raise InvalidDataError(f"--window must be positive seconds, got {args.window}")
         window = max(1, int(round(args.window * perf.fps)))
     with warnings_to_log(log):
-        new, res = model.restyle(perf, args.to, args.amount, source=args.source, window=window, margin=args.margin)
+        res = model.transform(perf, args.to, args.amount, source=args.source, window=window, margin=args.margin)
+        new = res.take
     if args.source is None:
         w = res.style_weights.mean(0)
         top = sorted(zip(model.styles_, w, strict=True), key=lambda x: -x[1])

@@ -46,7 +46,8 @@ def run_command(args) -> int:
     """Run ``args.func(args, log)``: errors a user can act on as one line and exit code 2."""
     log = Log(getattr(args, "quiet", False))
     try:
-        return int(args.func(args, log) or 0)
+        with warnings_to_log(log):          # every command prints warnings the same way: one line each
+            return int(args.func(args, log) or 0)
     except FaceRetargetError as e:
         print(f"faceretarget: error: {e}", file=sys.stderr)
         return 2

@@ -12,7 +12,7 @@
 """
 
 from ._cardinal import CardinalBasis, cubic_bspline
-from ._cloner import METHODS, ExpressionCloner
+from ._cloner import METHODS, CloneResult, ExpressionCloner
 from ._composition import (
     Importance,
     blend_weight,
@@ -37,7 +37,7 @@ from ._tables import (
 )
 
 __all__ = [
-    "ExpressionCloner", "METHODS", "CardinalBasis", "cubic_bspline", "FeaturePCA", "feature_vectors",
+    "ExpressionCloner", "CloneResult", "METHODS", "CardinalBasis", "cubic_bspline", "FeaturePCA", "feature_vectors",
     "build_key_models", "compose_key_models", "compose_displacements", "vertex_importance", "raw_importance",
     "propagate_importance", "blend_weight", "Importance", "KEYSETS", "keymodel_pair", "keymodel_rig",
     "keyset_weights", "EMOTIONS", "VISEMES", "combined_weight_vectors", "emotion_vectors", "viseme_vectors",

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.distance import cdist
 
+from ..base import Model
 from ..errors import SingularKeysError
 
 __all__ = ["cubic_bspline", "CardinalBasis"]
@@ -33,7 +34,7 @@ def cubic_bspline(x: np.ndarray) -> np.ndarray:
     return out
 
 
-class CardinalBasis:
+class CardinalBasis(Model):
     """Cardinal weight functions over example parameter vectors.
 
     Parameters
@@ -84,8 +85,9 @@ class CardinalBasis:
     def _radial_matrix(self, P: np.ndarray) -> np.ndarray:
         return cubic_bspline(cdist(P, self.centers_) / self.dilation_[None, :])
 
-    def weights(self, P: np.ndarray) -> np.ndarray:
+    def transform(self, P: np.ndarray) -> np.ndarray:
         """Weights ``(T, M)`` of the examples at parameter vectors ``P`` ``(T, d)``."""
+        self._check_fitted()
         P = np.atleast_2d(np.asarray(P, dtype=np.float64))
         w = np.hstack([np.ones((len(P), 1)), P]) @ self.linear_
         if self.radial:

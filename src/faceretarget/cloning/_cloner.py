@@ -17,7 +17,7 @@ Three ways to compute the weights (``method``):
     expressions between and beyond the keys.
 ``"temporal"`` (default)
     ``"linear"`` on the whole take at once with take-adaptive denoising
-    (:mod:`faceretarget.cloning.temporal`): capture noise is independent from frame to frame, the
+    (:mod:`faceretarget.numerics`): capture noise is independent from frame to frame, the
     face is not, and the noise level is estimated from the take itself.  On a clean take it equals
     ``"linear"``.
 
@@ -32,25 +32,68 @@ cannot express (the paper's stated limitation), with a warning when many frames 
 
 from __future__ import annotations
 
-import json
 import warnings
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..base import Model
 from ..errors import FitWarning, InvalidDataError, MissingShapeError, SingularKeysError, TopologyError
+from ..headpose import HeadPose
 from ..numerics import denoise_take, estimate_noise_sigma
 from ..performance import Performance
 from ..rig import Rig, resolve_features
+from ..timebase import infer_fps
 from ._cardinal import CardinalBasis
 from ._features import FeaturePCA, feature_vectors
 
-__all__ = ["ExpressionCloner", "METHODS"]
+__all__ = ["ExpressionCloner", "CloneResult", "METHODS"]
 
 METHODS = ("temporal", "linear", "pyun")
 
 
-class ExpressionCloner:
+@dataclass(eq=False)
+class CloneResult:
+    """What :meth:`ExpressionCloner.transform` gives for one take.
+
+    Attributes
+    ----------
+    weights : (T, N) float
+        Key-model weights, columns named by ``names`` (the target key-models'
+        :attr:`ExpressionCloner.target_keys_`).
+    names : list of str
+    times : (T,) float or None
+        Frame times (None for an array given without times).
+    outside : (T,) float
+        Each frame's outside score: the share of its feature motion the key-models cannot express
+        (less what capture noise explains).
+    noise_sigma : float
+        Noise level removed (``"temporal"``), in the source's units; 0 when none was.
+    head, audio, audio_rate, source
+        Carried from the input take.
+    """
+
+    weights: np.ndarray
+    names: list[str]
+    times: np.ndarray | None
+    outside: np.ndarray
+    noise_sigma: float = 0.0
+    head: HeadPose | None = None
+    audio: np.ndarray | None = None
+    audio_rate: float | None = None
+    source: str = "clone"
+
+    @property
+    def take(self) -> Performance:
+        """The weights as a take on the target key-models, with the input's head motion and audio."""
+        if self.times is None:
+            raise InvalidDataError(f"{self.source}: frames were given without times; pass times= to transform")
+        return Performance(self.times, infer_fps(self.times, default=30.0), weights=self.weights,
+                           names=list(self.names), head=self.head, audio=self.audio, audio_rate=self.audio_rate,
+                           source=self.source)
+
+
+class ExpressionCloner(Model):
     """Clone a performance from source key-models onto target key-models.
 
     Parameters
@@ -75,10 +118,9 @@ class ExpressionCloner:
     names_ : list of str
         Key-model names, in the order of the weights.
     feature_idx_ : (P,) int
-    outside_ : (T,) float
-        Outside score of the frames of the last :meth:`transform`.
-    noise_sigma_ : float
-        Noise level used in the last :meth:`transform` (``"temporal"``).
+    target_keys_ : Rig
+        The target key-models in weight order (neutral + key-models as shapes): the morph
+        targets a written animation plays.
     """
 
     def __init__(self, method: str = "temporal", features="landmarks", eig_threshold: float = 1e-6,
@@ -121,7 +163,8 @@ class ExpressionCloner:
         self.target_deltas_ = target_keys.deltas[tidx].reshape(len(names), -1)   # (N, 3Vt)
         self.source_unit_ = source_keys.unit
         self.target_unit_ = target_keys.unit
-        self._target_rig = target_keys.subset(names) if len(tidx) != target_keys.n_shapes or tidx != list(range(len(tidx))) else target_keys
+        same = len(tidx) == target_keys.n_shapes and tidx == list(range(len(tidx)))
+        self.target_keys_ = target_keys if same else target_keys.subset(names)
         # key-model span of the features, for the linear methods and the outside score
         U, S, Vt = np.linalg.svd(X.T, full_matrices=False)
         rank = int((S > 1e-9 * S[0]).sum()) if S.size and S[0] > 0 else 0
@@ -162,6 +205,7 @@ class ExpressionCloner:
 
     # ------------------------------------------------------------------ applying
     def _features_of(self, perf_or_array) -> tuple[np.ndarray, np.ndarray | None]:
+        self._check_fitted()
         times = None
         if isinstance(perf_or_array, Performance):
             times = perf_or_array.times
@@ -194,8 +238,8 @@ class ExpressionCloner:
             raise InvalidDataError(f"{src}: frame {t} has missing or non-finite feature points")
         return F, times
 
-    def transform(self, perf_or_vertices, times: np.ndarray | None = None) -> np.ndarray:
-        """Key-model weights ``(T, N)`` for a take.
+    def transform(self, perf_or_vertices, times: np.ndarray | None = None) -> CloneResult:
+        """Key-model weights of a take (:class:`CloneResult`; ``.weights`` is ``(T, N)``).
 
         Parameters
         ----------
@@ -212,95 +256,47 @@ class ExpressionCloner:
         # share of each frame's motion the key-models cannot express, less what capture noise explains
         r2 = (resid**2).sum(axis=1) - (F.shape[1] - self.U_.shape[1]) * sigma**2
         floor = 0.1 * self.key_scale_
-        self.outside_ = np.sqrt(np.maximum(r2, 0.0)) / np.maximum(np.linalg.norm(F, axis=1), floor)
-        frac = float((self.outside_ > self.outside_warn).mean())
+        outside = np.sqrt(np.maximum(r2, 0.0)) / np.maximum(np.linalg.norm(F, axis=1), floor)
+        frac = float((outside > self.outside_warn).mean())
         if frac > 0.05:
-            worst = int(np.argmax(self.outside_))
+            worst = int(np.argmax(outside))
             warnings.warn(
                 f"{frac:.0%} of frames lie outside the key-models (worst frame {worst}: "
-                f"{self.outside_[worst]:.0%} of its motion unexplained); add key-models that cover them",
+                f"{outside[worst]:.0%} of its motion unexplained); add key-models that cover them",
                 FitWarning,
                 stacklevel=2,
             )
-        self.noise_sigma_ = 0.0
+        used = 0.0
         if self.method == "temporal" and sigma > 0 and len(F) >= 8:
-            C, self.noise_sigma_ = denoise_take(C, times, sigma=sigma)
+            C, used = denoise_take(C, times, sigma=sigma)
         if self.method == "pyun":
-            return self.basis_.weights(self.pca_.transform(F))[:, 1:]
-        return (C / self.S_) @ self.Vt_
+            W = self.basis_.transform(self.pca_.transform(F))[:, 1:]
+        else:
+            W = (C / self.S_) @ self.Vt_
+        res = CloneResult(W, list(self.names_), times, outside, used)
+        if isinstance(perf_or_vertices, Performance):
+            p = perf_or_vertices
+            res.head, res.audio, res.audio_rate, res.source = p.head, p.audio, p.audio_rate, p.source
+        return res
 
     def blend(self, weights: np.ndarray) -> np.ndarray:
         """Target meshes ``(T, Vt, 3)`` for key-model weights ``(T, N)`` (Eq. 9-11), one matrix product."""
+        self._check_fitted("blend")
         w = np.atleast_2d(np.asarray(weights, dtype=np.float64))
         out = (w @ self.target_deltas_).reshape(len(w), -1, 3)
         out += self.target_neutral_
         return out
 
-    def clone(self, perf: Performance) -> Performance:
-        """Clone a take: a weight Performance on the target key-models (see :attr:`target_keys`)."""
-        w = self.transform(perf)
-        return Performance(perf.times, perf.fps, weights=w, names=list(self.names_),
-                           head_rotation=perf.head_rotation, head_translation=perf.head_translation,
-                           audio=perf.audio, audio_rate=perf.audio_rate, source=perf.source)
-
-    @property
-    def target_keys(self) -> Rig:
-        """The target key-models in weight order (a Rig: neutral + key-models as shapes)."""
-        return self._target_rig
-
     def stream_frame(self, frame: np.ndarray) -> np.ndarray:
         """Clone one frame as it arrives (no look-ahead, no denoising): ``(V|P, 3) -> (Vt, 3)``."""
+        self._check_fitted("stream_frame")
         f = np.asarray(frame, dtype=np.float64)
         if f.shape[0] == len(self.source_neutral_):
             x = (f[self.feature_idx_] - self.source_neutral_[self.feature_idx_]).reshape(-1)
         else:
             x = (f - self.source_neutral_[self.feature_idx_]).reshape(-1)
         if self.method == "pyun":
-            w = self.basis_.weights(self.pca_.transform(x[None]))[0, 1:]
+            w = self.basis_.transform(self.pca_.transform(x[None]))[0, 1:]
         else:
             w = self.wmap_ @ x
         return (w @ self.target_deltas_).reshape(-1, 3) + self.target_neutral_
-
-    # ------------------------------------------------------------------ persistence
-    def save(self, path) -> None:
-        """Save to ``.npz`` (arrays plus a JSON ``meta`` entry: method, names, units)."""
-        from ..files import atomic_path
-
-        arrays = {k: getattr(self, k) for k in ("feature_idx_", "source_neutral_", "target_neutral_",
-                                                "target_deltas_", "U_", "S_", "Vt_", "wmap_")}
-        if self.method == "pyun":
-            arrays.update(pca_mean=self.pca_.mean_, pca_components=self.pca_.components_,
-                          pca_eigenvalues=self.pca_.eigenvalues_, centers=self.basis_.centers_,
-                          dilation=self.basis_.dilation_, linear=self.basis_.linear_, radial=self.basis_.radial_)
-        meta = dict(method=self.method, names=self.names_, source_unit=self.source_unit_,
-                    target_unit=self.target_unit_, key_scale=self.key_scale_, noise_sigma=self.noise_sigma,
-                    outside_warn=self.outside_warn, format="faceretarget.ExpressionCloner/1")
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez(fh, meta=np.array(json.dumps(meta)), **arrays)
-
-    @classmethod
-    def load(cls, path) -> ExpressionCloner:
-        z = np.load(Path(path), allow_pickle=False)
-        meta = json.loads(str(z["meta"]))
-        self = cls(method=meta["method"], features=z["feature_idx_"], noise_sigma=meta["noise_sigma"],
-                   outside_warn=meta["outside_warn"])
-        for k in ("feature_idx_", "source_neutral_", "target_neutral_", "target_deltas_", "U_", "S_", "Vt_", "wmap_"):
-            setattr(self, k, z[k])
-        self.names_ = meta["names"]
-        self.source_unit_, self.target_unit_ = meta["source_unit"], meta["target_unit"]
-        self.key_scale_ = meta["key_scale"]
-        if self.method == "pyun":
-            self.pca_ = FeaturePCA()
-            self.pca_.mean_, self.pca_.components_, self.pca_.eigenvalues_ = z["pca_mean"], z["pca_components"], z["pca_eigenvalues"]
-            b = CardinalBasis()
-            b.centers_, b.dilation_, b.linear_, b.radial_ = z["centers"], z["dilation"], z["linear"], z["radial"]
-            self.basis_ = b
-        # faces are not saved: the loaded target keys carry vertices and deltas (enough for .glb
-        # morph targets as points, .npz and blending)
-        from ..mesh import Mesh
-
-        self._target_rig = Rig(Mesh(self.target_neutral_), list(self.names_),
-                               self.target_deltas_.reshape(len(self.names_), -1, 3), self.target_unit_,
-                               name="loaded:target-keys")
-        return self

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..base import Model
+
 __all__ = ["feature_vectors", "FeaturePCA"]
 
 
@@ -35,7 +37,7 @@ def feature_vectors(vertices: np.ndarray, neutral: np.ndarray, idx: np.ndarray |
     return (v[:, idx] - neutral[idx]).reshape(len(v), -1)
 
 
-class FeaturePCA:
+class FeaturePCA(Model):
     """PCA of key-model feature vectors (Pyun Sec. 3).
 
     Parameters
@@ -75,4 +77,5 @@ class FeaturePCA:
 
     def transform(self, X: np.ndarray) -> np.ndarray:
         """``(T, 3P)`` feature vectors -> ``(T, d)`` parameter vectors."""
+        self._check_fitted()
         return (np.asarray(X, dtype=np.float64) - self.mean_) @ self.components_.T

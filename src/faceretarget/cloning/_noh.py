@@ -61,7 +61,8 @@ from scipy.interpolate import RBFInterpolator
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
-from ..errors import FaceRetargetError, InvalidDataError
+from ..base import Model
+from ..errors import InvalidDataError
 from ..mesh import Mesh
 
 __all__ = ["NohNeumannCloner", "closest_points_on_mesh"]
@@ -218,7 +219,7 @@ def _mean_edge(mesh: Mesh, vertices: np.ndarray) -> float:
     return float(np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1).mean())
 
 
-class NohNeumannCloner:
+class NohNeumannCloner(Model):
     """Noh and Neumann's expression cloning: RBF dense correspondence plus motion-vector transfer.
 
     Parameters
@@ -254,8 +255,6 @@ class NohNeumannCloner:
 
     Attributes (after :meth:`fit`)
     ------------------------------
-    warp_ : callable
-        ``(n, 3)`` source-space points to target space.
     triangle_ : (Vt,) int
         Source triangle (of ``source_neutral.triangles()``) each target vertex corresponds to; -1 with
         ``projection="vertex"``.
@@ -291,11 +290,6 @@ class NohNeumannCloner:
         self.max_scale = max_scale
         self.max_angle = max_angle
         self.fd_step = fd_step
-
-    def __repr__(self) -> str:
-        return (f"NohNeumannCloner(kernel={self.kernel!r}, smoothing={self.smoothing}, "
-                f"local_scale={self.local_scale}, "
-                f"local_rotation={self.local_rotation}, projection={self.projection!r})")
 
     # ------------------------------------------------------------------ fit
     def fit(self, source_neutral: Mesh, target_neutral: Mesh, source_landmarks, target_landmarks
@@ -335,7 +329,6 @@ class NohNeumannCloner:
         except (ValueError, np.linalg.LinAlgError) as exc:
             raise InvalidDataError(f"RBF warp could not be fitted: {exc}") from exc
         self._mu, self._s, self._rbf = mu, s, rbf
-        self.warp_ = self._warp
         W = self._warp(Xs)  # warped source neutral, target space
 
         # 2. dense correspondence: closest point on the warped source surface
@@ -389,8 +382,7 @@ class NohNeumannCloner:
         self.transfer_ = S @ R @ J
         self.source_neutral_ = Xs.copy()
         self.target_neutral_ = Xt.copy()
-        self._used = np.unique(P.indices)  # source vertices some target vertex depends on
-        self._interp_used = P[:, self._used].tocsr()
+        self._after_load()
         return self
 
     @staticmethod
@@ -451,6 +443,11 @@ class NohNeumannCloner:
         return np.eye(3) + np.einsum("nak,nk,nbk->nab", axes, ratio - 1.0, axes)
 
     # ------------------------------------------------------------------ transform
+    def _after_load(self) -> None:
+        P = self.interpolation_
+        self._used = np.unique(P.indices)  # source vertices some target vertex depends on
+        self._interp_used = P[:, self._used].tocsr()
+
     def transform(self, source_vertices) -> np.ndarray:
         """Clone source frames onto the target.
 
@@ -464,8 +461,7 @@ class NohNeumannCloner:
         (T, Vt, 3) or (Vt, 3) float
             Target frames in the target's space.
         """
-        if not hasattr(self, "transfer_"):
-            raise FaceRetargetError("NohNeumannCloner: call fit() before transform()")
+        self._check_fitted()
         X = np.asarray(source_vertices, dtype=np.float64)
         single = X.ndim == 2
         if single:

@@ -18,21 +18,12 @@ Head takes are :class:`~faceretarget.Performance` objects with audio and a
 """
 
 from ._blend import blend_segments
-from ._database import EULER, HeadMotionDatabase, PathWeights, SynthesisInfo
+from ._database import EULER, HeadMotionDatabase, HeadMotionResult, PathWeights, SynthesisInfo, take_duration
 from ._pitch import PitchTrack, extract_pitch
 from ._segments import PHRASE_STATS, Segmentation, segment_speech
-from ._takes import (
-    HeadTake,
-    head_motion_from_bvh,
-    head_motion_from_markers,
-    head_motion_from_smplx,
-    mirror_head_motion,
-    read_head_take,
-)
 from ._viterbi import viterbi
 
 __all__ = [
-    "HeadMotionDatabase", "PathWeights", "SynthesisInfo", "EULER", "HeadTake", "read_head_take",
-    "head_motion_from_bvh", "head_motion_from_smplx", "head_motion_from_markers", "mirror_head_motion",
+    "HeadMotionDatabase", "HeadMotionResult", "PathWeights", "SynthesisInfo", "EULER", "take_duration",
     "PitchTrack", "extract_pitch", "Segmentation", "segment_speech", "PHRASE_STATS", "viterbi", "blend_segments",
 ]

@@ -6,7 +6,7 @@ Each take's pitch is extracted (:func:`extract_pitch`) and cut into phrases and 
 (:func:`segment_speech`); the head motion (relative to the take's mean pose) is resampled to the
 database rate ``fps`` and each segment keeps the slice of motion between its onset and the next.
 With ``mirror=True`` every take is also stored left-right mirrored (same speech features,
-mirrored motion, :func:`mirror_head_motion`), doubling the data.
+mirrored motion, :func:`~faceretarget.headpose.mirror_yxz`), doubling the data.
 
 Synthesize
 ----------
@@ -56,60 +56,30 @@ Synthesize
 ``seed=None`` returns the best path; an integer seed perturbs the unary costs with Gumbel noise
 of scale ``temperature`` times their spread and so samples among near-best alternatives.
 
-File format (:meth:`HeadMotionDatabase.save`, ``.npz``, no pickles)
----------------------------------------------------------------------
-=================== ================ ==========================================================
-key                 shape            meaning
-=================== ================ ==========================================================
-``format``          ()  str          ``"faceretarget-headmotion"``
-``version``         ()  int          1
-``config``          ()  str          JSON of the constructor parameters and weights
-``motion``          (F, 6) float     yaw, pitch, roll (rad), x, y, z (cm) minus the take's mean,
-                                     at ``fps``, every stored take (and mirror) concatenated
-``copy_offset``     (C + 1,) int     first row of each stored take in ``motion``
-``copy_name``       (C,) str         take name of each stored take
-``copy_mirrored``   (C,) bool
-``copy_mean``       (C, 6) float     the mean pose subtracted from that take
-``mean_pose``       (6,) float       database mean pose (mean of ``copy_mean``)
-``seg_copy``        (S,) int         stored take of each segment
-``seg_base``        (S,) int         segment id shared by a segment and its mirror (reuse)
-``seg_frames``      (S, 2) int       first and last (inclusive) row in ``motion``
-``seg_time``        (S, 3) float     onset, voiced end, end in the take, s
-``seg_shape``       (S, n_shape)     length-normalised pitch, semitones
-``seg_phrase``      (S,) int         phrase of each segment
-``seg_next``        (S,) int         the consecutive segment in the same take, or -1
-``phrase_stats``    (P, 7) float     :data:`PHRASE_STATS`
-``phrase_copy``     (P,) int         stored take of each phrase
-=================== ================ ==========================================================
 """
 
 from __future__ import annotations
 
-import json
-import os
 import time
-import zipfile
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.spatial.transform import Rotation
 
-from ..errors import InputFileError, InvalidDataError
-from ..files import atomic_path, check_output_path, input_file
+from ..base import Model
+from ..errors import InvalidDataError
+from ..headpose import HeadPose, mirror_yxz
 from ..performance import Performance
 from ._blend import blend_segments
 from ._pitch import PitchTrack, extract_pitch
 from ._segments import PHRASE_STATS, Segmentation, segment_speech
-from ._takes import EULER, HeadTake, mirror_head_motion
 from ._viterbi import viterbi
 
-__all__ = ["HeadMotionDatabase", "PathWeights", "SynthesisInfo"]
+__all__ = ["HeadMotionDatabase", "HeadMotionResult", "PathWeights", "SynthesisInfo", "EULER", "take_duration"]
 
-_FORMAT = "faceretarget-headmotion"
-_VERSION = 1
+#: The Euler angles the database compares and blends motion in: intrinsic yaw (Y), pitch (X), roll (Z).
+EULER = "YXZ"
 _GAP0 = 0.05  # s, softens the log ratio of short voiceless lengths
 
 
@@ -148,9 +118,14 @@ class PathWeights:
     energy: float = 1.0
 
 
+def take_duration(take: Performance) -> float:
+    """Seconds a head-motion take covers with both audio and motion."""
+    return min(take.audio.size / take.audio_rate, (take.n_frames - 1) / take.fps)
+
+
 @dataclass
 class SynthesisInfo:
-    """What :meth:`HeadMotionDatabase.synthesize` chose (in ``last_synthesis_``).
+    """What :meth:`HeadMotionDatabase.transform` chose (:attr:`HeadMotionResult.info`).
 
     Attributes
     ----------
@@ -181,6 +156,14 @@ class SynthesisInfo:
     extra: dict = field(default_factory=dict)
 
 
+@dataclass(eq=False)
+class HeadMotionResult:
+    """What :meth:`HeadMotionDatabase.transform` gives: the head-motion take and how it was found."""
+
+    take: Performance
+    info: SynthesisInfo
+
+
 def _rel_diff(x: np.ndarray, y: np.ndarray, scale: float) -> np.ndarray:
     """(A, B) ``|x_a - y_b| / (scale + (|x_a| + |y_b|) / 2)`` for (A, 3) and (B, 3) vectors.
 
@@ -200,7 +183,7 @@ def _energy_features(shape: np.ndarray, voiced: np.ndarray, phrase_mean: np.ndar
                      np.log(np.maximum(voiced, 1e-3))], axis=1)
 
 
-class HeadMotionDatabase:
+class HeadMotionDatabase(Model):
     """Synthesize head motion for new speech from a database of recorded phrases.
 
     Parameters
@@ -257,9 +240,10 @@ class HeadMotionDatabase:
     take_names_ : list of str
         Stored takes (a mirrored copy is named ``name~mirror``).
     mean_pose_ : (6,) float
-        Yaw, pitch, roll (rad), x, y, z (cm) around which synthesized motion moves.
-    last_synthesis_ : SynthesisInfo
-        Details of the last :meth:`synthesize` call.
+        Yaw, pitch, roll (rad, intrinsic Y-X-Z), x, y, z (m) around which synthesized motion moves.
+    motion_ : (F, 6) float
+        Every stored take's motion as yaw, pitch, roll (rad), x, y, z (m) minus the take's mean, at
+        ``fps``, one after another (with the mirrored copies).
     """
 
     def __init__(self, *, fps: float = 30.0, f0_min: float = 60.0, f0_max: float = 500.0,
@@ -288,43 +272,36 @@ class HeadMotionDatabase:
         self.transition = transition
         self.center_continuity = center_continuity
 
-    # ------------------------------------------------------------------------------ configuration
-    def _config(self) -> dict:
-        keys = ("fps", "f0_min", "f0_max", "pitch_step", "pause", "n_shape", "mirror", "n_phrases",
-                "n_candidates", "length_weight", "max_subsequence", "max_warp", "tau_velocity", "smooth",
-                "temperature", "unwarped_head", "transition", "center_continuity")
-        cfg = {k: getattr(self, k) for k in keys}
-        cfg["weights"] = asdict(self.weights)
-        return cfg
 
     def pitch(self, audio: np.ndarray, rate: float) -> PitchTrack:
         """Pitch of ``audio`` with the database's settings."""
         return extract_pitch(audio, rate, f0_min=self.f0_min, f0_max=self.f0_max, time_step=self.pitch_step)
 
-    def _check_built(self) -> None:
-        if not hasattr(self, "motion_"):
-            raise InvalidDataError("HeadMotionDatabase: call build() (or load()) first")
-
     # ------------------------------------------------------------------------------------ build
-    def build(self, takes: Iterable[HeadTake], exclude: Iterable[tuple[str, float, float]] | None = None
-              ) -> HeadMotionDatabase:
-        """Analyse takes and store their phrases, segments and motion.
+    def fit(self, takes: Iterable[Performance], exclude: Iterable[tuple[str, float, float]] | None = None, *,
+            pitch: Iterable[PitchTrack | None] | None = None) -> HeadMotionDatabase:
+        """Analyse takes and store their phrases, segments and motion; returns self.
 
         Parameters
         ----------
-        takes : iterable of HeadTake
-            Takes with audio and head motion (their ``pitch`` is computed when absent and kept).
+        takes : iterable of Performance
+            Takes with audio and a head pose (:func:`~faceretarget.io.read_head_take`); each take's
+            ``source`` is its name.
         exclude : iterable of (name, t0, t1), optional
             Leave out every phrase of take ``name`` overlapping ``t0..t1`` seconds (for
             leave-one-out evaluation without re-extracting pitch).
-
-        Returns
-        -------
-        self
+        pitch : iterable of PitchTrack or None, optional
+            Each take's pitch (:meth:`pitch`) when already extracted; computed when absent.
         """
         takes = list(takes)
         if not takes:
-            raise InvalidDataError("HeadMotionDatabase.build: no takes given")
+            raise InvalidDataError("HeadMotionDatabase.fit: no takes given")
+        pitches = list(pitch) if pitch is not None else [None] * len(takes)
+        if len(pitches) != len(takes):
+            raise InvalidDataError(f"HeadMotionDatabase.fit: {len(pitches)} pitch tracks for {len(takes)} takes")
+        for t in takes:
+            if not isinstance(t, Performance) or t.head is None or t.audio is None:
+                raise InvalidDataError(f"{getattr(t, 'source', t)}: a head-motion take needs audio and a head pose")
         excl: dict[str, list[tuple[float, float]]] = {}
         for nm, t0, t1 in exclude or ():
             excl.setdefault(nm, []).append((float(t0), float(t1)))
@@ -333,20 +310,22 @@ class HeadMotionDatabase:
         seg_cols: dict[str, list] = {k: [] for k in ("copy", "base", "frames", "time", "shape", "phrase", "next")}
         ph_stats, ph_copy = [], []
         base0 = 0
-        for take in takes:
-            if take.pitch is None:
-                take.pitch = self.pitch(take.audio, take.rate)
-            seg = segment_speech(take.pitch, pause=self.pause, n_shape=self.n_shape)
-            dur = take.duration
+        for take, track in zip(takes, pitches, strict=True):
+            name = take.source
+            track = track if track is not None else self.pitch(take.audio, take.audio_rate)
+            seg = segment_speech(track, pause=self.pause, n_shape=self.n_shape)
+            dur = take_duration(take)
             n_f = int(np.floor(dur * F + 1e-9)) + 1
-            t_src = np.arange(take.rotation.shape[0]) / take.fps
+            t_src = np.arange(take.n_frames) / take.fps
             t_db = np.arange(n_f) / F
-            rot = np.unwrap(take.rotation, axis=0)
-            m = np.concatenate([rot, take.translation], axis=1)
+            rot = np.unwrap(take.head.to_euler(EULER), axis=0)
+            tr = take.head.translation
+            tr = np.zeros_like(rot) if tr is None else np.where(np.isfinite(tr), tr, 0.0)
+            m = np.concatenate([rot, tr], axis=1)
             m = CubicSpline(t_src, m, axis=0)(t_db)
             # segments and phrases kept
             keep_ph = np.ones(seg.n_phrases, bool)
-            for t0, t1 in excl.get(take.name, []):
+            for t0, t1 in excl.get(name, []):
                 p_end = np.r_[seg.phrase_start[1:], seg.duration]
                 keep_ph &= ~((seg.phrase_start < t1) & (p_end > t0))
             f0 = np.round(seg.start * F).astype(int)
@@ -358,7 +337,7 @@ class HeadMotionDatabase:
             new_ph = np.cumsum(keep_ph) - 1  # renumber kept phrases
             copies = [(False, m)]
             if self.mirror:
-                r2, t2 = mirror_head_motion(m[:, :3], m[:, 3:])
+                r2, t2 = mirror_yxz(m[:, :3], m[:, 3:])
                 copies.append((True, np.concatenate([r2, t2], axis=1)))
             nxt_local = np.full(idx.size, -1)
             consec = np.diff(idx) == 1
@@ -369,7 +348,7 @@ class HeadMotionDatabase:
                 row0 = offs[-1]
                 motion.append(mm - mean)
                 offs.append(row0 + n_f)
-                names.append(take.name + ("~mirror" if is_mirror else ""))
+                names.append(name + ("~mirror" if is_mirror else ""))
                 mirrored.append(is_mirror)
                 means.append(mean)
                 s0 = sum(len(x) for x in seg_cols["copy"])
@@ -385,8 +364,8 @@ class HeadMotionDatabase:
                 ph_copy.append(np.full(int(keep_ph.sum()), c))
             base0 += idx.size
         if not names:
-            raise InvalidDataError("HeadMotionDatabase.build: no voiced speech with head motion in the "
-                                   f"takes ({', '.join(t.name for t in takes)})")
+            raise InvalidDataError("HeadMotionDatabase.fit: no voiced speech with head motion in the "
+                                   f"takes ({', '.join(t.source for t in takes)})")
         self.motion_ = np.concatenate(motion)
         self.copy_offset_ = np.asarray(offs, int)
         self.take_names_ = names
@@ -404,8 +383,6 @@ class HeadMotionDatabase:
         self.phrase_copy_ = np.concatenate(ph_copy)
         self._prepare()
         return self
-
-    fit = build
 
     def _prepare(self) -> None:
         """Derived tables (not stored): scales, boundary states, phrase-to-segment lists."""
@@ -581,18 +558,18 @@ class HeadMotionDatabase:
         labels = [self.seg_base_[c] for c in cands]
         return unary, pair, labels
 
-    def synthesize(self, audio: np.ndarray, rate: float, *, amplitude: float = 1.0, rotation: bool = True,
-                   translation: bool = True, seed: int | None = None, fps: float | None = None,
-                   pitch: PitchTrack | None = None, source: str = "headmotion",
-                   path: np.ndarray | None = None) -> Performance:
-        """Head motion for new speech.
+    def transform(self, speech: Performance | np.ndarray, rate: float | None = None, *, amplitude: float = 1.0,
+                  rotation: bool = True, translation: bool = True, seed: int | None = None,
+                  fps: float | None = None, pitch: PitchTrack | None = None, source: str | None = None,
+                  path: np.ndarray | None = None) -> HeadMotionResult:
+        """Head motion for new speech (Chuang Ch. 4's synthesis).
 
         Parameters
         ----------
-        audio : (N,) float
-            Mono speech samples in [-1, 1].
+        speech : Performance or (N,) float
+            A take with audio, or mono speech samples in [-1, 1].
         rate : float
-            Sampling rate, Hz.
+            Sampling rate, Hz (for samples).
         amplitude : float
             Scale of the motion about the database's mean pose (1 = as recorded).
         rotation, translation : bool
@@ -603,32 +580,39 @@ class HeadMotionDatabase:
             Output frame rate (default the database's).
         pitch : PitchTrack, optional
             Precomputed pitch of ``audio``.
-        source : str
-            Name of the returned performance (for messages).
+        source : str, optional
+            Name of the returned take (default the input take's, else ``"headmotion"``).
         path : (N,) int, optional
             Skip the search and blend these database segments, one per input segment (for
             baselines and experiments; N must equal the input's segment count).
 
         Returns
         -------
-        Performance
-            ``times`` (T,) covering the audio at ``fps``; ``head_rotation`` (T, 3) yaw, pitch, roll
-            in **radians** (Y-X-Z, see :mod:`faceretarget.headmotion`), as Live Link Face writes
-            ``HeadYaw, HeadPitch, HeadRoll``; ``head_translation`` (T, 3) centimetres or None;
-            ``weights`` (T, 0) (no face channels) and the ``audio``.
+        HeadMotionResult
+            ``take``: ``times`` (T,) covering the audio at ``fps``, ``head`` (a
+            :class:`~faceretarget.headpose.HeadPose`, translation in metres or None) and the
+            ``audio``; ``info``: what the search chose and the time it took.
 
         Raises
         ------
         InvalidDataError
             No voiced speech in the audio, or a database not built.
         """
-        self._check_built()
+        self._check_fitted()
+        if isinstance(speech, Performance):
+            if speech.audio is None:
+                raise InvalidDataError(f"{speech.source}: the take has no audio to follow")
+            x, rate, source = speech.audio, speech.audio_rate, source or speech.source
+        else:
+            if rate is None:
+                raise InvalidDataError("give the audio's sampling rate (rate=)")
+            x = np.asarray(speech, np.float32).reshape(-1)
+        source = source or "headmotion"
         fps = float(self.fps if fps is None else fps)
         if not (np.isfinite(fps) and fps > 0):
             raise InvalidDataError(f"fps must be positive, got {fps}")
         if not np.isfinite(amplitude):
             raise InvalidDataError(f"amplitude must be finite, got {amplitude}")
-        x = np.asarray(audio, np.float32).reshape(-1)
         t0 = time.perf_counter()
         track = pitch if pitch is not None else self.pitch(x, rate)
         t1 = time.perf_counter()
@@ -641,10 +625,10 @@ class HeadMotionDatabase:
         rot = (rot + np.pi) % (2 * np.pi) - np.pi
         tr = pose[:, 3:] if translation else None
         info.search_seconds = time.perf_counter() - t1
-        self.last_synthesis_ = info
-        return Performance(times=np.arange(n) / fps, fps=fps, weights=np.zeros((n, 0)), names=[],
-                           head_rotation=rot, head_translation=tr, audio=x, audio_rate=float(rate),
+        head = HeadPose.from_euler(EULER, rot, tr, source=source)
+        take = Performance(times=np.arange(n) / fps, fps=fps, head=head, audio=x, audio_rate=float(rate),
                            source=source)
+        return HeadMotionResult(take, info)
 
     def _synthesize_track(self, track: PitchTrack, fps: float, seed: int | None,
                           path: np.ndarray | None = None) -> tuple[np.ndarray, SynthesisInfo]:
@@ -687,95 +671,14 @@ class HeadMotionDatabase:
                                   head=head / step, step=step, transition=self.transition)
         return y, SynthesisInfo(seg, path, a, joins, knots, float(cost))
 
-    # ------------------------------------------------------------------------------ save / load
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the database to a ``.npz`` (layout in the module docstring), whole or not at all."""
-        self._check_built()
-        path = check_output_path(path)
-        arrays = dict(
-            format=np.array(_FORMAT), version=np.array(_VERSION), config=np.array(json.dumps(self._config())),
-            motion=self.motion_, copy_offset=self.copy_offset_, copy_name=np.array(self.take_names_, dtype=str),
-            copy_mirrored=self.copy_mirrored_, copy_mean=self.copy_mean_, mean_pose=self.mean_pose_,
-            seg_copy=self.seg_copy_, seg_base=self.seg_base_, seg_frames=self.seg_frames_,
-            seg_time=self.seg_time_, seg_shape=self.seg_shape_, seg_phrase=self.seg_phrase_,
-            seg_next=self.seg_next_, phrase_stats=self.phrase_stats_, phrase_copy=self.phrase_copy_,
-        )
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as f:
-                np.savez_compressed(f, **arrays)
-        return path
-
-    @classmethod
-    def load(cls, path: str | os.PathLike) -> HeadMotionDatabase:
-        """Read a database written by :meth:`save`.
-
-        Raises
-        ------
-        InputFileError
-            Missing file, not an ``.npz``, or not a head-motion database (naming the missing key).
-        """
-        path = input_file(path)
-        if not zipfile.is_zipfile(path):
-            raise InputFileError(f"{path}: not an .npz archive (expected a head-motion database written by "
-                                 "'faceretarget headmotion build')")
-        need = ("format", "version", "config", "motion", "copy_offset", "copy_name", "copy_mirrored",
-                "copy_mean", "mean_pose", "seg_copy", "seg_base", "seg_frames", "seg_time", "seg_shape",
-                "seg_phrase", "seg_next", "phrase_stats", "phrase_copy")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                missing = [k for k in need if k not in z.files]
-                if missing:
-                    raise InputFileError(f"{path}: not a head-motion database (no '{missing[0]}'; build one "
-                                         "with 'faceretarget headmotion build')")
-                d = {k: z[k] for k in need}
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-            raise InputFileError(f"{path}: cannot read as a head-motion database .npz ({e})") from e
-        if str(d["format"]) != _FORMAT:
-            raise InputFileError(f"{path}: not a head-motion database (format {str(d['format'])!r})")
-        if int(d["version"]) > _VERSION:
-            raise InputFileError(f"{path}: database version {int(d['version'])} is newer than this "
-                                 f"faceretarget reads ({_VERSION})")
-        try:
-            cfg = json.loads(str(d["config"]))
-            weights = PathWeights(**cfg.pop("weights"))
-            db = cls(weights=weights, **cfg)
-        except (ValueError, TypeError, KeyError) as e:
-            raise InputFileError(f"{path}: malformed database configuration ({e})") from e
-        db.motion_ = np.asarray(d["motion"], np.float64)
-        db.copy_offset_ = d["copy_offset"].astype(int)
-        db.take_names_ = [str(s) for s in d["copy_name"]]
-        db.copy_mirrored_ = d["copy_mirrored"].astype(bool)
-        db.copy_mean_ = d["copy_mean"].astype(np.float64)
-        db.mean_pose_ = d["mean_pose"].astype(np.float64)
-        db.seg_copy_ = d["seg_copy"].astype(int)
-        db.seg_base_ = d["seg_base"].astype(int)
-        db.seg_frames_ = d["seg_frames"].astype(int)
-        db.seg_time_ = d["seg_time"].astype(np.float64)
-        db.seg_shape_ = d["seg_shape"].astype(np.float64)
-        db.seg_phrase_ = d["seg_phrase"].astype(int)
-        db.seg_next_ = d["seg_next"].astype(int)
-        db.phrase_stats_ = d["phrase_stats"].astype(np.float64)
-        db.phrase_copy_ = d["phrase_copy"].astype(int)
-        S = db.seg_copy_.size
-        F = db.motion_.shape[0]
-        if (db.motion_.ndim != 2 or db.motion_.shape[1] != 6 or db.seg_frames_.shape != (S, 2)
-                or S == 0 or db.seg_frames_.min() < 0 or db.seg_frames_.max() >= F
-                or (db.seg_frames_[:, 1] - db.seg_frames_[:, 0] < 2).any()
-                or db.seg_phrase_.max() >= db.phrase_stats_.shape[0]
-                or db.seg_shape_.shape != (S, db.n_shape)):
-            raise InputFileError(f"{path}: inconsistent head-motion database tables")
-        db._prepare()
-        return db
+    def _after_load(self) -> None:
+        self._prepare()
 
     def summary(self) -> str:
         """One line: takes, phrases, segments and minutes of motion."""
-        self._check_built()
+        self._check_fitted()
         mins = len(self.motion_) / self.fps / 60
         return (f"{len(self.take_names_)} stored take(s) ({int((~self.copy_mirrored_).sum())} recorded"
                 f"{', mirrored' if self.copy_mirrored_.any() else ''}), {self.n_phrases_} phrases, "
                 f"{self.n_segments_} segments, {mins:.1f} min of head motion at {self.fps:g} fps")
 
-
-def rotation_matrices(head_rotation: np.ndarray) -> np.ndarray:
-    """(T, 3, 3) from yaw, pitch, roll radians (Y-X-Z)."""
-    return Rotation.from_euler(EULER, np.asarray(head_rotation, np.float64)).as_matrix()

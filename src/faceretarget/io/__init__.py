@@ -16,11 +16,21 @@ from ._audio import read_audio
 from ._bvh import Bvh, BvhJoint, bvh_chain, make_head_bvh, read_bvh, write_bvh
 from ._c3d import read_c3d, write_c3d
 from ._gltf import glb_vertex_order, read_glb_head, read_glb_rig, read_glb_weights, write_glb, write_glb_head
-from ._head import HEAD_FORMATS, head_quaternions, write_head_motion
+from ._head import (
+    HEAD_FORMATS,
+    HEAD_READ_FORMATS,
+    read_bvh_head,
+    read_head_motion,
+    read_head_take,
+    read_marker_head,
+    read_smplx_head,
+    write_head_motion,
+)
 from ._keyshapes import (
     export_keyshapes,
     is_keyshape_folder,
     keyshape_filename,
+    read_keys,
     read_marker_labels,
     read_target_keyshapes,
 )
@@ -41,8 +51,9 @@ __all__ = [
     "read_c3d", "write_c3d",
     "read_audio",
     "Bvh", "BvhJoint", "bvh_chain", "make_head_bvh", "read_bvh", "write_bvh",
-    "write_head_motion", "head_quaternions", "HEAD_FORMATS",
-    "export_keyshapes", "read_target_keyshapes", "read_marker_labels", "is_keyshape_folder", "keyshape_filename",
+    "write_head_motion", "HEAD_FORMATS", "HEAD_READ_FORMATS", "read_head_motion", "read_head_take",
+    "read_bvh_head", "read_smplx_head", "read_marker_head",
+    "export_keyshapes", "read_target_keyshapes", "read_marker_labels", "is_keyshape_folder", "keyshape_filename", "read_keys",
     "VideoInfo", "probe_video", "iter_frames", "read_video_audio", "write_video",
     "atomic_path", "atomic_dir", "check_output_path", "input_file", "load_npz_arrays", "save_npz_arrays",
 ]

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import InputFileError, InvalidDataError
 from ..files import atomic_path, check_output_path, input_file, read_text
+from ..headpose import HeadPose
 
 __all__ = ["Bvh", "BvhJoint", "read_bvh", "write_bvh", "bvh_chain", "make_head_bvh"]
 
@@ -382,32 +383,31 @@ def write_bvh(path: str | os.PathLike, bvh: Bvh, decimals: int = 6) -> Path:
     return path
 
 
-def make_head_bvh(rotation_deg: np.ndarray, fps: float, translation: np.ndarray | None = None,
-                  joint: str = "Head", end_site: tuple[float, float, float] = (0.0, 10.0, 0.0)) -> Bvh:
-    """The minimal head skeleton: one root joint animated by yaw, pitch, roll (and a translation).
+def make_head_bvh(head: HeadPose, fps: float, joint: str = "Head",
+                  end_site: tuple[float, float, float] = (0.0, 10.0, 0.0)) -> Bvh:
+    """The minimal head skeleton: one root joint animated by the head pose.
 
     Parameters
     ----------
-    rotation_deg : (T, 3) float
-        Yaw, pitch, roll in degrees, intrinsic Y-X-Z (written as ``Yrotation Xrotation Zrotation``).
+    head : HeadPose
+        Written as ``Yrotation Xrotation Zrotation`` channels, degrees (the intrinsic Y-X-Z angles
+        of :mod:`faceretarget.headpose`: yaw, then pitch > 0 nodding down, then roll), preceded by
+        ``Xposition Yposition Zposition`` in centimetres when the pose has a translation.
     fps : float
         Frame rate.
-    translation : (T, 3) float, optional
-        Written as ``Xposition Yposition Zposition`` channels (in the caller's unit).
     joint : str
         Name of the joint.
     end_site : 3 floats
-        The ``End Site`` offset (the top of the head; for viewers that draw bones).
+        The ``End Site`` offset in centimetres (the top of the head; for viewers that draw bones).
     """
-    r = np.asarray(rotation_deg, np.float64)
-    if r.ndim != 2 or r.shape[1] != 3:
-        raise InvalidDataError(f"rotation must be (T, 3) yaw, pitch, roll, got {r.shape}")
+    if not head.valid.all():
+        raise InvalidDataError(f"{head.source}: frame {int(np.flatnonzero(~head.valid)[0])} has no head pose; "
+                               "a BVH needs one in every frame")
+    r = head.to_euler("YXZ", degrees=True)
     chans: tuple[str, ...] = ("Yrotation", "Xrotation", "Zrotation")
     motion = r
-    if translation is not None:
-        tr = np.asarray(translation, np.float64)
-        if tr.shape != r.shape:
-            raise InvalidDataError(f"translation must be {r.shape}, got {tr.shape}")
+    tr = head.translation_in("cm")
+    if tr is not None:
         chans = ("Xposition", "Yposition", "Zposition") + chans
         motion = np.concatenate([tr, r], axis=1)
     j = BvhJoint(joint, -1, np.zeros(3), chans, np.asarray(end_site, np.float64))

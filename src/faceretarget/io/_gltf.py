@@ -22,8 +22,8 @@ order equals the rig's when there are no seams; otherwise :func:`glb_vertex_orde
 glTF vertex, the rig vertex it came from, and the file stores the same array as
 ``mesh.extras.sourceVertices``.
 
-Head motion (:func:`write_glb_head`, or ``head_rotation=`` in :func:`write_glb`)
----------------------------------------------------------------------------------
+Head motion (:func:`write_glb_head`, or ``head=`` in :func:`write_glb`)
+-----------------------------------------------------------------------
 A node named ``head`` animated by its own ``rotation`` channel (unit quaternions ``x, y, z, w``,
 ``LINEAR``, which glTF viewers interpolate by slerp) and, when given, a ``translation`` channel
 (metres), in the same animation as the face's weights.  With a face, the face node becomes a child
@@ -43,6 +43,7 @@ import numpy as np
 
 from ..errors import InputFileError, InvalidDataError
 from ..files import atomic_path, check_output_path
+from ..headpose import HeadPose
 from ..mesh import Mesh
 from ..rig import Rig
 
@@ -137,8 +138,7 @@ def _key_times(path, t: np.ndarray) -> np.ndarray:
 
 def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.ndarray,
               names: list[str] | None = None, node_name: str = "face", *,
-              animation_name: str = "take", head_rotation: np.ndarray | None = None,
-              head_translation: np.ndarray | None = None,
+              animation_name: str = "take", head: HeadPose | None = None,
               head_pivot: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0)) -> Path:
     """Write the rig with its key shapes as morph targets, animated by ``weights``.
 
@@ -160,12 +160,10 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
         Name of the glTF node carrying the mesh and animated by the animation.
     animation_name : str
         Name of the animation.
-    head_rotation : (T, 4) float, optional
-        Head orientation per frame as unit quaternions ``x, y, z, w``: adds a ``head`` node, parent
-        of the face node, with a rotation channel in the same animation (module docstring).
-    head_translation : (T, 3) float, optional
-        Head displacement per frame in metres (a translation channel on the ``head`` node; only
-        with ``head_rotation``).
+    head : HeadPose, optional
+        Head motion per frame (:mod:`faceretarget.headpose`): adds a ``head`` node, parent of the
+        face node, with a rotation channel (and a translation channel, metres, when the pose has
+        one) in the same animation (module docstring).  Every frame needs a pose.
     head_pivot : 3 floats
         Rotation centre of the head in the rig's coordinates, metres.
 
@@ -228,11 +226,7 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     t_acc = b.accessor(t32, "SCALAR")
     w_acc = b.accessor(w.astype(np.float32).reshape(-1), "SCALAR", minmax=False)
 
-    head = None
-    if head_rotation is not None:
-        head = _head_keys(path, b, t.size, head_rotation, head_translation, head_pivot)
-    elif head_translation is not None:
-        raise InvalidDataError(f"{path}: head_translation needs head_rotation")
+    head_keys = None if head is None else _head_keys(path, b, t.size, head, head_pivot)
 
     mesh_extras: dict = {"targetNames": list(rig.names)}
     if len(src) != mesh.n_vertices or not np.array_equal(src, np.arange(mesh.n_vertices)):
@@ -258,8 +252,8 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
         "bufferViews": b.views,
         "accessors": b.accessors,
     }
-    if head is not None:
-        _add_head(gltf, head, t_acc, child=0)
+    if head_keys is not None:
+        _add_head(gltf, head_keys, t_acc, child=0)
     return _write_glb_file(path, gltf, b)
 
 
@@ -281,19 +275,17 @@ def _write_glb_file(path: Path, gltf: dict, b: _Builder) -> Path:
     return path
 
 
-def _head_keys(path: Path, b: _Builder, T: int, rotation, translation, pivot) -> dict:
+def _head_keys(path: Path, b: _Builder, T: int, head: HeadPose, pivot) -> dict:
     """Check head keyframes and store them: accessor ids of rotation (and translation)."""
-    q = np.asarray(rotation, dtype=np.float64)
-    if q.ndim != 2 or q.shape != (T, 4):
-        raise InvalidDataError(f"{path}: head rotation must be ({T}, 4) quaternions x, y, z, w, got {q.shape}")
-    if not np.isfinite(q).all():
-        f = int(np.flatnonzero(~np.isfinite(q).all(axis=1))[0])
-        raise InvalidDataError(f"{path}: head rotation of frame {f} is not finite")
-    nq = np.linalg.norm(q, axis=1)
-    if (nq < 1e-6).any():
-        f = int(np.flatnonzero(nq < 1e-6)[0])
-        raise InvalidDataError(f"{path}: head rotation of frame {f} is a zero quaternion")
-    q = q / nq[:, None]
+    if not isinstance(head, HeadPose):
+        raise InvalidDataError(f"{path}: head must be a HeadPose, got {type(head).__name__}")
+    if head.n_frames != T:
+        raise InvalidDataError(f"{path}: the head pose has {head.n_frames} frames for {T} times")
+    if not head.valid.all():
+        f = int(np.flatnonzero(~head.valid)[0])
+        raise InvalidDataError(f"{path}: frame {f} has no head pose (fill or drop it first)")
+    q = head.as_quat()
+    translation = head.translation
     q = q * np.where(q[:, 3:] < 0, -1.0, 1.0)  # same rotation, w >= 0
     # consecutive keys on the same hemisphere, so LINEAR (slerp) takes the short way
     flip = np.cumprod(np.where(np.r_[1.0, np.sign((q[1:] * q[:-1]).sum(axis=1))] < 0, -1.0, 1.0))
@@ -329,8 +321,7 @@ def _add_head(gltf: dict, keys: dict, t_acc: int, child: int | None) -> None:
             anim["channels"].append({"sampler": len(anim["samplers"]) - 1, "target": {"node": h, "path": p}})
 
 
-def write_glb_head(path: str | os.PathLike, times: np.ndarray, rotation: np.ndarray,
-                   translation: np.ndarray | None = None, *, animation_name: str = "head",
+def write_glb_head(path: str | os.PathLike, times: np.ndarray, head: HeadPose, *, animation_name: str = "head",
                    pivot: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0)) -> Path:
     """Write a ``.glb`` holding only a ``head`` node animated by rotation (and translation) keys.
 
@@ -340,11 +331,9 @@ def write_glb_head(path: str | os.PathLike, times: np.ndarray, rotation: np.ndar
         Output ``.glb``.
     times : (T,) float
         Keyframe times in seconds, strictly increasing; written relative to ``times[0]``.
-    rotation : (T, 4) float
-        Unit quaternions ``x, y, z, w`` (glTF's order) of the head in its parent's axes (glTF: +Y
-        up, +Z forward).
-    translation : (T, 3) float, optional
-        Head displacement in metres.
+    head : HeadPose
+        The head's rotation per frame (and translation in metres), in glTF's axes (+Y up, +Z
+        forward; :mod:`faceretarget.headpose`).
     animation_name : str
     pivot : 3 floats
         Rest position of the head node (metres), added to every translation key.
@@ -361,7 +350,7 @@ def write_glb_head(path: str | os.PathLike, times: np.ndarray, rotation: np.ndar
     t32 = _key_times(path, t)
     b = _Builder()
     t_acc = b.accessor(t32, "SCALAR")
-    keys = _head_keys(path, b, t.size, rotation, translation, pivot)
+    keys = _head_keys(path, b, t.size, head, pivot)
     gltf = {
         "asset": {"version": "2.0", "generator": "faceretarget"},
         "extras": {"unit": "m"},
@@ -377,17 +366,15 @@ def write_glb_head(path: str | os.PathLike, times: np.ndarray, rotation: np.ndar
     return _write_glb_file(path, gltf, b)
 
 
-def read_glb_head(path: str | os.PathLike, node: str = "head"
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def read_glb_head(path: str | os.PathLike, node: str = "head") -> tuple[np.ndarray, HeadPose]:
     """Read the rotation (and translation) keyframes of node ``node`` of a ``.glb``.
 
     Returns
     -------
     times : (T,) float64
-    rotation : (T, 4) float64
-        Quaternions ``x, y, z, w``.
-    translation : (T, 3) float64 or None
-        Metres (including the node's rest position), None without a translation channel.
+    head : HeadPose
+        The rotations and, with a translation channel, the translation in metres (including the
+        node's rest position).
     """
     path = Path(path)
     gltf, binchunk = _load_glb(path)
@@ -406,7 +393,7 @@ def read_glb_head(path: str | os.PathLike, node: str = "head"
         raise InputFileError(f"{path}: node '{node}' has no rotation animation")
     t, q = found["rotation"]
     tr = found["translation"][1] if "translation" in found else None
-    return t, q.reshape(-1, 4), tr
+    return t, HeadPose(q.reshape(-1, 4), tr, source=str(path))
 
 
 # ---------------------------------------------------------------------------------------- reading

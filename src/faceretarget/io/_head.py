@@ -1,56 +1,225 @@
-"""Write synthesized head motion as BVH, glTF node animation or Live Link Face CSV.
+"""Head motion files: recorded head motion in (BVH, SMPL-X, rigid marker clusters) and any head pose out.
+
+Every reader gives a :class:`~faceretarget.Performance` whose ``head`` is a
+:class:`~faceretarget.headpose.HeadPose` in the package's one frame (+Y up, +Z forward, +X the
+character's left; translation in metres); :func:`read_head_take` adds the speech that goes with it.
+
+Writers by extension (:func:`write_head_motion`):
 
 ==========  ==========================================================================================
-``.bvh``    One root joint ``Head``: channels ``Yrotation Xrotation Zrotation`` = yaw, pitch, roll
-            in degrees (and ``Xposition Yposition Zposition`` in centimetres first, with a
-            translation), at the performance's frame rate.
+``.bvh``    One root joint ``Head``: channels ``Yrotation Xrotation Zrotation`` in degrees (and
+            ``Xposition Yposition Zposition`` in centimetres first, with a translation), at the
+            take's frame rate (:func:`~faceretarget.io.make_head_bvh`).
 ``.glb``    A node ``head`` with a ``rotation`` channel (quaternions ``x, y, z, w``) and, with a
-            translation, a ``translation`` channel in metres, in one animation ``head``
-            (:func:`faceretarget.io.gltf.write_glb_head`); combine it with a face by passing the
-            same quaternions to ``write_glb(..., head_rotation=...)``.
-``.csv``    Live Link Face columns (:func:`faceretarget.io.write_livelinkface`): ``HeadYaw``,
-            ``HeadPitch``, ``HeadRoll`` in **radians** (the unit Live Link Face writes) in Live Link
-            Face's sign convention, the one ``faceretarget capture`` writes: ``HeadPitch`` is
-            positive chin up, so it is the negated right-hand pitch used everywhere else here;
-            the 52 blendshape columns zero; no translation (the format has no column for it).
+            translation, a ``translation`` channel in metres (:func:`~faceretarget.io.write_glb_head`);
+            ``write_glb(..., head=pose)`` puts the same node above a face.
+``.csv``    Live Link Face columns ``HeadYaw, HeadPitch, HeadRoll`` in radians, Live Link Face's
+            signs (:meth:`~faceretarget.headpose.HeadPose.to_livelinkface`); the 52 blendshape
+            columns are the take's weights, or zero; no translation (the format has no column for it).
 ==========  ==========================================================================================
 """
 
 from __future__ import annotations
 
 import os
+import warnings
+import zipfile
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import InvalidDataError, OutputError
+from ..errors import InputFileError, InvalidDataError, OutputError
+from ..files import input_file
+from ..headpose import HeadPose
 from ..performance import Performance
+from ..timebase import frame_times
+from ..units import normalize_unit, scale
+from ._audio import read_audio
+from ._bvh import Bvh, bvh_chain, read_bvh
 
-EULER = "YXZ"
-
-__all__ = ["write_head_motion", "head_quaternions", "HEAD_FORMATS"]
+__all__ = ["read_bvh_head", "read_smplx_head", "read_marker_head", "read_head_motion", "read_head_take",
+           "write_head_motion", "HEAD_FORMATS", "HEAD_READ_FORMATS"]
 
 HEAD_FORMATS = (".bvh", ".glb", ".csv")
-# right-hand yaw, pitch, roll (Y-X-Z, +X the character's left) -> Live Link Face HeadYaw, HeadPitch, HeadRoll
-LLF_SIGNS = np.array([1.0, -1.0, 1.0])
+HEAD_READ_FORMATS = (".bvh", ".npz", ".c3d")
 
 
-def head_quaternions(head_rotation: np.ndarray) -> np.ndarray:
-    """(T, 4) unit quaternions ``x, y, z, w`` of (T, 3) yaw, pitch, roll radians (Y-X-Z)."""
-    return Rotation.from_euler(EULER, np.asarray(head_rotation, np.float64)).as_quat()
+def read_bvh_head(bvh: Bvh | str | os.PathLike, joints: tuple[str, ...] = ("Neck", "Neck1", "Head"),
+                  unit: str = "cm") -> Performance:
+    """Head motion relative to the upper torso from a BVH take.
+
+    Parameters
+    ----------
+    bvh : Bvh or path
+    joints : sequence of str
+        The neck-to-head chain; the rotation is the composition of their local rotations (the
+        head's orientation in the frame of the first joint's parent, the upper torso).  Joints a
+        skeleton lacks are skipped (e.g. a skeleton with ``Neck`` and ``Head`` only), as long as
+        the last one exists.
+    unit : str
+        The BVH's length unit (the shared takes are in centimetres).
+
+    Returns
+    -------
+    Performance
+        ``head``: the chain's rotation, and the head joint's displacement from its rest position
+        in the torso frame (metres); at the file's frame rate.
+    """
+    b = bvh if isinstance(bvh, Bvh) else read_bvh(bvh)
+    present = [j for j in joints if j in b.names]
+    if not present or present[-1] != joints[-1]:
+        raise InvalidDataError(f"{b.source}: no '{joints[-1]}' joint; head motion needs the chain "
+                               f"{' > '.join(joints)} (joints: {', '.join(b.names[:30])})")
+    chain = [present[-1]]                     # the contiguous part of the chain that ends at the head
+    for j in reversed(present[:-1]):
+        if b.joints[b.index(chain[0])].parent == b.index(j):
+            chain.insert(0, j)
+        else:
+            break
+    R, p = bvh_chain(b, tuple(chain))
+    rest = np.sum([b.joints[b.index(j)].offset for j in chain], axis=0)
+    head = HeadPose.from_matrix(R, (p - rest) * scale(normalize_unit(unit), "m"), source=b.source)
+    return Performance.from_head(head, fps=b.fps, source=b.source)
 
 
-def write_head_motion(path: str | os.PathLike, perf: Performance, protect: tuple = ()) -> Path:
-    """Write ``perf.head_rotation`` (radians) and ``perf.head_translation`` (cm) by file extension.
+def read_smplx_head(path: str | os.PathLike, neck_length: float = 0.10) -> Performance:
+    """Head rotation (and an approximate translation) from an SMPL-X parameter file.
 
     Parameters
     ----------
     path : path-like
-        ``.bvh``, ``.glb`` or ``.csv`` (module docstring).
+        ``.npz`` with ``poses`` (T, 165) axis-angle (neck joint in columns 36-38, head in 45-47);
+        the frame rate from ``mocap_frame_rate`` (or ``mocap_framerate``, ``fps``), else 30.
+    neck_length : float
+        Neck-to-head distance in metres used for the translation: the SMPL-X body model (which
+        would give the real joint positions) is not bundled, so the head joint is taken as
+        ``neck_length`` above the neck joint and moved by the neck rotation.
+
+    Returns
+    -------
+    Performance
+        ``head``: ``R_neck @ R_head``, the head's orientation relative to the neck's parent (the
+        upper spine); SMPL-X's canonical frame is +Y up, +Z forward, +X left, the package's.
+    """
+    path = input_file(path)
+    if not zipfile.is_zipfile(path):
+        raise InputFileError(f"{path}: not an .npz archive")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "poses" not in z.files:
+                raise InputFileError(f"{path}: no 'poses' array; expected SMPL-X parameters (poses (T, 165))")
+            poses = np.asarray(z["poses"], np.float64)
+            fps = 30.0
+            for k in ("mocap_frame_rate", "mocap_framerate", "fps", "frame_rate"):
+                if k in z.files:
+                    fps = float(np.asarray(z[k]).reshape(-1)[0])
+                    break
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+        raise InputFileError(f"{path}: cannot read as .npz ({e})") from e
+    if poses.ndim != 2 or poses.shape[1] < 48:
+        raise InputFileError(f"{path}: 'poses' must be (T, 165) axis-angle, got {poses.shape}")
+    if not np.isfinite(poses[:, 36:48]).all():
+        f = int(np.flatnonzero(~np.isfinite(poses[:, 36:48]).all(axis=1))[0])
+        raise InvalidDataError(f"{path}: frame {f} neck/head pose is not finite")
+    if not (np.isfinite(fps) and fps > 0):
+        raise InputFileError(f"{path}: invalid frame rate {fps}")
+    Rn = Rotation.from_rotvec(poses[:, 36:39])
+    Rh = Rotation.from_rotvec(poses[:, 45:48])
+    o = np.array([0.0, neck_length, 0.0])
+    head = HeadPose.from_rotation(Rn * Rh, Rn.apply(o) - o, source=str(path))
+    return Performance.from_head(head, fps=fps, source=str(path))
+
+
+def read_marker_head(perf: Performance, subset=None, n_auto: int = 8) -> Performance:
+    """Head motion of a rigid marker cluster (:class:`~faceretarget.numerics.RigidAligner`, SVD).
+
+    Parameters
+    ----------
     perf : Performance
-        With ``head_rotation`` (T, 3) yaw, pitch, roll in radians; ``head_translation`` (T, 3)
-        centimetres or None.
+        3D marker points (T, P, 3) in the package's axes (+Y up, +Z forward); ideally markers on
+        the head (a cap, or the skull-rigid facial markers).  The rotation is relative to the
+        cluster's reference pose (its robust median), so a torso-fixed capture gives the head
+        relative to the torso.
+    subset : labels or indices, optional
+        Markers moving with the skull; chosen automatically when omitted.
+    n_auto : int
+        Size of the automatic subset.
+
+    Returns
+    -------
+    Performance
+        ``head`` with the displacement of the cluster centroid (metres, from ``perf.unit``;
+        millimetres assumed when it is unknown); frames without a pose are interpolated from
+        their neighbours.
+    """
+    from ..numerics import RigidAligner
+
+    al = RigidAligner(subset=subset, n_auto=n_auto)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = al.fit(perf).transform(perf)
+    R, d = res.rotations, res.translations
+    ok = np.isfinite(R).all(axis=(1, 2))
+    if ok.sum() < 2:
+        raise InvalidDataError(f"{perf.source}: fewer than 2 frames have a head pose from the markers")
+    t = np.arange(len(R))
+    rot = np.full((len(R), 3), np.nan)
+    rot[ok] = Rotation.from_matrix(R[ok]).as_euler("YXZ")
+    rot[ok] = np.unwrap(rot[ok], axis=0)
+    rot = np.stack([np.interp(t, t[ok], rot[ok, k]) for k in range(3)], axis=1)
+    dd = np.stack([np.interp(t, t[ok], d[ok, k]) for k in range(3)], axis=1)
+    head = HeadPose.from_euler("YXZ", rot, dd * scale(normalize_unit(perf.unit or "mm", what=perf.source), "m"),
+                               source=perf.source)
+    return Performance(perf.times, perf.fps, head=head, source=perf.source)
+
+
+def read_head_motion(path: str | os.PathLike, *, neck_length: float = 0.10) -> Performance:
+    """Head motion from ``.bvh`` (Neck/Neck1/Head chain), SMPL-X ``.npz`` or ``.c3d`` markers."""
+    from ._c3d import read_c3d
+
+    path = input_file(path)
+    ext = path.suffix.lower()
+    if ext == ".bvh":
+        return read_bvh_head(path)
+    if ext == ".npz":
+        return read_smplx_head(path, neck_length=neck_length)
+    if ext == ".c3d":
+        return read_marker_head(read_c3d(path))
+    raise InputFileError(f"{path}: unknown head-motion format '{ext}' (use {', '.join(HEAD_READ_FORMATS)})")
+
+
+def read_head_take(audio_path: str | os.PathLike, motion_path: str | os.PathLike, *,
+                   name: str | None = None, neck_length: float = 0.10) -> Performance:
+    """Speech audio and its head motion as one take (``head`` and ``audio``; ``source`` the name).
+
+    Parameters
+    ----------
+    audio_path : path-like
+        The speech (``.wav``, or anything :func:`~faceretarget.io.read_audio` reads).
+    motion_path : path-like
+        ``.bvh``, SMPL-X ``.npz`` or ``.c3d`` (:func:`read_head_motion`).
+    name : str, optional
+        Take name (default: the motion file's stem).
+    neck_length : float
+        For SMPL-X, metres (:func:`read_smplx_head`).
+    """
+    motion_path = Path(motion_path)
+    motion = read_head_motion(motion_path, neck_length=neck_length)
+    audio, rate = read_audio(audio_path)
+    return Performance(frame_times(motion.n_frames, motion.fps), motion.fps, head=motion.head, audio=audio,
+                       audio_rate=rate, source=name or motion_path.stem)
+
+
+def write_head_motion(path: str | os.PathLike, perf: Performance, protect: tuple = ()) -> Path:
+    """Write ``perf.head`` by file extension (module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+        ``.bvh``, ``.glb`` or ``.csv``.
+    perf : Performance
+        A take with a head pose (and weights, which the ``.csv`` also carries).
     protect : tuple of path-like
         Inputs the output must not overwrite.
     """
@@ -65,20 +234,10 @@ def write_head_motion(path: str | os.PathLike, perf: Performance, protect: tuple
     for p in protect:
         if p is not None and Path(p).exists() and path.exists() and os.path.samefile(p, path):
             raise OutputError(f"{path}: refusing to overwrite an input file")
-    if perf.head_rotation is None:
-        raise InvalidDataError(f"{perf.source}: no head rotation to write")
-    rot = perf.head_rotation
-    tr = perf.head_translation
+    if perf.head is None:
+        raise InvalidDataError(f"{perf.source}: no head motion to write")
     if ext == ".bvh":
-        bvh = make_head_bvh(np.degrees(rot), perf.fps, tr)
-        return write_bvh(path, bvh)
+        return write_bvh(path, make_head_bvh(perf.head, perf.fps))
     if ext == ".glb":
-        return write_glb_head(path, perf.times, head_quaternions(rot), None if tr is None else tr / 100.0)
-    # Live Link Face's HeadPitch is positive chin up (Unreal's pitch), the opposite of the right-hand
-    # angle about +X used here; yaw and roll agree (see faceretarget.capture._pose, which reads the
-    # same columns)
-    llf = rot * LLF_SIGNS
-    perf = Performance(perf.times, perf.fps, weights=perf.weights if perf.weights is not None
-                       else np.zeros((perf.n_frames, 0)), names=list(perf.names or []),
-                       head_rotation=llf, source=perf.source)
+        return write_glb_head(path, perf.times, perf.head)
     return write_livelinkface(path, perf)

@@ -1,7 +1,7 @@
 """Hand chosen keyshape frames to an artist and read the target keyshapes they model back.
 
 :func:`export_keyshapes` writes the selected frames of a source take (see
-:mod:`faceretarget.retarget.selection`) into a folder:
+:mod:`faceretarget.numerics`) into a folder:
 
 * ``frame_00123.obj`` per frame: the marker / feature points as an OBJ point set (``v`` lines only,
   marker labels in comments) or, for a mesh take, the whole mesh;
@@ -31,7 +31,7 @@ from ..rig import Rig
 from ..units import guess_unit
 from ._obj import read_obj, read_obj_vertices, write_obj
 
-__all__ = ["export_keyshapes", "read_target_keyshapes", "read_marker_labels", "is_keyshape_folder",
+__all__ = ["export_keyshapes", "read_target_keyshapes", "read_marker_labels", "is_keyshape_folder", "read_keys",
            "keyshape_filename", "MANIFEST", "MARKERS", "CONTACT_SHEET"]
 
 MANIFEST = "keyshapes.txt"
@@ -107,7 +107,7 @@ def export_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequenc
         A point (marker, landmark) or mesh take, or its array.  2-D points get ``z = 0``.
     frames : sequence of int
         Frame indices (0-based, into the take), e.g. from
-        :func:`~faceretarget.retarget.selection.select_keyshapes`.
+        :func:`~faceretarget.numerics.select_keyshapes`.
     out_dir : path-like
         Output folder; written whole or not at all (files of the same name in an existing folder
         are replaced, others are kept).  Its parent must exist.
@@ -342,3 +342,30 @@ def is_keyshape_folder(folder: str | os.PathLike) -> bool:
     """Whether a folder holds exported keyshapes (``keyshapes.txt`` or ``frame_*.obj``) rather than a rig."""
     f = Path(folder)
     return (f / MANIFEST).is_file() or any(f.glob("frame_*.obj"))
+
+
+def read_keys(folder: str | os.PathLike, *, neutral: str | os.PathLike | None = None,
+              landmarks: str | os.PathLike | None = None, rig: Rig | None = None) -> tuple[Rig, list[str]]:
+    """Keyshapes from an exported or artist's folder (``frame_*.obj`` beside ``neutral.obj``) or from
+    an ARKit-style rig folder, and the marker labels of the source points (empty for rigs).
+
+    Parameters
+    ----------
+    folder : path-like
+    neutral : path-like, optional
+        The folder's neutral OBJ when it is not named ``neutral*``.
+    landmarks : path-like, optional
+        A landmark index file for mesh keyshapes.
+    rig : Rig, optional
+        The rig the keyshapes were exported from: its landmarks are used when the topology matches.
+    """
+    from ._rig import load_rig
+
+    if Path(folder).is_dir() and is_keyshape_folder(folder):
+        keys = read_target_keyshapes(folder, neutral=neutral)
+        if landmarks is not None:
+            keys.landmarks = np.loadtxt(landmarks, dtype=np.int64, ndmin=1)
+        elif rig is not None and rig.n_vertices == keys.n_vertices:
+            keys.landmarks = rig.landmarks
+        return keys, read_marker_labels(folder)
+    return load_rig(folder, neutral=neutral, landmarks=landmarks), []

@@ -29,8 +29,10 @@ import numpy as np
 
 from ..errors import DataWarning, InputFileError, InvalidDataError, format_ranges
 from ..files import atomic_path, check_output_path, input_file, read_text
+from ..headpose import HeadPose
 from ..names import ARKIT_NAMES, normalize_name, split_parent
 from ..performance import Performance
+from ..timebase import infer_fps
 
 __all__ = ["read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo", "HEAD_COLUMNS",
            "EYE_COLUMNS", "TIMECODE_RATES", "LLF_NAMES"]
@@ -109,9 +111,9 @@ def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = No
         ``weights`` (T, K) with ``names`` in ARKit camelCase (every weight column of the file,
         normally the 52 ARKit shapes; unknown columns are kept under their normalised name),
         ``times`` (T,) seconds relative to the first kept row (so ``times[0] == 0``),
-        ``fps = 1 / median(diff(times))``, ``head_rotation`` (T, 3) yaw, pitch, roll exactly as
-        written in the file (no unit conversion; Live Link Face writes angles in radians, and the
-        shared takes hold zeros), ``source`` the file path.
+        ``fps = 1 / median(diff(times))``, ``head`` a :class:`~faceretarget.headpose.HeadPose`
+        from ``HeadYaw, HeadPitch, HeadRoll`` (radians, Live Link Face's signs; the shared takes
+        hold zeros) when the file has those columns, ``source`` the file path.
     LiveLinkFaceInfo
         Only with ``with_info=True``.
 
@@ -236,9 +238,9 @@ def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = No
         head = data[:, [j - 1 for j in head_idx]]
     eyes = data[:, [j - 1 for j in eye_idx]] if all(j >= 0 for j in eye_idx) else None
     times = times_abs - times_abs[0]
-    d = np.diff(times)
-    fps = 1.0 / float(np.median(d)) if d.size else float(rate)
-    perf = Performance(times=times, fps=fps, weights=weights, names=names, head_rotation=head,
+    fps = infer_fps(times, default=float(rate))
+    pose = None if head is None else HeadPose.from_livelinkface(head, source=str(path))
+    perf = Performance(times=times, fps=fps, weights=weights, names=names, head=pose,
                        source=str(path))
     if not with_info:
         return perf
@@ -303,10 +305,12 @@ def write_livelinkface(path: str | os.PathLike, perf: Performance, *, rate: int 
     path : path-like
         Output ``.csv``.
     perf : Performance
-        A weights performance; names in any spelling.  The 52 ARKit columns are written in Live
-        Link Face's order (missing ones as 0; split halves such as ``browInnerUpLeft``/``Right``
-        averaged into the whole; other names dropped with a warning).  ``head_rotation`` (T, 3)
-        fills ``HeadYaw, HeadPitch, HeadRoll`` (zeros when absent).
+        Weights (names in any spelling) and/or a head pose.  The 52 ARKit columns are written in
+        Live Link Face's order (missing ones as 0, all 0 for a take of head motion only; split
+        halves such as ``browInnerUpLeft``/``Right`` averaged into the whole; other names dropped
+        with a warning).  ``head`` fills ``HeadYaw, HeadPitch, HeadRoll`` in Live Link Face's
+        convention (:meth:`~faceretarget.headpose.HeadPose.to_livelinkface`; zeros when absent,
+        and in frames without a pose).
     rate : int
         Timecode base rate (frames per second of the ``FF`` field).
     start : float or str
@@ -323,17 +327,18 @@ def write_livelinkface(path: str | os.PathLike, perf: Performance, *, rate: int 
         ``path``.
     """
     path = check_output_path(path)
-    if perf.weights is None:
-        raise InvalidDataError(f"{perf.source}: a Live Link Face CSV holds weights, this take holds "
-                               f"{perf.kind}")
+    if perf.weights is None and perf.head is None:
+        raise InvalidDataError(f"{perf.source}: a Live Link Face CSV holds weights and head angles, this take "
+                               f"holds {perf.kind}")
     if isinstance(start, str):
         tc = _parse_timecode(start)
         if tc is None or tc[3] >= rate:
             raise InvalidDataError(f"start timecode {start!r} is not HH:MM:SS:FF.fff at rate {rate}")
         start = tc[0] * 3600 + tc[1] * 60 + tc[2] + tc[3] / rate
     T = perf.n_frames
-    w = _to_arkit_columns(perf.names, perf.weights, perf.source)
-    head = perf.head_rotation if perf.head_rotation is not None else np.zeros((T, 3))
+    w = (_to_arkit_columns(perf.names, perf.weights, perf.source) if perf.weights is not None
+         else np.zeros((T, len(ARKIT_NAMES))))
+    head = np.zeros((T, 3)) if perf.head is None else np.nan_to_num(perf.head.to_livelinkface()) + 0.0  # no -0
     eyes = np.zeros((T, 6)) if eye_rotation is None else np.asarray(eye_rotation, dtype=np.float64)
     if eyes.shape != (T, 6):
         raise InvalidDataError(f"{perf.source}: eye_rotation must be ({T}, 6), got {eyes.shape}")

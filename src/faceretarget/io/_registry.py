@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import InputFileError, InvalidDataError, OutputError
 from ..files import check_output_path
+from ..headpose import HeadPose
 from ..mesh import Mesh
 from ..performance import Performance
 from ..rig import Rig
@@ -96,7 +97,7 @@ def _weights_for(rig: Rig, weights, names, what: str) -> np.ndarray:
 def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
                     weights: np.ndarray | None = None, names: list[str] | None = None,
                     vertices: np.ndarray | None = None, mesh: Mesh | None = None,
-                    times: np.ndarray, head_rotation: np.ndarray | None = None) -> Path:
+                    times: np.ndarray, head: HeadPose | None = None) -> Path:
     """Write an animation in the format the output path asks for.
 
     Parameters
@@ -115,8 +116,8 @@ def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
         Topology for ``vertices`` (default the rig's neutral).
     times : (T,) float
         Frame times in seconds, strictly increasing.
-    head_rotation : (T, 3) float, optional
-        Written to the ``.csv`` head columns.
+    head : HeadPose, optional
+        Head motion: the ``.csv`` head columns, the ``.glb`` head node.
 
     Returns
     -------
@@ -149,14 +150,14 @@ def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
     if ext == ".glb":
         if rig is None or weights is None:
             raise OutputError(f"{path}: a .glb needs a rig and weights (morph targets + animation)")
-        return write_glb(path, rig, weights, t, names=names)
+        return write_glb(path, rig, weights, t, names=names, head=head)
     if ext == ".csv":
         if weights is None:
             raise OutputError(f"{path}: a Live Link Face .csv needs weights")
         cols = list(names) if names is not None else (rig.names if rig is not None else None)
         if cols is None:
             raise OutputError(f"{path}: pass names (or a rig) to name the weight columns")
-        perf = Performance.from_weights(weights, cols, times=t, head_rotation=head_rotation,
+        perf = Performance.from_weights(weights, cols, times=t, head=head,
                                         source=str(path))
         return write_livelinkface(path, perf)
     v, m = need_vertices()

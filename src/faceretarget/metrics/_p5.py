@@ -29,31 +29,31 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 from scipy.signal import find_peaks
-from scipy.spatial.transform import Rotation
 
-from ..headmotion import EULER, PitchTrack, Segmentation
+from ..headmotion import PitchTrack, Segmentation
+from ..headpose import HeadPose
 from ..numerics import runs
 
 __all__ = ["angular_speed", "motion_beats", "accent_onsets", "pitch_peaks", "beat_alignment", "perlin_noise",
            "summarize_alignment"]
 
 
-def angular_speed(head_rotation: np.ndarray, fps: float) -> np.ndarray:
+def angular_speed(head: HeadPose, fps: float) -> np.ndarray:
     """(T - 1,) angle (degrees) between consecutive head orientations times ``fps``: deg/s.
 
-    ``head_rotation`` is (T, 3) yaw, pitch, roll in radians (Y-X-Z).
+    ``head`` is the head motion (:class:`~faceretarget.headpose.HeadPose`, every frame with a pose).
     """
-    r = Rotation.from_euler(EULER, np.asarray(head_rotation, np.float64))
+    r = head.rotation
     if len(r) < 2:
         return np.zeros(0)
     d = r[:-1].inv() * r[1:]
     return np.degrees(d.magnitude()) * float(fps)
 
 
-def motion_beats(head_rotation: np.ndarray, fps: float, *, sigma: float = 1.0 / 30.0,
+def motion_beats(head: HeadPose, fps: float, *, sigma: float = 1.0 / 30.0,
                  rel_prominence: float = 0.1) -> np.ndarray:
     """Times (s, from the first frame) of the motion beats: prominent maxima of angular speed."""
-    sp = angular_speed(head_rotation, fps)
+    sp = angular_speed(head, fps)
     if sp.size < 3:
         return np.zeros(0)
     s = gaussian_filter1d(sp, max(sigma * fps, 1e-3), mode="nearest")

@@ -16,7 +16,7 @@
 
 from ._denoise import denoise_take, estimate_noise_sigma, sure_whittaker
 from ._nnls import extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
-from ._rigid import RigidAligner, fit_rigid, select_rigid_markers
+from ._rigid import AlignResult, RigidAligner, fit_rigid, select_rigid_markers
 from ._rotations import nearest_rotation
 from ._runs import runs
 from ._selection import (
@@ -36,7 +36,7 @@ from ._smooth import smoothstep
 __all__ = [
     "solve_nnls", "temporal_filter", "extremes_removed", "filter_cutoff_hz",
     "denoise_take", "estimate_noise_sigma", "sure_whittaker",
-    "RigidAligner", "fit_rigid", "select_rigid_markers", "nearest_rotation", "runs",
+    "RigidAligner", "AlignResult", "fit_rigid", "select_rigid_markers", "nearest_rotation", "runs",
     "SELECTION_METHODS", "select_keyshapes", "pca_extrema", "hull_selection", "kmeans_selection", "nnls_greedy",
     "nnls_greedy_path", "nnls_weights", "pivoted_qr", "reconstruction_error",
     "smoothstep",

@@ -1,7 +1,7 @@
 """Compiled Lawson-Hanson NNLS over the frames of a take (optional: used when ``numba`` is installed).
 
 Sparse keyshape weights (a few non-zero keys out of tens, strongly correlated keys) are where the
-vectorised active-set methods of :mod:`faceretarget.retarget.nnls` pay NumPy's per-call overhead on
+vectorised active-set methods of :mod:`faceretarget.numerics` pay NumPy's per-call overhead on
 every one of their many small steps.  This kernel runs Lawson and Hanson's active-set method (1974,
 the algorithm of ``scipy.optimize.nnls``) on the Gram form ``min 1/2 x'Gx - b'x, x >= 0`` frame
 after frame in compiled code, each frame starting from the previous frame's free set (consecutive

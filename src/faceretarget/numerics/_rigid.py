@@ -12,26 +12,32 @@ for two points of one rigid body); starting from all markers, the marker whose m
 the remaining markers is largest is dropped, again and again, until ``n`` remain.  Dropping one at a
 time lets the remaining scores be re-measured without the markers that moved most.
 
-Pose convention: with ``R`` = :attr:`RigidAligner.rotations_` ``[t]``, ``d`` =
-:attr:`RigidAligner.translations_` ``[t]`` and ``c`` = :attr:`RigidAligner.center_` (the centroid of
+Pose convention: with ``R`` = :attr:`AlignResult.rotations` ``[t]``, ``d`` =
+:attr:`AlignResult.translations` ``[t]`` and ``c`` = :attr:`RigidAligner.center_` (the centroid of
 the subset's reference pose), a point ``h`` in head coordinates is at ``x = R (h - c) + c + d`` in
 frame ``t``.  So ``d`` is how far the head (its subset centroid) moved, independent of where the
 capture volume's origin is, and ``R`` is the head's rotation about that centroid;
-:meth:`RigidAligner.pose_matrices` gives the same pose as ``(T, 4, 4)`` matrices.
+:meth:`AlignResult.pose_matrices` gives the same pose as ``(T, 4, 4)`` matrices, and the aligned
+take carries it as its :class:`~faceretarget.headpose.HeadPose` (in the package's axes, metres).
 """
 
 from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation  # noqa: F401  (the examples use it)
 
+from ..base import Model
 from ..errors import DataWarning, InvalidDataError, format_ranges
+from ..headpose import HeadPose
 from ..performance import Performance
+from ..units import normalize_unit, scale
+from ._rotations import nearest_rotation
 
-__all__ = ["RigidAligner", "fit_rigid", "select_rigid_markers"]
+__all__ = ["RigidAligner", "AlignResult", "fit_rigid", "select_rigid_markers"]
 
 
 def fit_rigid(reference: np.ndarray, points: np.ndarray, weights: np.ndarray | None = None
@@ -88,11 +94,7 @@ def fit_rigid(reference: np.ndarray, points: np.ndarray, weights: np.ndarray | N
     X0 = X - cx[:, None]
     H = np.einsum("ts,tsi,tsj->tij", w, A0, X0)  # sum_s w a x^T
     U, sv, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
-    d = np.where(d == 0, 1.0, d)
-    D = np.ones((T, 3))
-    D[:, 2] = d
-    R = np.einsum("tji,tj,tkj->tik", Vt, D, U)  # V diag(1, 1, d) U^T
+    R = nearest_rotation(svd=(np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)))  # V diag(1, 1, d) U^T
     t = cx - np.einsum("tij,tj->ti", R, ca)
     r = np.einsum("tsj,tij->tsi", A0, R) - X0
     rms = np.sqrt(np.einsum("ts,ts->t", w, (r**2).sum(axis=2)) / Ws[:, 0])
@@ -179,7 +181,66 @@ def select_rigid_markers(points: np.ndarray, n: int = 8, *, min_presence: float 
 
 
 
-class RigidAligner:
+@dataclass(eq=False)
+class AlignResult:
+    """A take with its rigid head motion removed (:meth:`RigidAligner.transform`).
+
+    Attributes
+    ----------
+    take : Performance
+        ``points`` (T, P, 3) in head coordinates (NaN where the input is NaN, and in every frame
+        without a head pose) and ``head``, the pose that was removed (in the package's axes,
+        metres; :mod:`faceretarget.headpose`); labels, times, unit, audio and source kept.
+    rotations : (T, 3, 3) float
+        Per-frame head rotation (head to capture coordinates); NaN in frames with fewer than 3
+        subset markers.
+    translations : (T, 3) float
+        Per-frame displacement of the subset centroid, in the take's unit (module docstring).
+    center : (3,) float
+        The centre of the rotations (:attr:`RigidAligner.center_`).
+    residual : (T,) float
+        Per-frame RMS distance, in the take's unit, between the aligned reference and the subset
+        markers present: how rigid the subset really was.
+    n_used : (T,) int
+        Subset markers present in each frame.
+    subset_names : str
+        The rigid markers, for reports.
+    n_subset : int
+        How many there are.
+    """
+
+    take: Performance
+    rotations: np.ndarray
+    translations: np.ndarray
+    center: np.ndarray
+    residual: np.ndarray
+    n_used: np.ndarray
+    subset_names: str = ""
+    n_subset: int = 0
+
+    def pose_matrices(self) -> np.ndarray:
+        """(T, 4, 4) head-to-capture transforms: ``x = M[:3, :3] h + M[:3, 3]``."""
+        R, d, c = self.rotations, self.translations, self.center
+        M = np.zeros((len(R), 4, 4))
+        M[:, :3, :3] = R
+        M[:, :3, 3] = c + d - np.einsum("tij,j->ti", R, c)
+        M[:, 3, 3] = 1.0
+        return M
+
+    def report(self, unit: str | None = None) -> str:
+        """One line: the subset and the RMS residual (median, 95th percentile, max)."""
+        r = self.residual[np.isfinite(self.residual)]
+        u = f" {unit}" if unit else ""
+        n = self.n_subset
+        if not r.size:
+            return f"rigid subset ({n}): {self.subset_names}; no frame could be aligned"
+        nan = len(self.residual) - r.size
+        return (f"rigid subset ({n}): {self.subset_names}; RMS residual median {np.median(r):.3g}{u}, "
+                f"95% {np.percentile(r, 95):.3g}{u}, max {r.max():.3g}{u} over {r.size} frame(s)"
+                + (f"; {nan} frame(s) without a pose" if nan else ""))
+
+
+class RigidAligner(Model):
     """Remove rigid head motion from a marker take by aligning a rigid subset of markers.
 
     Parameters
@@ -196,10 +257,11 @@ class RigidAligner:
         rigidly placed back onto that first frame), up to ``max_iter`` times.  ``"first"``: the first
         frame with every subset marker present.  An int: that frame (every subset marker must be
         present).  An array: positions ``(S, 3)`` of the subset or ``(P, 3)`` of every marker.
-    euler : str
-        scipy :class:`~scipy.spatial.transform.Rotation` axis sequence for ``head_rotation``;
-        the default ``"YXZ"`` (intrinsic) gives yaw about Y (up), pitch about X, roll about Z, as
-        for a Y-up capture such as the shared takes.  Use ``"ZXY"`` for Z-up data.
+    axes : (3, 3) array, optional
+        Maps the capture's axes to the package's (+Y up, +Z forward, +X the performer's left) for
+        the head pose of the aligned take (:meth:`~faceretarget.headpose.HeadPose.in_axes`); None
+        (default): the capture is already in those axes, as the shared takes are.  For a Z-up
+        capture with +Y forward and +X to the performer's right, ``[[-1, 0, 0], [0, 0, 1], [0, 1, 0]]``.
     max_iter : int
         Iterations of the ``"median"`` reference.
     min_presence : float
@@ -215,16 +277,8 @@ class RigidAligner:
         Their pose in head coordinates.
     center_ : (3,) float
         Centroid of ``reference_``, the centre of the head rotations.
-    rotations_ : (T, 3, 3) float
-        Per-frame head rotation (head to capture coordinates) of the last take fitted or
-        transformed; NaN in frames with fewer than 3 subset markers.
-    translations_ : (T, 3) float
-        Per-frame displacement of the subset centroid (see the module's pose convention).
-    residual_ : (T,) float
-        Per-frame RMS distance, in the take's unit, between the aligned reference and the subset
-        markers present: how rigid the subset really was.
-    n_used_ : (T,) int
-        Subset markers present in each frame.
+    n_points_ : int
+        Markers in the take it was fitted on.
 
     Examples
     --------
@@ -234,18 +288,18 @@ class RigidAligner:
     >>> Rz = Rotation.from_rotvec(np.c_[0 * ang, 0 * ang, ang]).as_matrix()
     >>> X = np.einsum("tij,pj->tpi", Rz, face) + [5.0, 0, 0]
     >>> al = RigidAligner(n_auto=6).fit(Performance.from_points(X, fps=60))
-    >>> out = al.transform(Performance.from_points(X, fps=60))
+    >>> out = al.transform(Performance.from_points(X, fps=60)).take
     >>> float(np.abs(out.points - out.points[0]).max()) < 1e-9
     True
     """
 
     def __init__(self, subset: Sequence[str | int] | None = None, n_auto: int = 8,
-                 reference: str | int | np.ndarray = "median", euler: str = "YXZ", max_iter: int = 5,
-                 min_presence: float = 0.5) -> None:
+                 reference: str | int | np.ndarray = "median", axes: np.ndarray | None = None,
+                 max_iter: int = 5, min_presence: float = 0.5) -> None:
         self.subset = subset
         self.n_auto = n_auto
         self.reference = reference
-        self.euler = euler
+        self.axes = axes
         self.max_iter = max_iter
         self.min_presence = min_presence
 
@@ -352,101 +406,56 @@ class RigidAligner:
 
     # ------------------------------------------------------------------ API
     def fit(self, perf: Performance) -> RigidAligner:
-        """Choose (or look up) the rigid subset and its reference pose from ``perf``.
-
-        Also solves the head pose of every frame of ``perf`` (``rotations_``, ``translations_``,
-        ``residual_``, ``n_used_``).
-        """
+        """Choose (or look up) the rigid subset and its reference pose from ``perf``; returns self."""
         X = self._points(perf)
         P = X.shape[1]
         if P < 3:
             raise InvalidDataError(f"{perf.source}: rigid alignment needs at least 3 markers, the take has {P}")
         if self.subset is None:
-            self.subset_ = select_rigid_markers(X, min(self.n_auto, P), min_presence=self.min_presence)
+            subset = select_rigid_markers(X, min(self.n_auto, P), min_presence=self.min_presence)
         else:
-            self.subset_ = self._resolve_subset(perf)
-        if self.subset_.size < 3:
-            raise InvalidDataError(f"{perf.source}: a rigid subset needs at least 3 markers, got {self.subset_.size}")
-        self.subset_labels_ = [perf.labels[i] for i in self.subset_] if perf.labels else []
-        self.n_points_ = P
-        Xs = X[:, self.subset_]
+            subset = self._resolve_subset(perf)
+        if subset.size < 3:
+            raise InvalidDataError(f"{perf.source}: a rigid subset needs at least 3 markers, got {subset.size}")
+        labels = [perf.labels[i] for i in subset] if perf.labels else []
+        Xs = X[:, subset]
         absent = np.flatnonzero(~np.isfinite(Xs).all(axis=2).any(axis=0))
         if absent.size:
-            which = [self.subset_labels_[i] if self.subset_labels_ else str(self.subset_[i]) for i in absent]
+            which = [labels[i] if labels else str(subset[i]) for i in absent]
             raise InvalidDataError(f"{perf.source}: rigid subset marker(s) {', '.join(which)} are missing in "
                                    "every frame")
+        self.subset_, self.subset_labels_, self.n_points_ = subset, labels, P
         self.reference_ = self._reference(perf, Xs)
         self.center_ = self.reference_.mean(axis=0)
         sv = np.linalg.svd(self.reference_ - self.center_, compute_uv=False)
         if sv[1] <= 1e-3 * sv[0]:
             raise InvalidDataError(f"{perf.source}: the rigid subset markers lie on one line; the head "
                                    "rotation about it cannot be found (choose other markers)")
-        self._solve(perf, X, self.subset_)
         return self
 
-    def _solve(self, perf: Performance, X: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    def transform(self, perf: Performance) -> AlignResult:
+        """``perf`` with the head motion removed, and the motion that was removed (:class:`AlignResult`)."""
+        self._check_fitted()
+        X = self._points(perf)
+        sub = self._subset_in(perf)
         R, t, rms, n = fit_rigid(self.reference_, X[:, sub])
         bad = np.flatnonzero(~np.isfinite(R).all(axis=(1, 2)))
         if bad.size:
             warnings.warn(f"{perf.source}: {bad.size} frame(s) have fewer than 3 usable of the {sub.size} "
-                          f"rigid markers, frame(s) {format_ranges(bad, limit=10)}; their head pose and stabilised points "
-                          "are NaN", DataWarning, stacklevel=3)
+                          f"rigid markers, frame(s) {format_ranges(bad, limit=10)}; their head pose and "
+                          "stabilised points are NaN", DataWarning, stacklevel=2)
         c = self.center_
-        self.rotations_ = R
-        self.translations_ = t + np.einsum("tij,j->ti", R, c) - c
-        self.residual_ = rms
-        self.n_used_ = n
-        return bad
+        d = t + np.einsum("tij,j->ti", R, c) - c
+        points = np.einsum("tpi,tij->tpj", X - (c + d)[:, None], R) + c  # R^T (x - c - d) + c
+        to_m = scale(normalize_unit(perf.unit, what=perf.source), "m") if perf.unit else 1.0
+        pose = HeadPose.from_matrix(R, d * to_m, source=perf.source)
+        if self.axes is not None:
+            pose = pose.in_axes(self.axes)
+        take = Performance(times=perf.times, fps=perf.fps, points=points, labels=list(perf.labels), head=pose,
+                           unit=perf.unit, audio=perf.audio, audio_rate=perf.audio_rate, source=perf.source)
+        names = ", ".join(self.subset_labels_) if self.subset_labels_ else str(self.subset_.tolist())
+        return AlignResult(take, R, d, c.copy(), rms, n, names, int(sub.size))
 
-    def transform(self, perf: Performance) -> Performance:
-        """``perf`` with the head motion removed.
-
-        Returns
-        -------
-        Performance
-            ``points`` (T, P, 3) in head coordinates (NaN where the input is NaN, and in every
-            frame without a head pose), ``head_rotation`` (T, 3) yaw, pitch, roll in degrees (the
-            ``euler`` sequence, of ``rotations_``), ``head_translation`` (T, 3) the head's
-            displacement ``translations_`` in the take's unit; labels, times, unit and source kept.
-            The per-frame pose and RMS residual are left in ``rotations_``, ``translations_``,
-            ``residual_``.
-        """
-        if not hasattr(self, "reference_"):
-            raise InvalidDataError("RigidAligner: call fit() before transform()")
-        X = self._points(perf)
-        sub = self._subset_in(perf)
-        self._solve(perf, X, sub)
-        R, d, c = self.rotations_, self.translations_, self.center_
-        head = np.einsum("tpi,tij->tpj", X - (c + d)[:, None], R) + c  # R^T (x - c - d) + c
-        ok = np.isfinite(R).all(axis=(1, 2))
-        angles = np.full((len(R), 3), np.nan)
-        if ok.any():
-            angles[ok] = Rotation.from_matrix(R[ok]).as_euler(self.euler, degrees=True)
-        return Performance(times=perf.times, fps=perf.fps, points=head, labels=list(perf.labels),
-                           head_rotation=angles, head_translation=d.copy(), unit=perf.unit,
-                           audio=perf.audio, audio_rate=perf.audio_rate, source=perf.source)
-
-    def fit_transform(self, perf: Performance) -> Performance:
+    def fit_transform(self, perf: Performance) -> AlignResult:
         """``fit(perf).transform(perf)``."""
         return self.fit(perf).transform(perf)
-
-    def pose_matrices(self) -> np.ndarray:
-        """(T, 4, 4) head-to-capture transforms of the last take: ``x = M[:3, :3] h + M[:3, 3]``."""
-        R, d, c = self.rotations_, self.translations_, self.center_
-        M = np.zeros((len(R), 4, 4))
-        M[:, :3, :3] = R
-        M[:, :3, 3] = c + d - np.einsum("tij,j->ti", R, c)
-        M[:, 3, 3] = 1.0
-        return M
-
-    def report(self, unit: str | None = None) -> str:
-        """One line: the subset and the RMS residual (median, 95th percentile, max) of the last take."""
-        r = self.residual_[np.isfinite(self.residual_)]
-        u = f" {unit}" if unit else ""
-        names = ", ".join(self.subset_labels_) if self.subset_labels_ else str(self.subset_.tolist())
-        if not r.size:
-            return f"rigid subset ({self.subset_.size}): {names}; no frame could be aligned"
-        nan = len(self.residual_) - r.size
-        return (f"rigid subset ({self.subset_.size}): {names}; RMS residual median {np.median(r):.3g}{u}, "
-                f"95% {np.percentile(r, 95):.3g}{u}, max {r.max():.3g}{u} over {r.size} frame(s)"
-                + (f"; {nan} frame(s) without a pose" if nan else ""))

@@ -300,7 +300,7 @@ def _kmeans3(X: np.ndarray, k: int, **kw) -> np.ndarray:
 
 # --------------------------------------------------------------------------------- NNLS fits
 #: Up to this many keys and from this many frames on, the batched solver
-#: (:func:`faceretarget.retarget.nnls.solve_nnls`) is used; otherwise per-frame Lawson-Hanson on the
+#: (:func:`faceretarget.numerics.solve_nnls`) is used; otherwise per-frame Lawson-Hanson on the
 #: QR-reduced problem, which measured faster there (many keys, or few frames with varied active sets).
 _BATCH_MAX_KEYS = 16
 _BATCH_MIN_FRAMES = 400
@@ -318,7 +318,7 @@ def _nnls_loop(K: np.ndarray, F: np.ndarray) -> np.ndarray:
 def nnls_weights(K: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Non-negative weights of frames ``F`` ``(n, D)`` over keys ``K`` ``(k, D)`` and squared residuals.
 
-    Exact NNLS per frame: the batched solver of :mod:`faceretarget.retarget.nnls` for up to
+    Exact NNLS per frame: the batched solver of :mod:`faceretarget.numerics` for up to
     16 keys and at least 400 frames (falling back to SciPy if it warns or is unavailable), else
     :func:`scipy.optimize.nnls` on the QR-reduced ``k x k`` problem of each frame.
 

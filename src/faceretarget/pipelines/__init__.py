@@ -1,10 +1,20 @@
-"""The jobs a user runs, as library functions (the command line calls these).
+"""The jobs a user runs, as library functions (the command line is a thin shell over these).
 
 ================================ ================================================================
+:mod:`._transfer`                :func:`clone_take`, :func:`retarget_take`, :func:`write_result`:
+                                 a take onto a character, memory bounded by its weights
+:mod:`._keys`                    :func:`select_keys` (keyshapes for an artist), :func:`compose_keys`
+                                 (emotion x viseme key-models)
 :mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
 ================================ ================================================================
 """
 
 from ._demo import run_demo
+from ._keys import SELECTION_ALIASES, KeyGeometry, KeySelection, compose_keys, key_geometry, select_keys
+from ._transfer import CHUNK_FRAMES, Transfer, clone_take, retarget_take, source_geometry, write_result
 
-__all__ = ["run_demo"]
+__all__ = [
+    "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
+    "select_keys", "compose_keys", "key_geometry", "KeySelection", "KeyGeometry", "SELECTION_ALIASES",
+    "run_demo",
+]

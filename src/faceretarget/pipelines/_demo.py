@@ -48,7 +48,7 @@ def run_demo(out: Path, log=print, noise_mm: float = 0.5) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")   # the procedural takes span fewer directions than 20 keys
             c = ExpressionCloner(method).fit(sk, tk)
-            w = c.transform(captured, take.times)
+            w = c.transform(captured, take.times).weights
         pred = c.blend(w)
         m = metrics(pred, truth, bo.neutral.vertices, bo, target_keys=tk.deltas + bo.neutral.vertices)
         results[method] = {"weights": w, "pred": pred, "metrics": m}

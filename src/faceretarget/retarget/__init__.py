@@ -14,7 +14,7 @@ Shared pieces live below the methods: rigid head-motion removal, keyshape select
 
 from ._consistency import ConsistencyReport, check_consistency
 from ._regions import Regions, default_regions, load_regions
-from ._retargeter import SOLVERS, BlendshapeRetargeter
+from ._retargeter import SOLVERS, BlendshapeRetargeter, RetargetResult
 
-__all__ = ["BlendshapeRetargeter", "SOLVERS", "Regions", "default_regions", "load_regions",
+__all__ = ["BlendshapeRetargeter", "RetargetResult", "SOLVERS", "Regions", "default_regions", "load_regions",
            "check_consistency", "ConsistencyReport"]

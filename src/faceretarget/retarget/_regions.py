@@ -42,7 +42,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..base import Model
 from ..errors import InputFileError, InvalidDataError
+from ..numerics import smoothstep
 
 __all__ = ["Regions", "default_regions", "load_regions", "UPPER68"]
 
@@ -51,13 +53,9 @@ UPPER68 = np.r_[17:31, 36:48]
 _NOSE_TIP = 30
 
 
-def _smooth_weight(d: np.ndarray, width: float) -> np.ndarray:
-    """1 at distance 0 falling smoothly (C1) to 0 at ``width``."""
-    x = np.clip(d / width, 0.0, 1.0)
-    return 1.0 - x * x * (3.0 - 2.0 * x)
 
 
-class Regions:
+class Regions(Model):
     """Source feature subsets and smoothly blended target vertex memberships.
 
     Parameters
@@ -79,8 +77,14 @@ class Regions:
     Attributes
     ----------
     names : list of str
+    source_idx_ : list of (n_r,) int
+        After :meth:`fit`: the feature points of each region.
     masks_ : (R, Vt) float
-        After :meth:`fit_target`: each target vertex's membership per region (columns sum to 1).
+        After :meth:`fit`: each target vertex's membership per region (columns sum to 1).
+    width_ : float
+        The blend width used.
+    seam_ : float
+        The seam's height (upper/lower split without target sets).
     """
 
     def __init__(self, source: dict, target: dict | None = None, *, width: float | None = None,
@@ -90,21 +94,31 @@ class Regions:
         if target is not None and set(target) != set(source):
             raise InvalidDataError(f"regions: source regions {sorted(source)} and target regions "
                                    f"{sorted(target)} differ")
-        self.names = list(source)
         self.source = {k: list(v) for k, v in source.items()}
         self.target = None if target is None else {k: np.asarray(v, dtype=np.int64).reshape(-1)
                                                    for k, v in target.items()}
         self.width = width
         self.seam = seam
         self.up = int(up)
-        self.masks_: np.ndarray | None = None
-        self.source_idx_: list[np.ndarray] | None = None
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.source)
 
     def __len__(self) -> int:
         return len(self.names)
 
     def __repr__(self) -> str:
         return f"Regions({', '.join(self.names)})"
+
+    def fit(self, n_points: int, target_neutral: np.ndarray, *, labels: list[str] | None = None,
+            deltas: np.ndarray | None = None, landmarks: np.ndarray | None = None,
+            source_points: np.ndarray | None = None) -> Regions:
+        """Resolve the source regions (:meth:`resolve`) and place them on the target
+        (:meth:`fit_target`); returns self."""
+        self.source_idx_ = self.resolve(n_points, labels)
+        self.fit_target(target_neutral, deltas, landmarks, source_points)
+        return self
 
     # ------------------------------------------------------------------ source side
     def resolve(self, n_points: int, labels: list[str] | None = None) -> list[np.ndarray]:
@@ -133,13 +147,12 @@ class Regions:
             miss = np.flatnonzero(~covered)
             raise InvalidDataError(f"regions: feature point(s) {', '.join(map(str, miss[:10]))} belong to no "
                                    "region")
-        self.source_idx_ = out
         return out
 
     # ------------------------------------------------------------------ target side
     def fit_target(self, neutral: np.ndarray, deltas: np.ndarray | None = None,
                    landmarks: np.ndarray | None = None, source_points: np.ndarray | None = None) -> np.ndarray:
-        """Compute the target memberships ``masks_`` ``(R, Vt)``.
+        """Compute the target memberships ``masks_`` ``(R, Vt)`` (the second half of :meth:`fit`).
 
         Parameters
         ----------
@@ -191,7 +204,7 @@ class Regions:
                 seam = float(V[int(landmarks[_NOSE_TIP]), self.up])
             if seam is None:
                 frac = 0.5
-                if source_points is not None and self.source_idx_ is not None:
+                if source_points is not None and getattr(self, "source_idx_", None) is not None:
                     y = np.asarray(source_points)[:, self.up]
                     lo_, hi_ = y.min(), y.max()
                     up_min = y[self.source_idx_[0]].min()
@@ -209,7 +222,7 @@ class Regions:
             if not inside.any():
                 raise InvalidDataError(f"region '{self.names[r]}' holds no target vertex")
             d, _ = cKDTree(V[inside]).query(V, distance_upper_bound=width)
-            W[r] = np.where(np.isfinite(d), _smooth_weight(np.nan_to_num(d, posinf=width), width), 0.0)
+            W[r] = np.where(np.isfinite(d), 1.0 - smoothstep(np.nan_to_num(d, posinf=width) / width), 0.0)
             W[r, inside] = np.maximum(W[r, inside], 1.0)
         # inside its own region a vertex keeps full weight; near a seam memberships are shared
         self.masks_ = W / W.sum(axis=0, keepdims=True)

@@ -9,7 +9,7 @@ and the same weights play the target keyshapes::
 Solvers (``solver=``):
 
 ``"nnls"`` (the thesis, Eq. 3.1/3.2)
-    ``w_t >= 0`` by :func:`~faceretarget.retarget.nnls.solve_nnls`, with its optional upper
+    ``w_t >= 0`` by :func:`~faceretarget.numerics.solve_nnls`, with its optional upper
     bound, L2, L1 and temporal terms and per-frame masks for missing markers.  Exact and
     interpretable when the keyshapes come from the take being retargeted (the thesis's workflow):
     every frame then lies in the cone of the keys.  A *new* take usually does not (a jaw-open frame
@@ -21,31 +21,36 @@ Solvers (``solver=``):
     Per-frame masks are honoured (each mask pattern solved on the rows present).
 
 Denoising (``denoise="auto"``): the capture noise of the take is estimated from its own spectrum
-(:func:`~faceretarget.cloning.temporal.estimate_noise_sigma`) and the coordinates of the frames in
+(:func:`~faceretarget.numerics.estimate_noise_sigma`) and the coordinates of the frames in
 the keys' span are smoothed by the take-adaptive SURE/Whittaker ensemble of
-:func:`~faceretarget.cloning.temporal.denoise_take` (the same as ``ExpressionCloner``'s
+:func:`~faceretarget.numerics.denoise_take` (the same as ``ExpressionCloner``'s
 ``"temporal"`` method).  ``denoise=False`` disables it, a float gives the noise sigma.  With
 ``"signed"`` it acts on the solved span coordinates, so masked frames are denoised too; with
 ``"nnls"`` it acts on the frames before the solve and needs a complete take.
 
-Regions (``regions=``): a :class:`~faceretarget.retarget.regions.Regions`, ``"upper-lower"`` for
+Regions (``regions=``): a :class:`~faceretarget.retarget.Regions`, ``"upper-lower"`` for
 the default split, or ``None``.  Each region is solved on its own feature points and the target
-keyshapes are split by the regions' smooth memberships, so :attr:`target_keys` then holds ``R x K``
+keyshapes are split by the regions' smooth memberships, so :attr:`target_keys_` then holds ``R x K``
 shapes named ``key@region`` and :meth:`transform` returns ``(T, R x K)`` weights.
 
 After the solve ``filter_level`` (0 = none) low-passes the weight curves
-(:func:`~faceretarget.retarget.nnls.temporal_filter`) and ``extremes_removed_`` reports what that
-cost the curves' peaks.
+(:func:`~faceretarget.numerics.temporal_filter`) and :attr:`RetargetResult.extremes_removed`
+reports what that cost the curves' peaks.
 """
 
 from __future__ import annotations
 
+import copy
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..base import Model
 from ..errors import InvalidDataError, MissingShapeError, SingularKeysError, TopologyError
+from ..headpose import HeadPose
 from ..numerics import (
+    AlignResult,
     RigidAligner,
     denoise_take,
     estimate_noise_sigma,
@@ -56,14 +61,56 @@ from ..numerics import (
 )
 from ..performance import Performance
 from ..rig import Rig, resolve_features
+from ..timebase import infer_fps
 from ._regions import Regions, default_regions
 
-__all__ = ["BlendshapeRetargeter", "SOLVERS"]
+__all__ = ["BlendshapeRetargeter", "RetargetResult", "SOLVERS"]
 
 SOLVERS = ("signed", "nnls")
 
 
-class BlendshapeRetargeter:
+@dataclass(eq=False)
+class RetargetResult:
+    """What :meth:`BlendshapeRetargeter.transform` gives for one take.
+
+    Attributes
+    ----------
+    weights : (T, W) float
+        Weights of :attr:`BlendshapeRetargeter.target_keys_`, columns named by ``names``.
+    names : list of str
+    times : (T,) float
+    noise_sigma : float
+        Capture noise estimated (or given) in the take, in the source's units.
+    extremes_removed : float
+        Share of the weight curves' extremes removed by ``filter_level``.
+    alignment : AlignResult or None
+        The head-motion removal of a marker take (its pose and residuals).
+    head : HeadPose or None
+        The take's head motion (its own, or the one removed from the markers).
+    audio, audio_rate, source
+        Carried from the input take.
+    """
+
+    weights: np.ndarray
+    names: list[str]
+    times: np.ndarray
+    noise_sigma: float = 0.0
+    extremes_removed: float = 0.0
+    alignment: AlignResult | None = None
+    head: HeadPose | None = None
+    audio: np.ndarray | None = None
+    audio_rate: float | None = None
+    source: str = "retarget"
+
+    @property
+    def take(self) -> Performance:
+        """The weights as a take on the target keys, with the input's head motion and audio."""
+        return Performance(self.times, infer_fps(self.times, default=60.0), weights=self.weights,
+                           names=list(self.names), head=self.head, audio=self.audio, audio_rate=self.audio_rate,
+                           source=self.source)
+
+
+class BlendshapeRetargeter(Model):
     """Retarget takes through paired source and target keyshapes.
 
     Parameters
@@ -93,12 +140,10 @@ class BlendshapeRetargeter:
         Keyshape names (weight columns without regions).
     weight_names_ : list of str
         Names of the columns :meth:`transform` returns.
-    noise_sigma_ : float
-        Capture noise estimated (or given) in the last take.
-    extremes_removed_ : float
-        Share of the weight curves' extremes removed by ``filter_level`` in the last take.
-    aligner_ : RigidAligner or None
-        The head-motion remover used in the last marker take.
+    target_keys_ : Rig
+        The target keyshapes in the order of those columns (split by region: ``key@region``).
+    regions_ : Regions or None
+        The regions, fitted to the keys.
     """
 
     def __init__(self, solver: str = "signed", *, features="auto", upper: float | None = None,
@@ -127,7 +172,7 @@ class BlendshapeRetargeter:
         ----------
         source_keys : Rig
             Source neutral and keyshapes (a rig, or point sets read with
-            :func:`~faceretarget.retarget.export.read_target_keyshapes`).
+            :func:`~faceretarget.io.read_target_keyshapes`).
         target_keys : Rig
             Target neutral and keyshapes; every source keyshape needs one of the same name.
         source_labels : list of str, optional
@@ -157,7 +202,7 @@ class BlendshapeRetargeter:
             raise SingularKeysError(f"{source_keys.name}: every keyshape equals the neutral at the feature points")
         self.key_scale_ = scale
         # regions
-        reg = self.regions
+        reg = copy.deepcopy(self.regions)                                      # never change a parameter
         pts0 = self.source_neutral_[idx]
         if isinstance(reg, str):
             if reg not in ("upper-lower", "default"):
@@ -166,22 +211,21 @@ class BlendshapeRetargeter:
                     and np.array_equal(idx, np.asarray(source_keys.landmarks)))
             reg = default_regions(pts0, landmarks68=lm68)
         if reg is not None:
-            labels = self.source_labels_ or None
-            rows = reg.resolve(len(idx), labels)
-            reg.fit_target(tk.neutral.vertices, tk.deltas, tk.landmarks, pts0)
+            reg.fit(len(idx), tk.neutral.vertices, labels=self.source_labels_ or None, deltas=tk.deltas,
+                    landmarks=tk.landmarks, source_points=pts0)
             self.regions_ = reg
-            self.region_rows_ = rows
+            self.region_rows_ = reg.source_idx_
             R = len(reg)
             M = reg.masks_                                                    # (R, Vt)
             deltas = (M[:, None, :, None] * tk.deltas[None]).reshape(R * len(names), -1, 3)
             wnames = [f"{n}@{r}" for r in reg.names for n in names]
-            self._target_rig = Rig(tk.neutral, wnames, deltas, tk.unit, tk.landmarks, None,
-                                   f"{tk.name}:regions")
+            self.target_keys_ = Rig(tk.neutral, wnames, deltas, tk.unit, tk.landmarks, None,
+                                    f"{tk.name}:regions")
             self.weight_names_ = wnames
         else:
             self.regions_ = None
             self.region_rows_ = [np.arange(len(idx))]
-            self._target_rig = tk
+            self.target_keys_ = tk
             self.weight_names_ = names
         self._prepare()
         return self
@@ -197,16 +241,15 @@ class BlendshapeRetargeter:
             rank = int((S > tol).sum())
             self.spans_.append((cols, U[:, :rank], S[:rank], Vt[:rank]))
 
-    @property
-    def target_keys(self) -> Rig:
-        """The target keyshapes in the order of :meth:`transform`'s columns (split by region)."""
-        return self._target_rig
-
     # ------------------------------------------------------------------ applying
-    def source_features(self, perf_or_array, labels: list[str] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-        """Feature displacements ``(T, D)`` of a take (NaN where a marker is missing) and its times."""
+    def source_features(self, perf_or_array, labels: list[str] | None = None
+                        ) -> tuple[np.ndarray, np.ndarray | None, AlignResult | None]:
+        """Feature displacements ``(T, D)`` of a take (NaN where a marker is missing), its times, and
+        the head-motion removal of a marker take."""
+        self._check_fitted("source_features")
         times = None
         src = "input"
+        alignment = None
         if isinstance(perf_or_array, Performance):
             perf = perf_or_array
             src = perf.source
@@ -216,7 +259,8 @@ class BlendshapeRetargeter:
                                        "(faceretarget retarget --source-rig, or Rig.evaluate)")
             flat = perf.kind == "points" and perf.points.shape[2] == 2
             if perf.kind == "points" and not flat and self.align and perf.points.shape[1] >= 4:
-                perf = self._aligned(perf)
+                alignment = self._aligned(perf)
+                perf = alignment.take
             arr = perf.data()
             if flat:                              # 2-D tracks: image-plane keyshapes (z = 0)
                 if np.abs(self.source_neutral_[:, 2]).max() > 0:
@@ -246,22 +290,19 @@ class BlendshapeRetargeter:
         else:
             raise TopologyError(f"{src}: frames have {arr.shape[1]} points; the source keyshapes have {V} "
                                 f"vertices and {P} feature points")
-        return (pts - rest).reshape(len(pts), -1), times
+        return (pts - rest).reshape(len(pts), -1), times, alignment
 
-    def _aligned(self, perf: Performance) -> Performance:
+    def _aligned(self, perf: Performance) -> AlignResult:
         """Remove the take's head motion, then place its head frame on the source keys' neutral."""
         al = RigidAligner(subset=self.rigid_subset)
-        out = al.fit_transform(perf)
-        self.aligner_ = al
+        res = al.fit_transform(perf)
         if len(self.source_neutral_) == perf.points.shape[1]:
             # one rigid move of the whole aligned take: its rigid subset onto the keys' neutral
             sub = al.subset_
             R, t, _ = fit_rigid(al.reference_, self.source_neutral_[sub][None])[:3]
             if np.isfinite(R).all():
-                pts = out.points @ R[0].T + t[0]
-                out = out.with_points(pts) if hasattr(out, "with_points") else Performance.from_points(
-                    pts, out.labels, times=out.times, unit=out.unit, source=out.source)
-        return out
+                res.take = res.take.with_points(res.take.points @ R[0].T + t[0])
+        return res
 
     def _sigma(self, F: np.ndarray) -> float:
         if self.denoise is False or self.denoise is None:
@@ -274,8 +315,8 @@ class BlendshapeRetargeter:
             raise InvalidDataError(f"denoise sigma must be >= 0, got {s}")
         return s
 
-    def transform(self, perf_or_array, times: np.ndarray | None = None) -> np.ndarray:
-        """Keyshape weights ``(T, len(weight_names_))`` of a take.
+    def transform(self, perf_or_array, times: np.ndarray | None = None) -> RetargetResult:
+        """Keyshape weights of a take (:class:`RetargetResult`; ``.weights`` is ``(T, len(weight_names_))``).
 
         Parameters
         ----------
@@ -284,12 +325,11 @@ class BlendshapeRetargeter:
         times : (T,) float, optional
             Frame times for arrays (the denoiser and the filter need them; default 60 fps).
         """
-        F, ptimes = self.source_features(perf_or_array)
+        F, ptimes, alignment = self.source_features(perf_or_array)
         if times is None:
             times = ptimes if ptimes is not None else np.arange(len(F)) / 60.0
         times = np.asarray(times, dtype=np.float64)
         sigma = self._sigma(F)
-        self.noise_sigma_ = sigma
         finite = np.isfinite(F)
         present = finite.reshape(len(F), -1, 3).all(axis=2)                   # (T, P)
         out = []
@@ -303,13 +343,17 @@ class BlendshapeRetargeter:
                 W = self._nnls(Fr, pr, U, cols, times, sigma)
             out.append(W)
         W = np.hstack(out)
-        self.extremes_removed_ = 0.0
+        removed = 0.0
         if self.filter_level and len(W) >= 4:
-            fps = 1.0 / float(np.median(np.diff(times))) if len(times) > 1 else 60.0
-            Wf = temporal_filter(W, self.filter_level, fps)
-            self.extremes_removed_ = extremes_removed(W, Wf)
+            Wf = temporal_filter(W, self.filter_level, infer_fps(times, default=60.0))
+            removed = extremes_removed(W, Wf)
             W = Wf
-        return W
+        res = RetargetResult(W, list(self.weight_names_), times, sigma, removed, alignment)
+        if isinstance(perf_or_array, Performance):
+            p = perf_or_array
+            res.head = alignment.take.head if alignment is not None and p.head is None else p.head
+            res.audio, res.audio_rate, res.source = p.audio, p.audio_rate, p.source
+        return res
 
     def _signed(self, Fr, pr, U, S, Vt, cols, times, sigma):
         K = self.K_[cols]
@@ -353,18 +397,12 @@ class BlendshapeRetargeter:
 
     def blend(self, weights: np.ndarray) -> np.ndarray:
         """Target meshes ``(T, Vt, 3)`` for weights ``(T, len(weight_names_))``: one matrix product."""
-        rig = self._target_rig
+        self._check_fitted("blend")
+        rig = self.target_keys_
         w = np.atleast_2d(np.asarray(weights, dtype=np.float64))
         if w.shape[1] != rig.n_shapes:
             raise InvalidDataError(f"{w.shape[1]} weight columns for {rig.n_shapes} target keyshapes")
         return (w @ rig.deltas.reshape(rig.n_shapes, -1)).reshape(len(w), -1, 3) + rig.neutral.vertices
-
-    def retarget(self, perf: Performance) -> Performance:
-        """Retarget a take: a weight Performance on :attr:`target_keys`."""
-        w = self.transform(perf)
-        return Performance(perf.times, perf.fps, weights=w, names=list(self.weight_names_),
-                           head_rotation=perf.head_rotation, head_translation=perf.head_translation,
-                           audio=perf.audio, audio_rate=perf.audio_rate, source=perf.source)
 
     def key_weights(self, weights: np.ndarray) -> np.ndarray:
         """Weights ``(T, K)`` per keyshape from region weights ``(T, R x K)``.
@@ -376,7 +414,7 @@ class BlendshapeRetargeter:
         if self.regions_ is None:
             return w
         R, N = len(self.regions_), len(self.names_)
-        rig = self._target_rig
+        rig = self.target_keys_
         mass = np.abs(rig.deltas).sum(axis=(1, 2)).reshape(R, N)
         share = mass / np.maximum(mass.sum(axis=0, keepdims=True), 1e-300)
         return (w.reshape(len(w), R, N) * share[None]).sum(axis=1)

@@ -26,10 +26,10 @@ from ._align import (
 )
 from ._bilinear import (
     AsymmetricBilinearModel,
+    BilinearModel,
     InferResult,
     SymmetricBilinearModel,
     choose_dims,
-    load_bilinear,
 )
 from ._features import AUDIO_FEATURES, PiecewiseWarp, audio_features, time_warp_audio
 from ._model import (
@@ -73,7 +73,7 @@ __all__ = [
     "SymmetricBilinearModel",
     "InferResult",
     "choose_dims",
-    "load_bilinear",
+    "BilinearModel",
     "Alignment",
     "align_performances",
     "realign_by_style",

@@ -53,31 +53,23 @@ or 0 the plain solve; large ``p`` pulls every content to the training mean, so a
 tends to adding the mean style difference, the additive baseline).  :class:`~._model.StyleModel`
 chooses ``p`` by cross-validation on its training frames (:mod:`._select`).
 
-Files (``save`` / ``load``): ``.npz`` with ``kind`` (``"asymmetric"`` or ``"symmetric"``),
-``styles`` (names), the learned arrays under their attribute names without the trailing
-underscore, and ``params`` (a JSON string of the constructor arguments).
+Files: ``save`` / ``load`` of :class:`~faceretarget.base.Model` (one ``.npz`` format for every model).
 """
 
 from __future__ import annotations
 
-import json
-import os
-from pathlib import Path
-
 import numpy as np
 
-from ..errors import InputFileError, InvalidDataError
-from ..files import atomic_path
+from ..base import Model
+from ..errors import InvalidDataError
 
 __all__ = [
     "AsymmetricBilinearModel",
     "SymmetricBilinearModel",
     "InferResult",
     "choose_dims",
-    "load_bilinear",
+    "BilinearModel",
 ]
-
-_FORMAT = 1
 
 
 def choose_dims(singular_values: np.ndarray, energy: float, cap: int, keep_first: int = 0) -> int:
@@ -195,31 +187,10 @@ def _ridge_map(b: np.ndarray, y: np.ndarray, ridge: float, toward: np.ndarray | 
     return np.linalg.solve(G + lam * np.eye(J), r).T
 
 
-class _Saveable:
+class BilinearModel(Model):
+    """What the asymmetric and symmetric models share (``BilinearModel.load`` reads either)."""
+
     kind = ""
-    _arrays: tuple[str, ...] = ()
-    _params: tuple[str, ...] = ()
-
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the fitted model to ``.npz`` (whole or not at all); returns ``path``."""
-        self._check_fitted()
-        path = Path(path)
-        data = {k: getattr(self, k + "_") for k in self._arrays}
-        params = {k: getattr(self, k) for k in self._params}
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as f:
-                np.savez(f, kind=np.array(self.kind), format=np.array(_FORMAT), styles=np.array(self.styles_),
-                         params=np.array(json.dumps(params)), **data)
-        return path
-
-    @classmethod
-    def load(cls, path: str | os.PathLike):
-        """Read a model written by :meth:`save`."""
-        return load_bilinear(path, expect=cls)
-
-    def _check_fitted(self) -> None:
-        if not hasattr(self, "styles_"):
-            raise InvalidDataError(f"{type(self).__name__} is not fitted; call fit() first")
 
     def style_index(self, style) -> int:
         """Index of a style given by name or index."""
@@ -234,7 +205,7 @@ class _Saveable:
 
 
 # ============================================================================================ asymmetric
-class AsymmetricBilinearModel(_Saveable):
+class AsymmetricBilinearModel(BilinearModel):
     """``y_sc = A_s b_c``: one linear map per style of a shared content vector (Eq. 2.8, 2.9).
 
     Parameters
@@ -264,8 +235,6 @@ class AsymmetricBilinearModel(_Saveable):
     """
 
     kind = "asymmetric"
-    _arrays = ("style_matrices", "content_vectors", "singular_values", "noise_var")
-    _params = ("content_dims", "energy", "keep_first", "prior")
 
     def __init__(self, content_dims: int | None = None, energy: float = 0.999, keep_first: int = 0,
                  prior: bool | float = True):
@@ -446,7 +415,7 @@ class InferResult:
         self.nearest, self.history, self.n_iter, self.reset = nearest, history, n_iter, reset
 
 
-class SymmetricBilinearModel(_Saveable):
+class SymmetricBilinearModel(BilinearModel):
     """``y_k = sum_ij a_i W_ijk b_j``: style and content vectors through a core tensor (Eq. 2.6, 2.7).
 
     Parameters
@@ -487,8 +456,6 @@ class SymmetricBilinearModel(_Saveable):
     """
 
     kind = "symmetric"
-    _arrays = ("core", "style_vectors", "content_vectors", "objective", "noise_var")
-    _params = ("style_dims", "content_dims", "energy", "keep_first", "max_iter", "tol", "prior", "init")
 
     def __init__(self, style_dims: int | None = None, content_dims: int | None = None, energy: float = 0.999,
                  keep_first: int = 0, max_iter: int = 200, tol: float = 1e-12, prior: bool | float = True,
@@ -808,44 +775,3 @@ class SymmetricBilinearModel(_Saveable):
             self.style_dims_ += 1
         self.styles_ = [*self.styles_, str(name)]
         return self
-
-
-# ============================================================================================ files
-def load_bilinear(path: str | os.PathLike, expect=None):
-    """Read an :class:`AsymmetricBilinearModel` or :class:`SymmetricBilinearModel` ``.npz``.
-
-    Raises
-    ------
-    InputFileError
-        Missing file, not a model file, or a model of another kind than ``expect``.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"{p}: not found")
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            kind = str(z["kind"])
-            styles = [str(s) for s in z["styles"]]
-            params = json.loads(str(z["params"]))
-            data = {k: z[k] for k in z.files}
-    except (KeyError, ValueError, OSError) as e:
-        raise InputFileError(f"{p}: not a bilinear model file ({e})") from e
-    classes = {c.kind: c for c in (AsymmetricBilinearModel, SymmetricBilinearModel)}
-    if kind not in classes:
-        raise InputFileError(f"{p}: unknown model kind '{kind}'")
-    cls = classes[kind]
-    if expect is not None and cls is not expect:
-        raise InputFileError(f"{p}: holds a {kind} model, not a {expect.kind} one")
-    m = cls(**params)
-    try:
-        for k in cls._arrays:
-            setattr(m, k + "_", np.asarray(data[k], np.float64))
-    except KeyError as e:
-        raise InputFileError(f"{p}: missing array {e}") from e
-    m.styles_ = styles
-    if kind == "asymmetric":
-        m.content_dims_ = int(m.style_matrices_.shape[2])
-    else:
-        m.style_dims_, m.content_dims_ = int(m.core_.shape[0]), int(m.core_.shape[1])
-        m.n_iter_ = len(m.objective_) - 1
-    return m

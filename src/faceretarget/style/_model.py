@@ -27,14 +27,8 @@ it next to the same text in a known style).  All take ``amount``: Eq. 2.15 inter
 the target; every result carries a :class:`RangeReport` saying how far it left the range of the
 training data.
 
-File format (:meth:`StyleModel.save`, ``.npz``): ``format`` (1), ``kind`` ``"style-model"``,
-``params`` (JSON of the constructor arguments), ``meta`` (JSON: ``styles``, ``reference``,
-``take_kind`` (weights / points / vertices), ``frame_shape``, ``names``, ``labels``, ``unit``),
-arrays ``mean`` ``(D,)``, ``basis`` ``(D, K)``, ``offset`` (``c0``), ``coef_lo`` / ``coef_hi``
-``(K,)`` (training range of ``z``), the two models' arrays prefixed ``asym_`` and ``sym_`` (as
-:meth:`AsymmetricBilinearModel.save` names them, with their constructor arguments as JSON in
-``asym_params`` / ``sym_params``), and the paired training coefficients of the local correction,
-``pairs{i}_{j}`` ``(C_i, K)`` for style ``meta["pair_sets"][i][j]``.
+Files: ``save`` / ``load`` of :class:`~faceretarget.base.Model` (one ``.npz`` format for every model;
+the alignments and the cross-validation's scores of :meth:`StyleModel.fit` are not saved).
 
 **Local correction** (our addition; by default kernel ridge regression chosen by cross-validation,
 :mod:`._select`; ``local=k``: the mean of ``k`` nearest frames, as below): a bilinear model is linear in the
@@ -58,17 +52,14 @@ Point takes aligned by face are re-aligned by style (:func:`~._align.realign_by_
 
 from __future__ import annotations
 
-import json
-import os
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, InvalidDataError, StyleFitWarning, StyleRangeWarning
-from ..files import atomic_path
+from ..base import Model
+from ..errors import InvalidDataError, StyleFitWarning, StyleRangeWarning
 from ..names import normalize_name
 from ..performance import Performance
 from ._align import Alignment, align_performances, frame_vectors, realign_by_style, warp_performance
@@ -86,7 +77,6 @@ from ._select import (
 
 __all__ = ["StyleModel", "Restyled", "RangeReport", "StyleRangeWarning", "StyleFitWarning", "bundle_frames", "unbundle_frames"]
 
-_FORMAT = 1
 #: The range guard measures each PCA component's excess in units of its training range, but at
 #: least this share of the widest component's range: components holding only noise-level variation
 #: (which the point-local translation does not reproduce exactly) do not decide plausibility.
@@ -133,6 +123,8 @@ class Restyled:
     local : bool
         Whether the local correction was applied (it needs paired training frames of the source
         and target styles).
+    take : Performance or None
+        The edited take (:meth:`StyleModel.transform`; None for the array-level tasks).
     """
 
     frames: np.ndarray
@@ -140,6 +132,7 @@ class Restyled:
     inferred: InferResult | None = None
     style_weights: np.ndarray | None = None
     local: bool = False
+    take: Performance | None = None
 
 
 def _amount(amount) -> float:
@@ -216,7 +209,7 @@ def unbundle_frames(Yb: np.ndarray, n: int) -> np.ndarray:
     return out / cnt[:, None]
 
 
-class StyleModel:
+class StyleModel(Model):
     """Style (emotion) and content (speech) of facial takes, separated by bilinear models.
 
     Parameters
@@ -287,6 +280,8 @@ class StyleModel:
     names_ : list of str
         Weight names (weight takes).
     """
+
+    _transient = ("alignments_", "selection_")
 
     def __init__(self, variance: float | str = "auto", energy: float | str = "auto", content_dims: int | None = None,
                  style_dims: int | None = None, bundle: int = 1, offset: float = 10.0, local: int | tuple | str = "auto",
@@ -472,10 +467,6 @@ class StyleModel:
     @property
     def n_components_(self) -> int:
         return int(self.basis_.shape[1])
-
-    def _check_fitted(self) -> None:
-        if not hasattr(self, "basis_"):
-            raise InvalidDataError("StyleModel is not fitted; call fit() first")
 
     def _observe(self, Z: np.ndarray) -> np.ndarray:
         Y = np.concatenate([np.full((len(Z), 1), self.offset_), Z], axis=1) if self.offset_ > 0 else Z
@@ -857,17 +848,16 @@ class StyleModel:
         return Restyled(flat.reshape((len(z),) + tuple(self.frame_shape_)), self._range(z, margin, warn))
 
     # ------------------------------------------------------------------------------------ takes
-    def restyle(self, take: Performance, to: str, amount: float = 1.0, *, source: str | None = None,
-                window: int | None = None, margin: float = 0.5, warn: bool = True) -> tuple[Performance, Restyled]:
+    def transform(self, take: Performance, to: str, amount: float = 1.0, *, source: str | None = None,
+                  window: int | None = None, margin: float = 0.5, warn: bool = True) -> Restyled:
         """A take with its emotion changed to ``to``: known expression when ``source`` is given, else unknown.
 
         Weight takes come back with weights clipped at 0 (blendshape weights are not negative).
 
         Returns
         -------
-        Performance
-            Same times and kind as ``take``.
         Restyled
+            ``.take``: same times, kind, head motion and audio as ``take``.
         """
         self._check_fitted()
         p = self._conform(take)
@@ -882,92 +872,14 @@ class StyleModel:
             r = self.unknown(x, to, amount, window=window, margin=margin, warn=warn)
         f = r.frames
         if p.kind == "weights":
-            f = np.maximum(f, 0.0)
-            return take.with_weights(f, self.names_), r
-        if p.kind == "points":
-            return Performance(p.times, p.fps, points=f, labels=take.labels, unit=take.unit,
-                               head_rotation=take.head_rotation, head_translation=take.head_translation,
-                               source=take.source), r
-        return take.with_vertices(f, take.mesh, take.unit), r
+            r.take = take.with_weights(np.maximum(f, 0.0), self.names_)
+        elif p.kind == "points":
+            r.take = take.with_points(f)
+        else:
+            r.take = take.with_vertices(f, take.mesh, take.unit)
+        return r
 
-    # ------------------------------------------------------------------------------------ files
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the fitted model to ``.npz`` (layout in the module docstring), whole or not at all."""
-        self._check_fitted()
-        path = Path(path)
-        params = {k: getattr(self, k) for k in ("variance", "energy", "content_dims", "style_dims", "bundle",
-                                                "offset", "local", "prior", "detail", "align", "audio_features",
-                                                "window_s", "cv_folds", "realign")}
-        meta = {"styles": self.styles_, "reference": self.reference_, "take_kind": self.take_kind_,
-                "frame_shape": list(self.frame_shape_), "names": self.names_, "labels": self.labels_,
-                "unit": self.unit_, "pair_sets": [list(ps) for ps in self.pair_sets_],
-                "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.settings_.items()}}
-        arrays = {"mean": self.mean_, "basis": self.basis_, "offset": np.array(self.offset_),
-                  "coef_lo": self.coef_lo_, "coef_hi": self.coef_hi_}
-        for i, ps in enumerate(self.pair_sets_):
-            for j, st in enumerate(ps):
-                arrays[f"pairs{i}_{j}"] = ps[st]
-        for pre, m in (("asym_", self.asymmetric_), ("sym_", self.symmetric_)):
-            for k in m._arrays:
-                arrays[pre + k] = getattr(m, k + "_")
-            arrays[pre + "params"] = np.array(json.dumps({k: getattr(m, k) for k in m._params}))
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as f:
-                np.savez_compressed(f, format=np.array(_FORMAT), kind=np.array("style-model"),
-                                    params=np.array(json.dumps(params)), meta=np.array(json.dumps(meta)), **arrays)
-        return path
-
-    @classmethod
-    def load(cls, path: str | os.PathLike) -> StyleModel:
-        """Read a model written by :meth:`save`.
-
-        Raises
-        ------
-        InputFileError
-            Missing file or not a style model.
-        """
-        p = Path(path)
-        if not p.is_file():
-            raise InputFileError(f"{p}: not found")
-        try:
-            with np.load(p, allow_pickle=False) as z:
-                if "kind" not in z.files or str(z["kind"]) != "style-model":
-                    raise InputFileError(f"{p}: not a faceretarget style model (.npz from 'style fit')")
-                d = {k: z[k] for k in z.files}
-            params, meta = json.loads(str(d["params"])), json.loads(str(d["meta"]))
-            m = cls(**params)
-            st = meta.get("settings")
-            if st is None:                                             # format-1 files before the selection
-                st = {"variance": params["variance"], "energy": params["energy"], "prior": float(params["prior"]),
-                      "local": params["local"]}
-            st["local"] = _local_spec(st["local"])
-            m.settings_, m.selection_ = st, None
-            m.mean_, m.basis_ = d["mean"].astype(np.float64), d["basis"].astype(np.float64)
-            m.offset_ = float(d["offset"])
-            m.coef_lo_, m.coef_hi_ = d["coef_lo"], d["coef_hi"]
-            m.styles_ = list(meta["styles"])
-            m.reference_ = meta["reference"]
-            m.take_kind_ = meta["take_kind"]
-            m.frame_shape_ = tuple(meta["frame_shape"])
-            m.names_, m.labels_, m.unit_ = list(meta["names"]), list(meta["labels"]), meta["unit"]
-            m.alignments_ = {}
-            m.pair_sets_ = [{st: d[f"pairs{i}_{j}"].astype(np.float64) for j, st in enumerate(names)}
-                            for i, names in enumerate(meta.get("pair_sets", []))]
-            m._local_cache = {}
-            for pre, kls, attr in (("asym_", AsymmetricBilinearModel, "asymmetric_"),
-                                   ("sym_", SymmetricBilinearModel, "symmetric_")):
-                sub = kls(**json.loads(str(d[pre + "params"])))
-                for k in kls._arrays:
-                    setattr(sub, k + "_", np.asarray(d[pre + k], np.float64))
-                sub.styles_ = list(m.styles_)
-                if kls is AsymmetricBilinearModel:
-                    sub.content_dims_ = int(sub.style_matrices_.shape[2])
-                else:
-                    sub.style_dims_, sub.content_dims_ = int(sub.core_.shape[0]), int(sub.core_.shape[1])
-                    sub.n_iter_ = len(sub.objective_) - 1
-                setattr(m, attr, sub)
-        except InputFileError:
-            raise
-        except (KeyError, ValueError, OSError, TypeError) as e:
-            raise InputFileError(f"{p}: not a readable style model ({e})") from e
-        return m
+    def _after_load(self) -> None:
+        self._local_cache = {}
+        self.alignments_ = {}
+        self.selection_ = None

@@ -3,7 +3,7 @@
 Instead of one set of target keyshapes, the artist models one set per emotion: the same ``N``
 keyshapes (same mouth shapes, same source correspondence) made happy, angry, sad...  The source
 take is retargeted once, to non-negative keyshape weights ``w(t)`` (Chuang Eq. 3.1/3.2, solved for
-the whole take by :func:`faceretarget.retarget.nnls.solve_nnls`); the weights are played on every
+the whole take by :func:`faceretarget.numerics.solve_nnls`); the weights are played on every
 emotion's target set, and the results are blended with barycentric weights ``alpha_e(t)``
 (non-negative, summing to 1), given as constants or curves over time::
 
@@ -20,6 +20,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from ..base import Model
 from ..errors import InvalidDataError
 from ..numerics import smoothstep, solve_nnls
 
@@ -110,7 +111,7 @@ def alpha_curves(times, emotions: Sequence[str], keys: Mapping[str, float | Sequ
     return AlphaCurves(emotions, keys, interp)(times)
 
 
-class ExpressionSliders:
+class ExpressionSliders(Model):
     """Retarget onto several emotions' keyshape sets and blend them with ``alpha(t)`` (Eq. 5.1).
 
     Parameters
@@ -183,13 +184,9 @@ class ExpressionSliders:
         self.target_shape_ = tuple(shape)
         return self
 
-    def _check(self) -> None:
-        if not hasattr(self, "emotions_"):
-            raise InvalidDataError("ExpressionSliders is not fitted; call fit() first")
-
     def weights(self, frames) -> np.ndarray:
         """Non-negative keyshape weights ``(T, N)`` of source frames ``(T, ...)`` (Eq. 3.1/3.2)."""
-        self._check()
+        self._check_fitted()
         F = np.asarray(frames, np.float64)
         F = F.reshape(len(F), -1)
         if F.shape[1] != self.source_neutral_.size:
@@ -199,7 +196,7 @@ class ExpressionSliders:
 
     def play(self, W: np.ndarray, emotion: str) -> np.ndarray:
         """Weights ``W`` ``(T, N)`` played on one emotion's target set: ``(T, ...)``."""
-        self._check()
+        self._check_fitted()
         if emotion not in self.emotions_:
             raise InvalidDataError(f"unknown emotion '{emotion}'; have {', '.join(self.emotions_)}")
         e = self.emotions_.index(emotion)
@@ -226,7 +223,7 @@ class ExpressionSliders:
         -------
         (T, ...) float
         """
-        self._check()
+        self._check_fitted()
         W = np.asarray(W, np.float64)
         T = len(W)
         if isinstance(alpha, (AlphaCurves, Mapping)):

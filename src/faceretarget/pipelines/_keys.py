@@ -1,0 +1,175 @@
+"""Key-models and keyshapes for an artist: the ``keys select`` and ``keys compose`` commands as
+library functions (Chuang Ch. 3 selection and export; Pyun Sec. 2 composition)."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..cloning import build_key_models
+from ..errors import InvalidDataError
+from ..mesh import Mesh
+from ..numerics import SELECTION_METHODS, AlignResult, RigidAligner, reconstruction_error, select_keyshapes
+from ..performance import Performance
+from ..rig import Rig, resolve_features
+
+__all__ = ["KeyGeometry", "KeySelection", "key_geometry", "select_keys", "compose_keys", "SELECTION_ALIASES"]
+
+#: Short names the command line accepts for the selection methods.
+SELECTION_ALIASES = {"kmeans": "kmeans2", "pca": "pca-extrema", "greedy": "nnls-greedy", "qr": "pivoted-qr"}
+
+
+def _quiet(*_a) -> None:
+    return None
+
+
+@dataclass(eq=False)
+class KeyGeometry:
+    """A take's frames as 3-D points for keyshape work (:func:`key_geometry`).
+
+    Attributes
+    ----------
+    points : (T, P, 3) float
+        Head-stabilised markers, landmarks (2-D ones with z = 0), a mesh sequence, or a weight take
+        played on its rig; NaN where a marker is missing.
+    labels : list of str
+    neutral : (P, 3) float or None
+        The rest pose when the take knows it (the rig's neutral for a weight take).
+    mesh : Mesh or None
+        Topology of mesh frames.
+    alignment : AlignResult or None
+        The head-motion removal of a marker take.
+    """
+
+    points: np.ndarray
+    labels: list[str]
+    neutral: np.ndarray | None = None
+    mesh: Mesh | None = None
+    alignment: AlignResult | None = None
+
+
+def key_geometry(take: Performance, source_rig: Rig | None = None, *, align: bool = True,
+                 rigid_subset: Sequence[str | int] | None = None, log: Callable[..., None] = _quiet) -> KeyGeometry:
+    """The frames of ``take`` as points for selection and export (:class:`KeyGeometry`)."""
+    if take.kind == "weights":
+        if source_rig is None:
+            raise InvalidDataError(f"{take.source}: a weight take needs the rig it drives (--source-rig DIR)")
+        log(f"playing {take.n_frames} frames of weights on {source_rig.name}")
+        V = source_rig.evaluate(source_rig.map_weights(take.names, take.weights, source=take.source))
+        return KeyGeometry(V, [], source_rig.neutral.vertices, source_rig.neutral)
+    if take.kind == "vertices":
+        return KeyGeometry(take.vertices, [], None, take.mesh)
+    if take.kind != "points":
+        raise InvalidDataError(f"{take.source}: a take of head motion only has no face to choose keyshapes from")
+    pts = take.points
+    if pts.shape[2] == 2:                       # 2-D landmark tracks: keyshapes in the image plane (z = 0)
+        log(f"{take.source}: 2-D points; keyshapes are exported with z = 0 and no head-motion removal")
+        pts = np.concatenate([pts, np.zeros(pts.shape[:2] + (1,))], axis=2)
+        return KeyGeometry(pts, list(take.labels))
+    al = None
+    if align and pts.shape[1] >= 4:
+        al = RigidAligner(subset=None if rigid_subset is None else list(rigid_subset)).fit_transform(take)
+        log(al.report(take.unit))
+        pts = al.take.points
+    return KeyGeometry(pts, list(take.labels), None, None, al)
+
+
+@dataclass(eq=False)
+class KeySelection:
+    """Keyshape frames chosen from a take (:func:`select_keys`).
+
+    Attributes
+    ----------
+    frames : list of int
+        Chosen frames, ascending.
+    geometry : KeyGeometry
+        The frames they index (head-stabilised).
+    neutral : (P, 3) float
+        The source's rest pose.
+    error : float
+        RMS error of the non-negative reconstruction of every complete frame from the keys, as a
+        share of the take's RMS motion.
+    method : str
+    neutral_frame : int or None
+        The frame taken as the rest pose (None when the rig's neutral was).
+    """
+
+    frames: list[int]
+    geometry: KeyGeometry
+    neutral: np.ndarray
+    error: float
+    method: str
+    neutral_frame: int | None = None
+
+
+def select_keys(take: Performance, k: int, method: str = "pivoted-qr", *, source_rig: Rig | None = None,
+                features="landmarks", neutral_frame: int | None = None, align: bool = True,
+                rigid_subset: Sequence[str | int] | None = None, log: Callable[..., None] = _quiet) -> KeySelection:
+    """Choose ``k`` keyshape frames of a take for an artist to model (Chuang Sec. 3.2).
+
+    Parameters
+    ----------
+    take : Performance
+        Markers (head motion removed first), landmarks, a mesh sequence, or weights on ``source_rig``.
+    k : int
+    method : str
+        One of :data:`~faceretarget.numerics.SELECTION_METHODS` (or an alias of :data:`SELECTION_ALIASES`).
+    source_rig : Rig, optional
+        The rig a weight take drives.
+    features : ``"landmarks"``, ``"all"`` or vertex indices
+        With a rig: the vertices selection looks at.
+    neutral_frame : int, optional
+        The rest frame of a marker or mesh take (default the first complete frame).
+    """
+    t0 = time.perf_counter()
+    method = SELECTION_ALIASES.get(method, method)
+    if method not in SELECTION_METHODS:
+        raise InvalidDataError(f"unknown selection method '{method}', use one of {', '.join(SELECTION_METHODS)} "
+                               "(kmeans = kmeans2)")
+    if k < 1:
+        raise InvalidDataError(f"k must be at least 1, got {k}")
+    geo = key_geometry(take, source_rig, align=align, rigid_subset=rigid_subset, log=log)
+    pts = geo.points
+    T = len(pts)
+    complete = np.isfinite(pts).all(axis=(1, 2))
+    if not complete.any():
+        raise InvalidDataError(f"{take.source}: no frame has every marker; fill gaps first")
+    neutral, nf = geo.neutral, None
+    if neutral is None:
+        nf = int(np.flatnonzero(complete)[0]) if neutral_frame is None else int(neutral_frame)
+        if not 0 <= nf < T:
+            raise InvalidDataError(f"neutral frame {nf} is outside the take's frames 0..{T - 1}")
+        if not complete[nf]:
+            raise InvalidDataError(f"{take.source}: neutral frame {nf} has missing markers; choose another")
+        neutral = pts[nf]
+        log(f"source neutral: frame {nf}")
+    feats = np.arange(pts.shape[1])
+    if source_rig is not None and not (isinstance(features, str) and features == "all"):
+        feats = resolve_features(features, source_rig.n_vertices, source_rig.landmarks, who=source_rig.name)
+    cand = np.flatnonzero(complete)
+    if k > len(cand):
+        raise InvalidDataError(f"k = {k} is more than the {len(cand)} complete frames of {take.source}")
+    X = (pts[cand][:, feats] - neutral[feats]).reshape(len(cand), -1)
+    frames = cand[np.asarray(select_keyshapes(X, k, method), dtype=int)]
+    err = reconstruction_error(X, np.searchsorted(cand, frames))
+    log(f"selected {len(frames)} keyshapes with {method} in {time.perf_counter() - t0:.2f} s; "
+        f"non-negative reconstruction error of the take {100 * err:.2f} %")
+    return KeySelection(sorted(frames.tolist()), geo, neutral, float(err), method, nf)
+
+
+def compose_keys(rig: Rig, *, log: Callable[..., None] = _quiet) -> Rig:
+    """The 83 composed emotion x viseme key-models (and the pure emotions) of an ARKit-style rig,
+    as a rig whose shapes are ``emotion_viseme`` (Pyun Sec. 2; the pure neutral is the rig's own)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        labels, verts = build_key_models(rig)
+    for c in caught:
+        log(f"warning: {c.message}")
+    keep = [i for i, lab in enumerate(labels) if lab != "neutral"]
+    safe = [labels[i].replace("+", "_") for i in keep]
+    return Rig(rig.neutral, safe, verts[keep] - rig.neutral.vertices, rig.unit, rig.landmarks, None,
+               f"{rig.name}:composed")
