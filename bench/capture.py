@@ -118,7 +118,7 @@ def _bench_video(path: Path, png_dir: Path | None) -> dict:
     model = AppearanceModel(0.99, 0.80, width=128).fit((frames[i] for i in tr), L[tr])
     fit_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    vec = model.encode((frames[i] for i in te), L[te])
+    vec = model.transform((frames[i] for i in te), L[te])
     encode_ms = 1000 * (time.perf_counter() - t0) / max(te.size, 1)
     ev_in = model.evaluate((frames[i] for i in tr), L[tr])
     ev_out = model.evaluate((frames[i] for i in te), L[te])
@@ -128,20 +128,20 @@ def _bench_video(path: Path, png_dir: Path | None) -> dict:
         stem = path.stem
         for i in (0, T // 2, T - 1):
             img = draw_overlay(frames[i], smooth.landmarks[i] if smooth.valid[i] else None,
-                               interpolated=bool(smooth.interpolated[i]), pose=smooth.head_rotation[i],
+                               interpolated=bool(smooth.interpolated[i]), pose=smooth.head.to_livelinkface()[i],
                                label=f"frame {i}")
             Image.fromarray(img).save(png_dir / f"overlay_{stem}_{i:03d}.png")
         j = int(te[len(te) // 2])
         k = int(tr[len(tr) // 2])
-        vv = model.encode([frames[k], frames[j]], L[[k, j]])
+        vv = model.transform([frames[k], frames[j]], L[[k, j]])
         rows = []
         pad = max(model.width // 8, 2)
         for n, f in enumerate((k, j)):
             def padded(img):
                 return np.pad(img, ((pad, pad), (pad, pad), (0, 0)))
             orig = model.warp_.warp(frames[f], L[f, :468, :2])
-            rows.append(np.concatenate([padded(orig), padded(model.reconstruct(vv[n:n + 1], shape_free=True)[0]),
-                                        model.reconstruct(vv[n:n + 1])[0]], axis=1))
+            rows.append(np.concatenate([padded(orig), padded(model.inverse_transform(vv[n:n + 1], shape_free=True)[0]),
+                                        model.inverse_transform(vv[n:n + 1])[0]], axis=1))
         strip = np.concatenate(rows, axis=0)
         Image.fromarray(strip).resize((strip.shape[1] * 2, strip.shape[0] * 2), Image.NEAREST).save(
             png_dir / f"appearance_{stem}.png")

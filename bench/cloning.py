@@ -79,7 +79,7 @@ def _clone(method, features, sk, tk, src_rig, tgt_rig, inp, times):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")   # rank / outside-the-keys warnings: the metrics say it
         c = ExpressionCloner(method, features=features).fit(sk, tk)
-        return c.blend(c.transform(inp, times))
+        return c.blend(c.transform(inp, times).weights)
 
 
 def run(data: Path, quick: bool = False, log=print) -> dict:
@@ -193,7 +193,7 @@ def measure_timing(rigs, takes) -> dict:
             warnings.simplefilter("ignore")
             fit_s = _best_of(lambda m=method: ExpressionCloner(m).fit(sk, tk))
             c = ExpressionCloner(method).fit(sk, tk)
-            take_s = _best_of(lambda c=c: c.blend(c.transform(L, take.times)), 3)
+            take_s = _best_of(lambda c=c: c.blend(c.transform(L, take.times).weights), 3)
             frames = L[:200]
             t0 = time.perf_counter()
             for f in frames:

@@ -53,16 +53,12 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import wasserstein_distance
 
-from faceretarget.headmotion import HeadMotionDatabase, read_head_take, segment_speech
-from faceretarget.metrics import (
-    accent_onsets,
-    angular_speed,
-    beat_alignment,
-    motion_beats,
-    perlin_noise,
-    pitch_peaks,
-    summarize_alignment,
-)
+from faceretarget.headmotion import HeadMotionDatabase, segment_speech, take_duration
+from faceretarget.headpose import HeadPose
+from faceretarget.io import read_head_take
+from faceretarget.metrics import accent_onsets, beat_alignment, perlin_noise, pitch_peaks, summarize_alignment
+from faceretarget.metrics import angular_speed as _angular_speed
+from faceretarget.metrics import motion_beats as _motion_beats
 
 REPO = Path(__file__).resolve().parents[1]
 TAKES = ("beat_2_scott_0_1_1", "zeggs_067_Speech_2_x_1_0")
@@ -72,11 +68,26 @@ METHODS = ("synth", "random", "noise", "real", "random_1draw")
 ACCENTS = ("onsets", "peaks")
 
 
+def angular_speed(rot: np.ndarray, fps: float) -> np.ndarray:
+    """:func:`faceretarget.metrics.angular_speed` of (T, 3) Y-X-Z radians."""
+    return _angular_speed(HeadPose.from_euler("YXZ", rot), fps)
+
+
+def motion_beats(rot: np.ndarray, fps: float) -> np.ndarray:
+    """:func:`faceretarget.metrics.motion_beats` of (T, 3) Y-X-Z radians."""
+    return _motion_beats(HeadPose.from_euler("YXZ", rot), fps)
+
+
+def _euler(perf) -> np.ndarray:
+    """(T, 3) Y-X-Z radians of a take's head pose (the arrays the bench compares)."""
+    return perf.head.to_euler("YXZ")
+
+
 def _real_motion(take, t0: float, n: int) -> np.ndarray:
     """The take's own rotation (radians) at FPS from t0, n frames (linear interpolation)."""
     t = t0 + np.arange(n) / FPS
-    ts = np.arange(take.rotation.shape[0]) / take.fps
-    r = np.unwrap(take.rotation, axis=0)
+    ts = np.arange(take.n_frames) / take.fps
+    r = np.unwrap(_euler(take), axis=0)
     return np.stack([np.interp(t, ts, r[:, k]) for k in range(3)], axis=1)
 
 
@@ -177,19 +188,20 @@ def _data_p99(rots: list[np.ndarray]) -> np.ndarray:
 
 def run_case(db: HeadMotionDatabase, audio, rate, pitch, real: np.ndarray, pool: Pool, rng, jumps: list,
              draws: int = 20):
-    perf = db.synthesize(audio, rate, pitch=pitch, fps=FPS)
-    info = db.last_synthesis_
+    res = db.transform(audio, rate, pitch=pitch, fps=FPS)
+    perf, info = res.take, res.info
     n = perf.n_frames
     real = real[:n]
     accents = {"onsets": accent_onsets(info.segmentation), "peaks": pitch_peaks(pitch)}
-    pool.add("synth", perf.head_rotation, accents)
-    jumps["synth"].append(_join_measures(perf.head_rotation, info.joins))
+    pool.add("synth", _euler(perf), accents)
+    jumps["synth"].append(_join_measures(_euler(perf), info.joins))
     rand = []
     for k in range(draws):
         rand_path = rng.integers(0, db.n_segments_, size=info.path.size)
-        rand.append(db.synthesize(audio, rate, pitch=pitch, fps=FPS, path=rand_path).head_rotation)
+        r = db.transform(audio, rate, pitch=pitch, fps=FPS, path=rand_path)
+        rand.append(_euler(r.take))
         if k == 0:
-            jumps["random"].append(_join_measures(rand[0], db.last_synthesis_.joins))
+            jumps["random"].append(_join_measures(rand[0], r.info.joins))
     pool.add_draws("random", rand, accents)
     pool.add("random_1draw", rand[0], accents)
     sd = db.motion_[:, :3].std(axis=0)
@@ -214,12 +226,13 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(0)
     db0 = HeadMotionDatabase(fps=FPS)
     takes = [read_head_take(root / f"{t}.wav", root / f"{t}.bvh") for t in TAKES]
-    pitch_s, audio_min = [], []
+    pitch_s, audio_min, pitches = [], [], {}
     for tk in takes:
         t0 = time.perf_counter()
-        tk.pitch = db0.pitch(tk.audio, tk.rate)
+        pitches[tk.source] = db0.pitch(tk.audio, tk.audio_rate)
         pitch_s.append(time.perf_counter() - t0)
-        audio_min.append(tk.audio.size / tk.rate / 60)
+        audio_min.append(tk.audio.size / tk.audio_rate / 60)
+    all_pitch = [pitches[t.source] for t in takes]
 
     # ---------------------------------------------------------------- leave one phrase out
     lopo = Pool()
@@ -227,20 +240,20 @@ def main(argv=None) -> int:
     n_cases = 0
     plot_case = None
     for tk in takes:
-        seg = segment_speech(tk.pitch, pause=db0.pause)
-        p_end = np.r_[seg.phrase_start[1:], min(seg.duration, tk.duration)]
+        seg = segment_speech(pitches[tk.source], pause=db0.pause)
+        p_end = np.r_[seg.phrase_start[1:], min(seg.duration, take_duration(tk))]
         for p in range(seg.n_phrases):
             t0, t1 = float(seg.phrase_start[p]), float(p_end[p])
             if t1 - t0 < MIN_PHRASE:
                 continue
-            db = HeadMotionDatabase(fps=FPS).build(takes, exclude=[(tk.name, t0, t1)])
-            a0, a1 = int(round(t0 * tk.rate)), int(round(t1 * tk.rate))
+            db = HeadMotionDatabase(fps=FPS).fit(takes, exclude=[(tk.source, t0, t1)], pitch=all_pitch)
+            a0, a1 = int(round(t0 * tk.audio_rate)), int(round(t1 * tk.audio_rate))
             audio = tk.audio[a0:a1]
-            pitch = db.pitch(audio, tk.rate)
+            pitch = db.pitch(audio, tk.audio_rate)
             if not np.isfinite(pitch.f0).any():
                 continue
-            n = int(np.floor((a1 - a0) / tk.rate * FPS + 1e-9)) + 1
-            perf, info = run_case(db, audio, tk.rate, pitch, _real_motion(tk, t0, n), lopo, rng, jumps,
+            n = int(np.floor((a1 - a0) / tk.audio_rate * FPS + 1e-9)) + 1
+            perf, info = run_case(db, audio, tk.audio_rate, pitch, _real_motion(tk, t0, n), lopo, rng, jumps,
                                   args.draws)
             n_cases += 1
             if plot_case is None or (perf.n_frames > plot_case[1].n_frames and tk is takes[0]):
@@ -252,20 +265,19 @@ def main(argv=None) -> int:
     last = None
     for i, tk in enumerate(takes):
         other = [t for j, t in enumerate(takes) if j != i]
-        db = HeadMotionDatabase(fps=FPS).build(other)
-        n = int(np.floor(tk.audio.size / tk.rate * FPS + 1e-9)) + 1
-        perf, info = run_case(db, tk.audio, tk.rate, tk.pitch, _real_motion(tk, 0.0, n), loso, rng, jumps,
+        db = HeadMotionDatabase(fps=FPS).fit(other, pitch=[pitches[t.source] for t in other])
+        n = int(np.floor(tk.audio.size / tk.audio_rate * FPS + 1e-9)) + 1
+        perf, info = run_case(db, tk.audio, tk.audio_rate, pitches[tk.source], _real_motion(tk, 0.0, n), loso, rng, jumps,
                               args.draws)
         runs = []
         for _ in range(3):
-            db.synthesize(tk.audio, tk.rate, pitch=tk.pitch, fps=FPS)
-            runs.append(db.last_synthesis_.search_seconds)
+            runs.append(db.transform(tk.audio, tk.audio_rate, pitch=pitches[tk.source], fps=FPS).info.search_seconds)
         speed.append(float(np.median(runs)) / audio_min[i])
         if last is None:
             last = (tk, perf, info, db)
 
     # the data's own 99th percentiles (both takes at the output rate)
-    p99 = _data_p99([_real_motion(tk, 0.0, int(tk.duration * FPS)) for tk in takes])
+    p99 = _data_p99([_real_motion(tk, 0.0, int(take_duration(tk) * FPS)) for tk in takes])
     jm = {k: np.concatenate(v).max(axis=0) / p99 for k, v in jumps.items()}
     n_joins = sum(len(x) for x in jumps["synth"])
     pitch_per_min = float(np.sum(pitch_s) / np.sum(audio_min))
@@ -355,21 +367,20 @@ def main(argv=None) -> int:
 def _preview(path: Path, take, perf, info, db) -> None:
     """Eight frames of the demo head turned by the synthesized rotation, over the most active 4 s."""
     from faceretarget.datasets import make_demo_character
-    from faceretarget.headmotion._database import rotation_matrices
     from faceretarget.render._preview import fit_camera, render_grid, render_mesh, save_png
 
     rig = make_demo_character("ada")
     v = rig.neutral.vertices
     pivot = np.array([0.0, v[:, 1].min() - 2.0, v[:, 2].min()])
-    sp = angular_speed(perf.head_rotation, perf.fps)
+    sp = _angular_speed(perf.head, perf.fps)
     win = int(4 * perf.fps)
     k0 = int(np.argmax(np.convolve(sp, np.ones(win), "valid")))
     frames = np.linspace(k0, k0 + win, 8).round().astype(int)
-    R = rotation_matrices(perf.head_rotation[frames])
+    R = perf.head.as_matrix()[frames]
     verts = np.einsum("fij,vj->fvi", R, v - pivot) + pivot
     cam = fit_camera(verts, (256, 256), "three_quarter", 0.08)
     imgs = [render_mesh(x, rig.neutral, camera=cam) for x in verts]
-    deg = np.degrees(perf.head_rotation[frames])
+    deg = perf.head.to_euler("YXZ", degrees=True)[frames]
     labels = [f"t={f / perf.fps:.2f}s y{d[0]:+.0f} p{d[1]:+.0f} r{d[2]:+.0f}" for f, d in zip(frames, deg, strict=True)]
     path.parent.mkdir(parents=True, exist_ok=True)
     save_png(path, render_grid(imgs, labels, cols=4, font_size=13))
@@ -381,7 +392,7 @@ def _speed_plot(path: Path, take, perf, info, db, real: np.ndarray, t0: float) -
     held-out phrase (the longest of the first take)."""
     from PIL import Image, ImageDraw
 
-    rot = perf.head_rotation
+    rot = _euler(perf)
     yaw = np.abs(np.diff(np.degrees(rot[:, 0]))) * FPS
     pit = np.abs(np.diff(np.degrees(rot[:, 1]))) * FPS
     tot = angular_speed(rot, FPS)
@@ -405,7 +416,7 @@ def _speed_plot(path: Path, take, perf, info, db, real: np.ndarray, t0: float) -
             return L + (W - L - pad) * tt / T, bot - (bot - top - 16) * min(v, ymax) / ymax
 
         dr.rectangle([L, top, W - pad, bot], outline="#888888")
-        dr.text((L + 4, top + 2), f"{title}  (phrase at {t0:.2f} s of {take.name}; y max {ymax:.0f} deg/s)",
+        dr.text((L + 4, top + 2), f"{title}  (phrase at {t0:.2f} s of {take.source}; y max {ymax:.0f} deg/s)",
                 fill="black")
         for a in acc:
             x = xy(a, 0)[0]

@@ -70,8 +70,9 @@ def load_datasets(data: Path) -> dict[str, np.ndarray]:
     for f in sorted((data / "facial-mocap").glob("*.c3d")):
         take = read_c3d(f)
         al = RigidAligner()
-        head = al.fit_transform(take)
-        log(f"mocap/{f.stem}: {take.n_frames} frames, {take.points.shape[1]} markers; {al.report(take.unit)}")
+        res = al.fit_transform(take)
+        head = res.take
+        log(f"mocap/{f.stem}: {take.n_frames} frames, {take.points.shape[1]} markers; {res.report(take.unit)}")
         p = head.points
         ok = np.isfinite(p).all(axis=(1, 2))
         if not ok.all():

@@ -69,7 +69,7 @@ def _model(method, sk, tk):
 def _apply(model, pts, times):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return model.blend(model.transform(pts, times))
+        return model.blend(model.transform(pts, times).weights)
 
 
 def p1(ict: Rig, ark: Rig, rom, takes, quick: bool, log) -> tuple[list[dict], list]:
@@ -187,7 +187,7 @@ def missing_markers(data: Path, ict, ark, rom, takes, log) -> dict:
     for f in sorted((data / "facial-mocap").glob("*.c3d")):
         perf = read_c3d(f)
         al = RigidAligner()
-        aligned = al.fit_transform(perf)
+        aligned = al.fit_transform(perf).take
         X = aligned.points
         complete = np.isfinite(X).all(axis=(1, 2))
         idx = np.flatnonzero(complete)
@@ -202,7 +202,7 @@ def missing_markers(data: Path, ict, ark, rom, takes, log) -> dict:
         errs = {}
         for name, inp in (("complete", truth), ("missing10", _remove(truth, 0.10, seed=7))):
             rt = BlendshapeRetargeter(features="all", align=False).fit(keys, keys)
-            pred = rt.blend(rt.transform(inp, perf.times[idx]))
+            pred = rt.blend(rt.transform(inp, perf.times[idx]).weights)
             errs[name] = 100 * np.abs(pred - truth).sum() / np.abs(truth - neutral).sum()
         res["mocap"].append(dict(take=f.stem, markers=X.shape[1], frames=len(idx), **errs,
                                  ratio=errs["missing10"] / errs["complete"]))
@@ -216,7 +216,7 @@ def missing_markers(data: Path, ict, ark, rom, takes, log) -> dict:
         pts = src[:, ict.landmarks]
         e = {}
         for name, inp in (("complete", pts), ("missing10", _remove(pts, 0.10, seed=ti))):
-            pred = rt.blend(rt.transform(inp, takes[take].times))
+            pred = rt.blend(rt.transform(inp, takes[take].times).weights)
             e[name] = metrics(pred, gtb, ark.neutral.vertices, ark.unit)["rel_motion_pct"]
         res["p1"].append(dict(take=take, **e, ratio=e["missing10"] / e["complete"]))
         log(f"  P1 {take[:9]:9s} complete {e['complete']:.2f} %  10 % missing {e['missing10']:.2f} %  "

@@ -229,6 +229,16 @@ class Regions(Model):
         self.width_ = float(width)
         return self.masks_
 
+    def split(self, deltas: np.ndarray) -> np.ndarray:
+        """Target key shapes ``(K, Vt, 3)`` split by the regions' memberships: ``(R x K, Vt, 3)``,
+        region-major (all keys of the first region, then the next)."""
+        self._check_fitted("split")
+        d = np.asarray(deltas, dtype=np.float64)
+        M = self.masks_
+        if d.ndim != 3 or d.shape[1] != M.shape[1]:
+            raise InvalidDataError(f"regions: key shapes must be (K, {M.shape[1]}, 3), got {d.shape}")
+        return (M[:, None, :, None] * d[None]).reshape(len(M) * len(d), M.shape[1], 3)
+
     # ------------------------------------------------------------------ persistence
     def to_dict(self) -> dict:
         d = {"regions": {n: {"source": [s if isinstance(s, str) else int(s) for s in self.source[n]]}

@@ -215,9 +215,7 @@ class BlendshapeRetargeter(Model):
                     landmarks=tk.landmarks, source_points=pts0)
             self.regions_ = reg
             self.region_rows_ = reg.source_idx_
-            R = len(reg)
-            M = reg.masks_                                                    # (R, Vt)
-            deltas = (M[:, None, :, None] * tk.deltas[None]).reshape(R * len(names), -1, 3)
+            deltas = reg.split(tk.deltas)                                      # (R x K, Vt, 3)
             wnames = [f"{n}@{r}" for r in reg.names for n in names]
             self.target_keys_ = Rig(tk.neutral, wnames, deltas, tk.unit, tk.landmarks, None,
                                     f"{tk.name}:regions")
