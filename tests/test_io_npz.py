@@ -162,3 +162,27 @@ def test_write_animation_errors_leave_nothing(tmp_path):
     with pytest.raises(OutputError, match=r"\.glb needs a rig and weights"):
         write_animation(tmp_path / "x.glb", vertices=np.zeros((2, 5, 3)), times=[0, 1])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_vertex_output_from_a_rig_is_written_chunk_by_chunk(tmp_path):
+    """A take written from a rig and weights (RigFrames, a chunk of frames at a time) is the same
+    file content as from the evaluated (T, V, 3) array; a non-finite frame leaves nothing behind."""
+    from faceretarget.datasets import make_demo_character
+    from faceretarget.io import write_obj_sequence
+    from faceretarget.rig import RigFrames
+
+    rig = make_demo_character("bo")
+    W = np.random.default_rng(2).uniform(0, 1, (2500, rig.n_shapes))
+    t = np.arange(2500) / 30.0
+    a = np.load(write_npz(tmp_path / "a.npz", rig.evaluate(W), t, rig.neutral))
+    b = np.load(write_npz(tmp_path / "b.npz", RigFrames(rig, W), t, rig.neutral))
+    assert sorted(a.files) == sorted(b.files)
+    for k in a.files:
+        np.testing.assert_array_equal(a[k], b[k])
+    seq = write_obj_sequence(tmp_path / "seq", rig.neutral, RigFrames(rig, W[:3]), t[:3])
+    back = read_npz_performance(tmp_path / "b.npz")
+    assert back.n_frames == 2500 and len(list(seq.glob("frame_*.obj"))) == 3
+    W[1700, 0] = np.nan
+    with pytest.raises(InvalidDataError, match="frame 1700 vertex"):
+        write_npz(tmp_path / "c.npz", RigFrames(rig, W), t, rig.neutral)
+    assert not (tmp_path / "c.npz").exists() and not list(tmp_path.glob(".c.npz*"))

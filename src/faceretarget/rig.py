@@ -14,7 +14,7 @@ from .mesh import Mesh
 from .names import normalize_name, split_parent
 from .units import UNIT_TO_MM, normalize_unit
 
-__all__ = ["Rig", "resolve_features"]
+__all__ = ["Rig", "RigFrames", "resolve_features"]
 
 
 @dataclass(eq=False)
@@ -235,3 +235,39 @@ def resolve_features(spec, n_vertices: int, landmarks: np.ndarray | None = None,
     if idx.min() < 0 or idx.max() >= n_vertices:
         raise InvalidDataError(f"{who}: feature point index outside 0..{n_vertices - 1}")
     return idx
+
+
+@dataclass(eq=False)
+class RigFrames:
+    """The vertices of a rig driven by weights, evaluated only a chunk of frames at a time.
+
+    What a writer of vertex output (``.npz``, OBJ frames) takes instead of a ``(T, V, 3)`` array,
+    so a long take never holds every frame's vertices at once.
+
+    Parameters
+    ----------
+    rig : Rig
+    weights : (T, K) float
+        In the rig's shape order.
+    """
+
+    rig: Rig
+    weights: np.ndarray
+
+    def __post_init__(self) -> None:
+        w = np.asarray(self.weights, dtype=np.float64)
+        if w.ndim != 2 or w.shape[1] != self.rig.n_shapes:
+            raise InvalidDataError(f"{self.rig.name}: weights must be (T, {self.rig.n_shapes}), got {w.shape}")
+        self.weights = w
+
+    def __len__(self) -> int:
+        return int(self.weights.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return (len(self), self.rig.n_vertices, 3)
+
+    def chunks(self, size: int = 1024):
+        """``(start, (n, V, 3) vertices)`` for consecutive chunks of at most ``size`` frames."""
+        for a in range(0, len(self), size):
+            yield a, self.rig.evaluate(self.weights[a:a + size])

@@ -128,8 +128,53 @@ def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = No
         A NaN or infinite value in a kept row (naming the file, line and column).
     """
     path = input_file(path)
-    text = read_text(path, encoding="utf-8-sig")
-    lines = text.splitlines()
+    lines = read_text(path, encoding="utf-8-sig").splitlines()
+    first, header, names, cols = _header(path, lines)
+    rows = _classify_rows(lines, first, len(header))
+    rate = _timecode_rate(path, rows, timecode_rate)
+    _parse_values(lines, rows, header)
+    t_abs = _row_times(rows, rate, lines)
+    good, trailing, noface = _kept_rows(path, rows)
+    data = rows.values[good]                                    # columns 1.. of the header
+    lines_kept = rows.lineno[good]
+    times_abs = t_abs[good]
+    if not np.isfinite(data).all():
+        r, c = (int(x[0]) for x in np.nonzero(~np.isfinite(data)))
+        raise InvalidDataError(f"{path}: line {int(lines_kept[r])}: column '{header[c + 1]}' is "
+                               f"{data[r, c]} (frame {r})")
+    weights = data[:, [j - 1 for j in cols["weights"]]] if cols["weights"] else np.zeros((len(good), 0))
+    head = data[:, [j - 1 for j in cols["head"]]] if cols["head"] else None
+    eyes = data[:, [j - 1 for j in cols["eyes"]]] if cols["eyes"] else None
+    times = times_abs - times_abs[0]
+    pose = None if head is None else HeadPose.from_livelinkface(head, source=str(path))
+    perf = Performance(times=times, fps=infer_fps(times, default=float(rate)), weights=weights, names=names,
+                       head=pose, source=str(path))
+    if not with_info:
+        return perf
+    info = LiveLinkFaceInfo(
+        start_timecode=lines[int(lines_kept[0]) - 1].split(",", 1)[0].strip(),
+        start_seconds=float(times_abs[0]), timecode_rate=rate, eye_rotation=eyes,
+        dropped_lines=sorted(trailing + noface))
+    return perf, info
+
+
+# the kinds of row the reader tells apart
+_OK, _NOFACE, _JUNK = 0, 1, 2
+
+
+@dataclass
+class _Rows:
+    """Every non-blank row after the header: 1-based line, kind, parsed timecode, values, why junk."""
+
+    lineno: np.ndarray
+    kind: np.ndarray
+    tc: list
+    values: np.ndarray
+    why: dict
+
+
+def _header(path: Path, lines: list[str]) -> tuple[int, list[str], list[str], dict]:
+    """The header line's index, its cells, the weight names and the columns of weights, head, eyes."""
     first = next((i for i, line in enumerate(lines) if line.strip()), None)
     if first is None:
         raise InputFileError(f"{path}: empty file; expected a Live Link Face CSV "
@@ -138,118 +183,134 @@ def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = No
     if header[0].lower() != "timecode":
         raise InputFileError(f"{path}: line {first + 1}: header must start with 'Timecode', got {header[0]!r}; "
                              "is this a Live Link Face CSV?")
-    ncol = len(header)
     skip = {"timecode", "blendshapecount"}
-    head_idx = [header.index(c) if c in header else -1 for c in HEAD_COLUMNS]
-    eye_idx = [header.index(c) if c in header else -1 for c in EYE_COLUMNS]
     other = set(HEAD_COLUMNS) | set(EYE_COLUMNS)
     w_idx = [j for j, c in enumerate(header) if c.lower() not in skip and c not in other]
-    names = [normalize_name(header[j]) for j in w_idx]
+    head_idx = [header.index(c) if c in header else -1 for c in HEAD_COLUMNS]
+    eye_idx = [header.index(c) if c in header else -1 for c in EYE_COLUMNS]
+    cols = {"weights": w_idx, "head": head_idx if min(head_idx) >= 0 else None,
+            "eyes": eye_idx if min(eye_idx) >= 0 else None}
+    return first, header, [normalize_name(header[j]) for j in w_idx], cols
 
-    # ---- pass 1: structure of every row
-    STRUCT_OK, NOFACE, JUNK = 0, 1, 2
-    rows: list[tuple[int, int, tuple | None, list[str] | None, str]] = []  # line, kind, tc, cells, why
+
+def _classify_rows(lines: list[str], first: int, ncol: int) -> _Rows:
+    """Pass 1: the structure of every row (no values parsed yet)."""
+    lineno, kind, tcs, why = [], [], [], {}
     for i in range(first + 1, len(lines)):
         line = lines[i]
         if not line.strip():
             continue
-        cells = line.split(",")
-        tc = _parse_timecode(cells[0])
-        if len(cells) == 2 and cells[1].strip() == "0" and tc is not None:
-            rows.append((i + 1, NOFACE, tc, None, "no face (blendshape count 0)"))
-        elif len(cells) != ncol:
-            rows.append((i + 1, JUNK, tc, None, f"has {len(cells)} columns, the header has {ncol}"))
+        n = line.count(",") + 1
+        cell0 = line.split(",", 1)[0]
+        tc = _parse_timecode(cell0)
+        k = _OK
+        if n == 2 and line.split(",", 1)[1].strip() == "0" and tc is not None:
+            k = _NOFACE
+            why[len(kind)] = "no face (blendshape count 0)"
+        elif n != ncol:
+            k = _JUNK
+            why[len(kind)] = f"has {n} columns, the header has {ncol}"
         elif tc is None:
-            rows.append((i + 1, JUNK, None, None, f"timecode {cells[0]!r} is not HH:MM:SS:FF.fff"))
-        else:
-            rows.append((i + 1, STRUCT_OK, tc, cells, ""))
-    if timecode_rate is None:
-        max_ff = max((r[2][3] for r in rows if r[1] != JUNK), default=0.0)
-        rate = next((r for r in TIMECODE_RATES if r > max_ff), None)
-        if rate is None:
-            raise InputFileError(f"{path}: frame numbers reach {max_ff:g}, above every standard "
-                                 f"timecode rate {TIMECODE_RATES}; pass timecode_rate")
-    else:
-        rate = int(timecode_rate)
+            k = _JUNK
+            why[len(kind)] = f"timecode {cell0!r} is not HH:MM:SS:FF.fff"
+        lineno.append(i + 1)
+        kind.append(k)
+        tcs.append(tc)
+    return _Rows(np.asarray(lineno, np.int64), np.asarray(kind, np.int8), tcs,
+                 np.full((len(kind), ncol - 1), np.nan), why)
 
-    # ---- pass 2: values and times of structurally good rows
-    kind: list[int] = []
-    why: list[str] = []
-    values: list[list[float] | None] = []
-    t_abs: list[float | None] = []
+
+def _timecode_rate(path: Path, rows: _Rows, given: int | None) -> int:
+    """The timecode base rate: given, or the smallest standard rate above the largest frame number."""
+    if given is not None:
+        return int(given)
+    max_ff = max((tc[3] for tc, k in zip(rows.tc, rows.kind, strict=True) if k != _JUNK), default=0.0)
+    rate = next((r for r in TIMECODE_RATES if r > max_ff), None)
+    if rate is None:
+        raise InputFileError(f"{path}: frame numbers reach {max_ff:g}, above every standard "
+                             f"timecode rate {TIMECODE_RATES}; pass timecode_rate")
+    return rate
+
+
+def _parse_values(lines: list[str], rows: _Rows, header: list[str]) -> None:
+    """Pass 2a: the numbers of every structurally good row, in one vectorised parse (row by row,
+    to name the bad cell, only when that fails); a row with a non-number becomes junk."""
+    ok = np.flatnonzero(rows.kind == _OK)
+    if not ok.size:
+        return
+    sel = [lines[int(rows.lineno[j]) - 1] for j in ok]
+    try:
+        vals = np.loadtxt(sel, delimiter=",", usecols=range(1, len(header)), dtype=np.float64, ndmin=2,
+                          comments=None)
+        if vals.shape == (ok.size, len(header) - 1):
+            rows.values[ok] = vals
+            return
+    except ValueError:
+        pass
+    for j, line in zip(ok.tolist(), sel, strict=True):
+        cells = line.split(",")
+        try:
+            rows.values[j] = [float(c) for c in cells[1:]]
+        except ValueError:
+            c, cell = next((c, cell) for c, cell in enumerate(cells[1:], 1) if not _is_float(cell))
+            rows.kind[j] = _JUNK
+            rows.why[j] = f"column '{header[c]}' value {cell.strip()!r} is not a number"
+
+
+def _row_times(rows: _Rows, rate: int, lines: list[str]) -> np.ndarray:
+    """Pass 2b: each row's absolute time (a day added after midnight); frames at or above the rate
+    and times that do not increase make a row junk."""
+    t_abs = np.full(len(rows.kind), np.nan)
     prev_t: float | None = None
     offset = 0.0  # whole days added after a midnight wrap
-    for _lineno, k, tc, cells, reason in rows:
-        t = None
-        if tc is not None:
-            h, m, s, ff = tc
-            if ff >= rate:
-                k, reason = JUNK, f"frame {ff:g} of timecode {cells[0] if cells else ''!r} is not below the timecode rate {rate}"
-            else:
-                t = h * 3600 + m * 60 + s + ff / rate + offset
-                if prev_t is not None and t < prev_t and 0 < t + _DAY - prev_t < _MAX_GAP:
-                    offset += _DAY  # passed midnight
-                    t += _DAY
-        vals = None
-        if k == STRUCT_OK:
-            try:
-                vals = [float(c) for c in cells[1:]]
-            except ValueError:
-                j, c = next((j, c) for j, c in enumerate(cells[1:], 1) if not _is_float(c))
-                k, reason = JUNK, f"column '{header[j]}' value {c.strip()!r} is not a number"
-        if k != JUNK and t is not None and prev_t is not None and t <= prev_t:
-            k, reason = JUNK, "time does not increase after the previous row"
-        if k != JUNK and t is not None:
-            prev_t = t
-        kind.append(k)
-        why.append(reason)
-        values.append(vals)
-        t_abs.append(t)
-    good = [j for j, k in enumerate(kind) if k == STRUCT_OK]
-    if not good:
-        raise InputFileError(f"{path}: no valid data row ({len(rows)} row(s) after the header, none "
-                             f"usable{'; first problem: line ' + str(rows[0][0]) + ' ' + why[0] if rows else ''})")
-    last = good[-1]
-    mid_junk = [j for j in range(last) if kind[j] == JUNK]
-    if mid_junk:
-        j = mid_junk[0]
-        more = f"; {len(mid_junk) - 1} more bad row(s) follow" if len(mid_junk) > 1 else ""
-        raise InputFileError(f"{path}: line {rows[j][0]}: {why[j]} (malformed rows are only dropped at "
+    for j, tc in enumerate(rows.tc):
+        if tc is None:
+            continue
+        h, m, s, ff = tc
+        if ff >= rate:
+            cell0 = lines[int(rows.lineno[j]) - 1].split(",", 1)[0] if rows.kind[j] == _OK else ""
+            rows.kind[j] = _JUNK
+            rows.why[j] = f"frame {ff:g} of timecode {cell0!r} is not below the timecode rate {rate}"
+            continue
+        t = h * 3600 + m * 60 + s + ff / rate + offset
+        if prev_t is not None and t < prev_t and 0 < t + _DAY - prev_t < _MAX_GAP:
+            offset += _DAY  # passed midnight
+            t += _DAY
+        t_abs[j] = t
+        if rows.kind[j] == _JUNK:
+            continue
+        if prev_t is not None and t <= prev_t:
+            rows.kind[j] = _JUNK
+            rows.why[j] = "time does not increase after the previous row"
+            continue
+        prev_t = t
+    return t_abs
+
+
+def _kept_rows(path: Path, rows: _Rows) -> tuple[np.ndarray, list[int], list[int]]:
+    """The good rows; an error for junk before the last of them, a warning for what is dropped."""
+    good = np.flatnonzero(rows.kind == _OK)
+    if not good.size:
+        first = f"; first problem: line {rows.lineno[0]} {rows.why.get(0, '')}" if len(rows.kind) else ""
+        raise InputFileError(f"{path}: no valid data row ({len(rows.kind)} row(s) after the header, none "
+                             f"usable{first})")
+    last = int(good[-1])
+    mid_junk = np.flatnonzero(rows.kind[:last] == _JUNK)
+    if mid_junk.size:
+        j = int(mid_junk[0])
+        more = f"; {mid_junk.size - 1} more bad row(s) follow" if mid_junk.size > 1 else ""
+        raise InputFileError(f"{path}: line {rows.lineno[j]}: {rows.why[j]} (malformed rows are only dropped at "
                              f"the end of a take{more})")
-    trailing = [rows[j][0] for j in range(last + 1, len(rows))]
-    noface = [rows[j][0] for j in range(last) if kind[j] == NOFACE]
+    trailing = rows.lineno[last + 1:].tolist()
+    noface = rows.lineno[:last][rows.kind[:last] == _NOFACE].tolist()
     if trailing:
         warnings.warn(f"{path}: dropped {len(trailing)} malformed row(s) at the end of the take, "
-                      f"line(s) {format_ranges(trailing)} ({why[last + 1]})", DataWarning, stacklevel=2)
+                      f"line(s) {format_ranges(trailing)} ({rows.why[last + 1]})", DataWarning, stacklevel=3)
     if noface:
         warnings.warn(f"{path}: dropped {len(noface)} row(s) where Live Link Face lost the face "
                       f"(blendshape count 0), line(s) {format_ranges(noface)}; the take has gaps there",
-                      DataWarning, stacklevel=2)
-    data = np.array([values[j] for j in good], dtype=np.float64)  # columns 1.. of the header
-    lines_kept = np.array([rows[j][0] for j in good])
-    times_abs = np.array([t_abs[j] for j in good], dtype=np.float64)
-    if not np.isfinite(data).all():
-        r, c = (int(x[0]) for x in np.nonzero(~np.isfinite(data)))
-        raise InvalidDataError(f"{path}: line {int(lines_kept[r])}: column '{header[c + 1]}' is "
-                               f"{data[r, c]} (frame {r})")
-    weights = data[:, [j - 1 for j in w_idx]] if w_idx else np.zeros((len(good), 0))
-    head = None
-    if all(j >= 0 for j in head_idx):
-        head = data[:, [j - 1 for j in head_idx]]
-    eyes = data[:, [j - 1 for j in eye_idx]] if all(j >= 0 for j in eye_idx) else None
-    times = times_abs - times_abs[0]
-    fps = infer_fps(times, default=float(rate))
-    pose = None if head is None else HeadPose.from_livelinkface(head, source=str(path))
-    perf = Performance(times=times, fps=fps, weights=weights, names=names, head=pose,
-                       source=str(path))
-    if not with_info:
-        return perf
-    start_line = rows[good[0]]
-    info = LiveLinkFaceInfo(
-        start_timecode=lines[start_line[0] - 1].split(",", 1)[0].strip(),
-        start_seconds=float(times_abs[0]), timecode_rate=rate, eye_rotation=eyes,
-        dropped_lines=sorted(trailing + noface))
-    return perf, info
+                      DataWarning, stacklevel=3)
+    return good, trailing, noface
 
 
 def _is_float(s: str) -> bool:

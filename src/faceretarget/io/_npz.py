@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import warnings
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ from ..errors import DataWarning, InputFileError, InvalidDataError
 from ..files import atomic_path, check_output_path, load_npz_arrays
 from ..mesh import Mesh
 from ..performance import Performance
+from ..rig import RigFrames
 
 __all__ = ["write_npz", "read_npz_performance"]
 
@@ -38,7 +40,7 @@ _RESERVED = {"vertices", "times", "fps", "face_counts", "face_indices", "faces",
              "face_uv_indices"}
 
 
-def write_npz(path: str | os.PathLike, vertices: np.ndarray, times: np.ndarray,
+def write_npz(path: str | os.PathLike, vertices: np.ndarray | RigFrames, times: np.ndarray,
               mesh: Mesh | None = None, **extra) -> Path:
     """Write a vertex take to ``.npz`` (layout in the module docstring), whole or not at all.
 
@@ -46,8 +48,9 @@ def write_npz(path: str | os.PathLike, vertices: np.ndarray, times: np.ndarray,
     ----------
     path : path-like
         Output file; use the ``.npz`` extension.
-    vertices : (T, V, 3) float
-        Positions per frame (float32 is kept as float32, anything else stored as float64).
+    vertices : (T, V, 3) float, or RigFrames
+        Positions per frame (float32 is kept as float32, anything else stored as float64); a
+        :class:`~faceretarget.rig.RigFrames` is evaluated and written a chunk of frames at a time.
     times : (T,) float
         Frame times in seconds, strictly increasing.
     mesh : Mesh, optional
@@ -61,23 +64,20 @@ def write_npz(path: str | os.PathLike, vertices: np.ndarray, times: np.ndarray,
         ``path``.
     """
     path = check_output_path(path)
-    v = np.asarray(vertices)
-    if v.dtype != np.float32:
+    v = vertices if isinstance(vertices, RigFrames) else np.asarray(vertices)
+    if isinstance(v, np.ndarray) and v.dtype != np.float32:
         v = v.astype(np.float64)
     t = np.asarray(times, dtype=np.float64).reshape(-1)
-    if v.ndim != 3 or v.shape[2] != 3:
+    if len(v.shape) != 3 or v.shape[2] != 3:
         raise InvalidDataError(f"{path}: vertices must have shape (T, V, 3), got {v.shape}")
     if t.size != v.shape[0]:
         raise InvalidDataError(f"{path}: {t.size} times for {v.shape[0]} frames")
-    if not np.isfinite(v).all():
-        f, j = (int(x[0]) for x in np.nonzero(~np.isfinite(v))[:2])
-        raise InvalidDataError(f"{path}: frame {f} vertex {j} is not finite; nothing written")
     if not np.isfinite(t).all() or (t.size > 1 and (np.diff(t) <= 0).any()):
         raise InvalidDataError(f"{path}: times must be finite and strictly increasing")
     clash = sorted(_RESERVED & set(extra))
     if clash:
         raise InvalidDataError(f"{path}: extra key(s) {', '.join(clash)} are reserved")
-    arrays: dict[str, np.ndarray] = {"vertices": v, "times": t}
+    arrays: dict[str, np.ndarray] = {"times": t}
     if t.size > 1:
         arrays["fps"] = np.float64(1.0 / np.median(np.diff(t)))
     if mesh is not None:
@@ -92,9 +92,28 @@ def write_npz(path: str | os.PathLike, vertices: np.ndarray, times: np.ndarray,
             arrays["face_uv_indices"] = mesh.face_uv_indices
     for k, a in extra.items():
         arrays[k] = np.asarray(a)
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        np.savez(f, **arrays)
+    with atomic_path(path) as tmp:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+            _write_frames(zf, path, v)
+            for k, a in arrays.items():
+                with zf.open(f"{k}.npy", "w", force_zip64=True) as f:
+                    np.lib.format.write_array(f, np.asanyarray(a), allow_pickle=False)
     return path
+
+
+def _write_frames(zf: zipfile.ZipFile, path: Path, v: np.ndarray | RigFrames, chunk: int = 1024) -> None:
+    """The ``vertices`` entry, written (and checked finite) a chunk of frames at a time."""
+    dtype = np.dtype(np.float32 if isinstance(v, np.ndarray) and v.dtype == np.float32 else np.float64)
+    chunks = v.chunks(chunk) if isinstance(v, RigFrames) else ((a, v[a:a + chunk]) for a in range(0, len(v), chunk))
+    with zf.open("vertices.npy", "w", force_zip64=True) as f:
+        np.lib.format.write_array_header_1_0(f, {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+                                                 "shape": tuple(int(x) for x in v.shape)})
+        for a, block in chunks:
+            block = np.ascontiguousarray(block, dtype=dtype)
+            if not np.isfinite(block).all():
+                f_, j = (int(x[0]) for x in np.nonzero(~np.isfinite(block))[:2])
+                raise InvalidDataError(f"{path}: frame {a + f_} vertex {j} is not finite; nothing written")
+            f.write(block.tobytes())
 
 
 def read_npz_performance(path: str | os.PathLike, fps: float | None = None) -> Performance:

@@ -27,6 +27,7 @@ from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError,
 from ..files import atomic_dir, atomic_path, check_output_path
 from ..mesh import Mesh
 from ..performance import Performance
+from ..rig import RigFrames
 
 __all__ = ["read_obj", "read_obj_vertices", "write_obj", "format_obj", "write_obj_sequence",
            "read_obj_sequence"]
@@ -325,7 +326,7 @@ def _natural_key(name: str) -> list:
     return [int(p) if p.isdigit() else p.lower() for p in _DIGITS.split(name)]
 
 
-def write_obj_sequence(folder: str | os.PathLike, mesh: Mesh, vertices: np.ndarray,
+def write_obj_sequence(folder: str | os.PathLike, mesh: Mesh, vertices: np.ndarray | RigFrames,
                        times: np.ndarray, *, precision: int | None = None) -> Path:
     """Write a mesh sequence as ``frame_00000.obj``, ``frame_00001.obj``, ... plus ``times.txt``.
 
@@ -339,8 +340,8 @@ def write_obj_sequence(folder: str | os.PathLike, mesh: Mesh, vertices: np.ndarr
         Output folder (its parent must exist).
     mesh : Mesh
         Faces and UVs of every frame.
-    vertices : (T, V, 3) float
-        Positions per frame.
+    vertices : (T, V, 3) float, or RigFrames
+        Positions per frame (a :class:`~faceretarget.rig.RigFrames` is evaluated a chunk at a time).
     times : (T,) float
         Frame times in seconds, written one per line to ``times.txt``.
     precision : int, optional
@@ -352,22 +353,24 @@ def write_obj_sequence(folder: str | os.PathLike, mesh: Mesh, vertices: np.ndarr
         ``folder``.
     """
     folder = check_output_path(folder)
-    v = np.asarray(vertices, dtype=np.float64)
+    v = vertices if isinstance(vertices, RigFrames) else np.asarray(vertices, dtype=np.float64)
     t = np.asarray(times, dtype=np.float64).reshape(-1)
-    if v.ndim != 3 or v.shape[1:] != mesh.vertices.shape:
+    if len(v.shape) != 3 or v.shape[1:] != mesh.vertices.shape:
         raise InvalidDataError(f"{folder}: vertices must have shape (T, {mesh.n_vertices}, 3), got {v.shape}")
     if t.size != v.shape[0]:
         raise InvalidDataError(f"{folder}: {t.size} times for {v.shape[0]} frames")
-    if not np.isfinite(v).all():
-        f = int(np.nonzero(~np.isfinite(v))[0][0])
-        raise InvalidDataError(f"{folder}: frame {f} has a non-finite vertex; nothing written")
     if folder.is_dir() and any(folder.glob("frame_*.obj")):
         raise OutputError(f"{folder}: already holds frame_*.obj files; write the sequence to a new "
                           "or empty folder so two takes never mix")
+    chunks = v.chunks(256) if isinstance(v, RigFrames) else ((a, v[a:a + 256]) for a in range(0, len(v), 256))
     with atomic_dir(folder) as tmp:
-        for i in range(len(v)):
-            (tmp / _FRAME_PATTERN.format(i)).write_text(
-                format_obj(mesh, v[i], precision=precision), encoding="utf-8")
+        for a, block in chunks:
+            if not np.isfinite(block).all():
+                f = a + int(np.nonzero(~np.isfinite(block))[0][0])
+                raise InvalidDataError(f"{folder}: frame {f} has a non-finite vertex; nothing written")
+            for i, frame in enumerate(block, a):
+                (tmp / _FRAME_PATTERN.format(i)).write_text(
+                    format_obj(mesh, frame, precision=precision), encoding="utf-8")
         (tmp / _TIMES_FILE).write_text("".join(f"{x!r}\n" for x in t.tolist()), encoding="utf-8")
     return folder
 

@@ -23,7 +23,7 @@ from ..files import check_output_path
 from ..headpose import HeadPose
 from ..mesh import Mesh
 from ..performance import Performance
-from ..rig import Rig
+from ..rig import Rig, RigFrames
 from ._gltf import read_glb_weights, write_glb
 from ._livelinkface import read_livelinkface, write_livelinkface
 from ._npz import read_npz_performance, write_npz
@@ -145,7 +145,7 @@ def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
                 rig.neutral if rig is not None else None)
         if rig is None or weights is None:
             raise OutputError(f"{path}: writing {ext or 'an OBJ sequence'} needs vertices, or a rig and weights")
-        return rig.evaluate(_weights_for(rig, weights, names, str(path))), mesh or rig.neutral
+        return RigFrames(rig, _weights_for(rig, weights, names, str(path))), mesh or rig.neutral
 
     if ext == ".glb":
         if rig is None or weights is None:

@@ -29,6 +29,11 @@ data set:
 
 Frames that are not evenly spaced (dropped frames) are resampled to an even grid first and back
 afterwards.
+
+Long takes are denoised in overlapping windows (``chunk`` frames, ``overlap`` shared with the next
+window, cross-faded linearly), each with the noise level estimated once from the whole take, so
+memory stays bounded and time grows linearly with the take's length; a take shorter than one window
+is denoised in one piece.
 """
 
 from __future__ import annotations
@@ -36,7 +41,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.fft import dct, idct
 
-__all__ = ["estimate_noise_sigma", "sure_whittaker", "denoise_take"]
+__all__ = ["estimate_noise_sigma", "sure_whittaker", "denoise_take", "CHUNK", "OVERLAP"]
+
+#: Frames denoised at once in a long take, and the frames two windows share.
+CHUNK = 16384
+OVERLAP = 1024
 
 _LAMBDAS = np.concatenate([[0.0], np.logspace(-4, 12, 65)])
 
@@ -121,8 +130,28 @@ def _bases(Yc: np.ndarray, sigma: float, kind: str) -> list[np.ndarray]:
     return out
 
 
+def _denoise_window(Y: np.ndarray, times: np.ndarray | None, sigma: float | None,
+                    basis: str) -> tuple[np.ndarray, float]:
+    """One window of :func:`denoise_take`."""
+    if len(Y) < 8:
+        return Y.copy(), 0.0
+    grid, resampled = (times, False) if times is None else _even_grid(np.asarray(times, dtype=np.float64))
+    Yg = _interp_columns(grid, times, Y) if resampled else Y
+    if sigma is None:
+        sigma = estimate_noise_sigma(Yg)
+    if sigma <= 0:
+        return Y.copy(), 0.0
+    mu = Yg.mean(axis=0)
+    Yc = Yg - mu
+    bases = _bases(Yc, sigma, basis)
+    out = sum(sure_whittaker(Yc @ E, sigma)[0] @ E.T for E in bases) / len(bases) + mu
+    if resampled:
+        out = _interp_columns(times, grid, out)
+    return out, float(sigma)
+
+
 def denoise_take(Y: np.ndarray, times: np.ndarray | None = None, sigma: float | None = None,
-                 basis: str = "ensemble") -> tuple[np.ndarray, float]:
+                 basis: str = "ensemble", *, chunk: int = CHUNK, overlap: int = OVERLAP) -> tuple[np.ndarray, float]:
     """Denoise trajectories ``Y`` ``(T, C)``; returns ``(Y_denoised, sigma_used)``.
 
     Parameters
@@ -138,22 +167,44 @@ def denoise_take(Y: np.ndarray, times: np.ndarray | None = None, sigma: float | 
     basis : {"ensemble", "pca"}
         Smooth in four bases estimated from the take and average (default), or in the take's
         principal axes only.
+    chunk, overlap : int
+        Window length and overlap (frames) for takes longer than ``chunk`` (module docstring).
     """
     Y = np.asarray(Y, dtype=np.float64)
-    if len(Y) < 8:
-        return Y.copy(), 0.0
-    grid, resampled = (times, False) if times is None else _even_grid(np.asarray(times, dtype=np.float64))
-    Yg = Y
-    if resampled:
-        Yg = np.stack([np.interp(grid, times, Y[:, j]) for j in range(Y.shape[1])], axis=1)
+    T = len(Y)
+    if T <= chunk:
+        return _denoise_window(Y, times, sigma, basis)
+    if not 0 < overlap < chunk // 2:
+        raise ValueError(f"overlap must be in (0, chunk / 2), got {overlap} for chunk {chunk}")
+    t = None if times is None else np.asarray(times, dtype=np.float64)
     if sigma is None:
-        sigma = estimate_noise_sigma(Yg)
+        grid = Y if t is None else _denoise_grid(Y, t)
+        sigma = estimate_noise_sigma(grid)
     if sigma <= 0:
         return Y.copy(), 0.0
-    mu = Yg.mean(axis=0)
-    Yc = Yg - mu
-    bases = _bases(Yc, sigma, basis)
-    out = sum(sure_whittaker(Yc @ E, sigma)[0] @ E.T for E in bases) / len(bases) + mu
-    if resampled:
-        out = np.stack([np.interp(times, grid, out[:, j]) for j in range(out.shape[1])], axis=1)
-    return out, float(sigma)
+    out = np.zeros_like(Y)
+    weight = np.zeros(T)
+    step = chunk - overlap
+    starts = list(range(0, T - overlap, step))
+    for a in starts:
+        b = min(a + chunk, T)
+        piece, _ = _denoise_window(Y[a:b], None if t is None else t[a:b], sigma, basis)
+        w = np.ones(b - a)
+        if a > 0:                                       # fade in over the overlap with the previous window
+            w[:overlap] = (np.arange(overlap) + 0.5) / overlap
+        if b < T:                                       # fade out over the overlap with the next one
+            w[-overlap:] = np.minimum(w[-overlap:], (overlap - 0.5 - np.arange(overlap)) / overlap)
+        out[a:b] += w[:, None] * piece
+        weight[a:b] += w
+    return out / weight[:, None], float(sigma)
+
+
+def _denoise_grid(Y: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """``Y`` on an even grid (for the noise estimate of an unevenly sampled take)."""
+    grid, resampled = _even_grid(times)
+    return _interp_columns(grid, times, Y) if resampled else Y
+
+
+def _interp_columns(t_new: np.ndarray, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Every column of ``Y`` (sampled at ``t``) linearly interpolated at ``t_new``."""
+    return np.stack([np.interp(t_new, t, Y[:, j]) for j in range(Y.shape[1])], axis=1)

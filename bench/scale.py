@@ -1,0 +1,129 @@
+"""Memory and time of long takes: clone and retarget 10k / 30k / 60k frames (issue 11, item 6).
+
+The shared Live Link Face take S07-001 is repeated (timecodes continuing) to 10,000, 30,000 and
+60,000 frames (60,840 frames is 34 minutes at 30 fps), then every command runs in a fresh process
+exactly as a user types it, writing a ``.glb``:
+
+* ``clone`` ICT -> ARKit and ARKit -> ICT, ``rom-40`` keys from ``alex_rom_3`` (the README's quick
+  start, and the same onto the 9,409-vertex ICT face);
+* ``retarget`` of the take through the two rigs' own shapes, both directions.
+
+Each run's peak resident memory is read from the kernel (``wait4``'s ``ru_maxrss`` of that process),
+its wall time per 1,000 frames measured around it; the interpreter's own start-up (``faceretarget
+--version``, measured in the same run) is reported beside it.  Targets: peak RSS <= 2,000 MB at
+every length, time linear in frames (``s_per_kframe`` of 60k within 1.5x of 10k).
+
+Usage::
+
+    python bench/scale.py [--json] [--frames 10000,30000,60000] [--data ../shared/data]
+
+With ``--json`` the last line of stdout is ``{"runs": [{"command", "frames", "peak_rss_mb",
+"s_per_kframe", "seconds"}, ...], "startup_s", "startup_rss_mb", "target_mb", "linear"}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+EXE = Path(sys.executable).with_name("faceretarget")
+
+
+def long_take(src: Path, frames: int, out: Path) -> Path:
+    """``src`` (a Live Link Face CSV) repeated to ``frames`` frames, timecodes continuing."""
+    import numpy as np
+
+    from faceretarget.io import read_livelinkface, write_livelinkface
+    from faceretarget.performance import Performance
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        take, info = read_livelinkface(src, with_info=True)
+    reps = -(-frames // take.n_frames)
+    step = float(np.median(np.diff(take.times)))
+    span = take.times[-1] + step
+    times = np.concatenate([take.times + k * span for k in range(reps)])[:frames]
+    W = np.tile(take.weights, (reps, 1))[:frames]
+    perf = Performance(times, take.fps, weights=W, names=take.names, source=str(out))
+    return write_livelinkface(out, perf, rate=info.timecode_rate)
+
+
+def measure(cmd: list[str]) -> tuple[float, float, int]:
+    """(seconds, peak RSS in MB, return code) of one command in a fresh process."""
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(p.pid, 0)
+    dt = time.perf_counter() - t0
+    err = p.stderr.read().decode(errors="replace") if p.stderr else ""
+    rc = os.waitstatus_to_exitcode(status)
+    if rc != 0:
+        print(f"  failed ({rc}): {' '.join(cmd)}\n  {err.strip()[-400:]}", file=sys.stderr)
+    return dt, usage.ru_maxrss / 1024.0, rc
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data")
+    ap.add_argument("--frames", default="10000,30000,60000")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    d = args.data
+    lengths = [int(x) for x in args.frames.split(",")]
+    tmp = Path(tempfile.mkdtemp(prefix="faceretarget-scale-"))
+    try:
+        t_start, rss_start, _ = min((measure([str(EXE), "--version"]) for _ in range(3)), key=lambda r: r[0])
+        print(f"start-up (faceretarget --version): {t_start:.2f} s, {rss_start:.0f} MB")
+        ict, ark = d / "ict-face", d / "arkit-face"
+        rom = d / "livelinkface" / "alex_rom_3.csv"
+        jobs = {
+            "clone ict->arkit": lambda take, out: ["clone", "--source-rig", str(ict), "--target-rig", str(ark),
+                                                   "--keys", "rom-40", "--keys-from", str(rom), "--performance",
+                                                   str(take), "--out", str(out)],
+            "clone arkit->ict": lambda take, out: ["clone", "--source-rig", str(ark), "--target-rig", str(ict),
+                                                   "--keys", "rom-40", "--keys-from", str(rom), "--performance",
+                                                   str(take), "--out", str(out)],
+            "retarget ict->arkit": lambda take, out: ["retarget", "--performance", str(take), "--source-keys",
+                                                      str(ict), "--target-keys", str(ark), "--out", str(out)],
+            "retarget arkit->ict": lambda take, out: ["retarget", "--performance", str(take), "--source-keys",
+                                                      str(ark), "--target-keys", str(ict), "--out", str(out)],
+        }
+        runs = []
+        print(f"{'command':22s} {'frames':>7s} {'peak RSS MB':>12s} {'s / 1k frames':>14s} {'seconds':>8s}")
+        for n in lengths:
+            take = long_take(d / "livelinkface" / "S07-001.csv", n, tmp / f"take_{n}.csv")
+            for name, make in jobs.items():
+                out = tmp / "out.glb"
+                dt, rss, rc = measure([str(EXE), "-q"] + make(take, out))
+                row = {"command": name, "frames": n, "peak_rss_mb": round(rss, 1),
+                       "s_per_kframe": round(dt / n * 1000.0, 4), "seconds": round(dt, 2), "ok": rc == 0}
+                runs.append(row)
+                print(f"{name:22s} {n:7d} {rss:12.0f} {row['s_per_kframe']:14.3f} {dt:8.1f}" + ("" if rc == 0 else "  FAILED"))
+                out.unlink(missing_ok=True)
+        linear = {}
+        for name in jobs:
+            r = {x["frames"]: x["s_per_kframe"] for x in runs if x["command"] == name}
+            if len(r) > 1:
+                linear[name] = round(r[max(r)] / r[min(r)], 3)
+        worst = max(x["peak_rss_mb"] for x in runs)
+        print(f"largest peak RSS {worst:.0f} MB (target <= 2000); s/1k frames at {max(lengths)} over "
+              f"{min(lengths)} frames: " + ", ".join(f"{k} {v:.2f}x" for k, v in linear.items()))
+        res = {"runs": runs, "startup_s": round(t_start, 3), "startup_rss_mb": round(rss_start, 1),
+               "target_mb": 2000, "max_peak_rss_mb": worst, "linear": linear}
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    if args.json:
+        print(json.dumps(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
