@@ -17,14 +17,12 @@ from ._bvh import Bvh, BvhJoint, bvh_chain, make_head_bvh, read_bvh, write_bvh
 from ._c3d import read_c3d, write_c3d
 from ._gltf import glb_vertex_order, read_glb_head, read_glb_rig, read_glb_weights, write_glb, write_glb_head
 from ._head import (
-    HEAD_FORMATS,
     HEAD_READ_FORMATS,
     read_bvh_head,
     read_head_motion,
     read_head_take,
     read_marker_head,
     read_smplx_head,
-    write_head_motion,
 )
 from ._keyshapes import (
     export_keyshapes,
@@ -37,7 +35,19 @@ from ._keyshapes import (
 from ._livelinkface import LiveLinkFaceInfo, read_livelinkface, write_livelinkface
 from ._npz import read_npz_performance, write_npz
 from ._obj import read_obj, read_obj_sequence, read_obj_vertices, write_obj, write_obj_sequence
-from ._registry import READ_FORMATS, WRITE_FORMATS, read_performance, write_animation
+from ._registry import (
+    HEAD_FORMATS,
+    READ_FORMATS,
+    READERS,
+    WRITE_FORMATS,
+    WRITERS,
+    Animation,
+    read_performance,
+    register_reader,
+    register_writer,
+    write_animation,
+    write_head_motion,
+)
 from ._rig import load_rig, load_rig_npz, save_rig_npz, save_rig_obj
 from ._video import VideoInfo, iter_frames, probe_video, read_video_audio, write_video
 
@@ -47,7 +57,8 @@ __all__ = [
     "read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo",
     "write_glb", "read_glb_weights", "read_glb_rig", "glb_vertex_order", "write_glb_head", "read_glb_head",
     "write_npz", "read_npz_performance",
-    "read_performance", "write_animation", "READ_FORMATS", "WRITE_FORMATS",
+    "read_performance", "write_animation", "READ_FORMATS", "WRITE_FORMATS", "READERS", "WRITERS",
+    "register_reader", "register_writer", "Animation",
     "read_c3d", "write_c3d",
     "read_audio",
     "Bvh", "BvhJoint", "bvh_chain", "make_head_bvh", "read_bvh", "write_bvh",

@@ -4,7 +4,7 @@ Every reader gives a :class:`~faceretarget.Performance` whose ``head`` is a
 :class:`~faceretarget.headpose.HeadPose` in the package's one frame (+Y up, +Z forward, +X the
 character's left; translation in metres); :func:`read_head_take` adds the speech that goes with it.
 
-Writers by extension (:func:`write_head_motion`):
+Writers by extension (:func:`~faceretarget.io.write_head_motion`):
 
 ==========  ==========================================================================================
 ``.bvh``    One root joint ``Head``: channels ``Yrotation Xrotation Zrotation`` in degrees (and
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import InputFileError, InvalidDataError, OutputError
+from ..errors import InputFileError, InvalidDataError
 from ..files import input_file
 from ..headpose import HeadPose
 from ..performance import Performance
@@ -39,9 +39,8 @@ from ._audio import read_audio
 from ._bvh import Bvh, bvh_chain, read_bvh
 
 __all__ = ["read_bvh_head", "read_smplx_head", "read_marker_head", "read_head_motion", "read_head_take",
-           "write_head_motion", "HEAD_FORMATS", "HEAD_READ_FORMATS"]
+           "HEAD_READ_FORMATS"]
 
-HEAD_FORMATS = (".bvh", ".glb", ".csv")
 HEAD_READ_FORMATS = (".bvh", ".npz", ".c3d")
 
 
@@ -209,35 +208,3 @@ def read_head_take(audio_path: str | os.PathLike, motion_path: str | os.PathLike
     audio, rate = read_audio(audio_path)
     return Performance(frame_times(motion.n_frames, motion.fps), motion.fps, head=motion.head, audio=audio,
                        audio_rate=rate, source=name or motion_path.stem)
-
-
-def write_head_motion(path: str | os.PathLike, perf: Performance, protect: tuple = ()) -> Path:
-    """Write ``perf.head`` by file extension (module docstring).
-
-    Parameters
-    ----------
-    path : path-like
-        ``.bvh``, ``.glb`` or ``.csv``.
-    perf : Performance
-        A take with a head pose (and weights, which the ``.csv`` also carries).
-    protect : tuple of path-like
-        Inputs the output must not overwrite.
-    """
-    from ._bvh import make_head_bvh, write_bvh
-    from ._gltf import write_glb_head
-    from ._livelinkface import write_livelinkface
-
-    path = Path(path)
-    ext = path.suffix.lower()
-    if ext not in HEAD_FORMATS:
-        raise OutputError(f"{path}: unknown head-motion output format '{ext}' (use {', '.join(HEAD_FORMATS)})")
-    for p in protect:
-        if p is not None and Path(p).exists() and path.exists() and os.path.samefile(p, path):
-            raise OutputError(f"{path}: refusing to overwrite an input file")
-    if perf.head is None:
-        raise InvalidDataError(f"{perf.source}: no head motion to write")
-    if ext == ".bvh":
-        return write_bvh(path, make_head_bvh(perf.head, perf.fps))
-    if ext == ".glb":
-        return write_glb_head(path, perf.times, perf.head)
-    return write_livelinkface(path, perf)

@@ -133,6 +133,10 @@ def read_npz_performance(path: str | os.PathLike, fps: float | None = None) -> P
     """
     path = Path(path)
     data = load_npz_arrays(path)
+    if "poses" in data and "vertices" not in data and "weights" not in data:
+        from ._head import read_smplx_head
+
+        return read_smplx_head(path)
     if "vertices" not in data and not ("weights" in data and "names" in data):
         raise InputFileError(f"{path}: holds neither 'vertices' nor 'weights' + 'names' (keys: "
                              f"{', '.join(sorted(data)) or 'none'})")

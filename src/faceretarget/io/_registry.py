@@ -1,19 +1,30 @@
-"""Read any take and write any animation, choosing the format from the path.
+"""One extension registry for every take reader and animation writer.
 
-==================== ==================================== =========================================
-path                 :func:`read_performance`             :func:`write_animation`
-==================== ==================================== =========================================
-``*.csv``            Live Link Face weights               Live Link Face weights
-``*.npz``            vertices, or weights + names         vertices (evaluated from rig + weights)
-``*.glb``            weight animation (morph targets)     rig + weight animation
-``*.obj``            one frame                            --
-folder / no suffix   OBJ sequence                         OBJ sequence (``frame_00000.obj``...)
-==================== ==================================== =========================================
+:func:`read_performance` and :func:`write_animation` look the path's extension up in
+:data:`READERS` / :data:`WRITERS` (``"folder"`` for a folder or a path without extension), as
+trimesh's exchange modules do; a new format is one function and one :func:`register_reader` /
+:func:`register_writer` call (``docs/architecture.md``, "How to add a file format").
+
+==================== ========================================== ==========================================
+path                 :func:`read_performance`                   :func:`write_animation`
+==================== ========================================== ==========================================
+``*.csv``            Live Link Face weights (+ head)            Live Link Face weights and/or head angles
+``*.c3d``            optical markers                            --
+``*.npz``            vertices, weights + names, or SMPL-X       vertices (from rig + weights, chunk by
+                     ``poses`` (head motion)                    chunk)
+``*.glb``            weight animation (morph targets)           rig + weight animation (+ ``head``
+                                                                node), or a ``head`` node alone
+``*.bvh``            head motion (Neck > Neck1 > Head)          head motion (one ``Head`` joint)
+``*.obj``            one frame                                  --
+folder / no suffix   OBJ sequence                               OBJ sequence (``frame_00000.obj``...)
+==================== ========================================== ==========================================
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,33 +35,55 @@ from ..headpose import HeadPose
 from ..mesh import Mesh
 from ..performance import Performance
 from ..rig import Rig, RigFrames
-from ._gltf import read_glb_weights, write_glb
-from ._livelinkface import read_livelinkface, write_livelinkface
-from ._npz import read_npz_performance, write_npz
-from ._obj import read_obj, read_obj_sequence, write_obj_sequence
 
-__all__ = ["read_performance", "write_animation", "READ_FORMATS", "WRITE_FORMATS"]
+__all__ = ["read_performance", "write_animation", "write_head_motion", "register_reader", "register_writer",
+           "READERS", "WRITERS", "READ_FORMATS", "WRITE_FORMATS", "HEAD_FORMATS", "Animation"]
 
-READ_FORMATS = (".csv", ".npz", ".glb", ".obj", "folder")
-WRITE_FORMATS = (".glb", ".npz", ".csv", "folder")
+#: Formats that hold head motion on its own (:func:`write_head_motion`).
+HEAD_FORMATS = (".bvh", ".glb", ".csv")
+
+
+@dataclass(frozen=True)
+class Format:
+    """A registered reader or writer: the function and what it reads or writes (for messages)."""
+
+    function: Callable
+    what: str
+
+
+READERS: dict[str, Format] = {}
+WRITERS: dict[str, Format] = {}
+
+
+def register_reader(ext: str, function: Callable[..., Performance], what: str) -> None:
+    """Make :func:`read_performance` read ``ext`` (``".abc"``, or ``"folder"``) with
+    ``function(path, fps=None) -> Performance``."""
+    READERS[ext.lower()] = Format(function, what)
+
+
+def register_writer(ext: str, function: Callable[[Path, Animation], Path], what: str) -> None:
+    """Make :func:`write_animation` write ``ext`` with ``function(path, animation) -> path``."""
+    WRITERS[ext.lower()] = Format(function, what)
+
+
+def _ext(path: Path) -> str:
+    return "folder" if path.is_dir() or path.suffix == "" else path.suffix.lower()
+
+
+def _listing(table: dict[str, Format]) -> str:
+    return ", ".join(f"{k} ({f.what})" for k, f in table.items())
 
 
 def read_performance(path: str | os.PathLike, fps: float | None = None) -> Performance:
-    """Read a take, choosing the reader from the path.
+    """Read a take, choosing the reader from the path's extension (:data:`READERS`).
 
     Parameters
     ----------
     path : path-like
-        ``.csv`` (Live Link Face), ``.c3d`` (optical markers), ``.npz`` (:func:`~faceretarget.io.npz.read_npz_performance`),
-        ``.glb`` (morph-target weight animation), ``.obj`` (a single frame at time 0) or a folder of
-        OBJ frames (:func:`~faceretarget.io.obj.read_obj_sequence`).
+        A file or a folder of OBJ frames (module docstring).
     fps : float, optional
         Frame rate for formats without times (OBJ sequences without ``times.txt``, ``.npz``
         without ``times``, a single ``.obj``).
-
-    Returns
-    -------
-    Performance
 
     Raises
     ------
@@ -58,30 +91,72 @@ def read_performance(path: str | os.PathLike, fps: float | None = None) -> Perfo
         Missing path or an unsupported extension (named), or any reader's error.
     """
     path = Path(path)
-    if path.is_dir():
-        return read_obj_sequence(path, fps=fps)
     if not path.exists():
         raise InputFileError(f"{path}: not found")
-    ext = path.suffix.lower()
-    if ext == ".csv":
-        return read_livelinkface(path)
-    if ext == ".npz":
-        return read_npz_performance(path, fps=fps)
-    if ext == ".glb":
-        names, times, weights = read_glb_weights(path)
-        return Performance.from_weights(weights, names, times=times, source=str(path))
-    if ext == ".c3d":
-        from ._c3d import read_c3d
-
-        return read_c3d(path)
-    if ext == ".obj":
-        mesh = read_obj(path)
-        return Performance.from_vertices(mesh.vertices[None], mesh, times=[0.0],
-                                         fps=fps or 30.0, source=str(path))
-    raise InputFileError(f"{path}: unknown take format '{ext or '(no extension)'}'; supported: "
-                         ".csv (Live Link Face), .c3d (markers), .npz, .glb, .obj, or a folder of OBJ frames")
+    ext = _ext(path)
+    fmt = READERS.get(ext)
+    if fmt is None:
+        raise InputFileError(f"{path}: unknown take format '{ext}'; supported: {_listing(READERS)}")
+    return fmt.function(path, fps=fps)
 
 
+@dataclass(eq=False)
+class Animation:
+    """What :func:`write_animation` hands a writer (any of it may be missing; the writer says what
+    it needs)."""
+
+    times: np.ndarray
+    rig: Rig | None = None
+    weights: np.ndarray | None = None
+    names: list[str] | None = None
+    vertices: np.ndarray | None = None
+    mesh: Mesh | None = None
+    head: HeadPose | None = None
+
+
+def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
+                    weights: np.ndarray | None = None, names: list[str] | None = None,
+                    vertices: np.ndarray | None = None, mesh: Mesh | None = None,
+                    times: np.ndarray, head: HeadPose | None = None) -> Path:
+    """Write an animation in the format the output path asks for (:data:`WRITERS`).
+
+    Parameters
+    ----------
+    path : path-like
+        ``.glb`` (``rig`` and ``weights``, and/or ``head``), ``.npz`` (``vertices``, or ``rig`` +
+        ``weights`` evaluated chunk by chunk), ``.csv`` (``weights`` and/or ``head``; Live Link
+        Face layout), ``.bvh`` (``head``), or a path without extension / an existing folder (OBJ
+        sequence; ``vertices`` + ``mesh``, or ``rig`` + ``weights``).
+    rig : Rig, optional
+    weights : (T, K) float, optional
+        In the rig's shape order, or named by ``names``.
+    names : list of str, optional
+        Column names of ``weights`` (any spelling); default the rig's names.
+    vertices : (T, V, 3) float, optional
+    mesh : Mesh, optional
+        Topology for ``vertices`` (default the rig's neutral).
+    times : (T,) float
+        Frame times in seconds, strictly increasing.
+    head : HeadPose, optional
+        Head motion (:mod:`faceretarget.headpose`).
+
+    Raises
+    ------
+    OutputError
+        Unknown extension, missing data the format needs, or a path that cannot be written (missing
+        or read-only folder); nothing partial is left.
+    """
+    path = Path(path)
+    ext = _ext(path)
+    fmt = WRITERS.get(ext)
+    if fmt is None:
+        raise OutputError(f"{path}: unknown output format '{ext}'; use {_listing(WRITERS)}")
+    check_output_path(path)  # fail before any work when the folder is missing or read-only
+    anim = Animation(np.asarray(times, dtype=np.float64).reshape(-1), rig, weights, names, vertices, mesh, head)
+    return fmt.function(path, anim)
+
+
+# ------------------------------------------------------------------------------------ the formats
 def _weights_for(rig: Rig, weights, names, what: str) -> np.ndarray:
     w = np.asarray(weights, dtype=np.float64)
     if w.ndim == 1:
@@ -94,76 +169,151 @@ def _weights_for(rig: Rig, weights, names, what: str) -> np.ndarray:
     return w
 
 
-def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
-                    weights: np.ndarray | None = None, names: list[str] | None = None,
-                    vertices: np.ndarray | None = None, mesh: Mesh | None = None,
-                    times: np.ndarray, head: HeadPose | None = None) -> Path:
-    """Write an animation in the format the output path asks for.
+def _frames(path: Path, a: Animation) -> tuple[np.ndarray | RigFrames, Mesh | None]:
+    """Vertex frames: given, or the rig driven by the weights (evaluated a chunk at a time)."""
+    if a.vertices is not None:
+        return np.asarray(a.vertices, dtype=np.float64), a.mesh if a.mesh is not None else (
+            a.rig.neutral if a.rig is not None else None)
+    if a.rig is None or a.weights is None:
+        raise OutputError(f"{path}: writing {path.suffix or 'an OBJ sequence'} needs vertices, or a rig and weights")
+    return RigFrames(a.rig, _weights_for(a.rig, a.weights, a.names, str(path))), a.mesh or a.rig.neutral
+
+
+def _write_glb(path: Path, a: Animation) -> Path:
+    from ._gltf import write_glb, write_glb_head
+
+    if a.rig is None and a.weights is None and a.head is not None:
+        return write_glb_head(path, a.times, a.head)
+    if a.rig is None or a.weights is None:
+        raise OutputError(f"{path}: a .glb needs a rig and weights (morph targets + animation), or a head pose")
+    return write_glb(path, a.rig, a.weights, a.times, names=a.names, head=a.head)
+
+
+def _write_csv(path: Path, a: Animation) -> Path:
+    from ._livelinkface import write_livelinkface
+
+    if a.weights is None and a.head is None:
+        raise OutputError(f"{path}: a Live Link Face .csv needs weights or a head pose")
+    if a.weights is None:
+        return write_livelinkface(path, Performance(a.times, _fps(a.times), head=a.head, source=str(path)))
+    cols = list(a.names) if a.names is not None else (a.rig.names if a.rig is not None else None)
+    if cols is None:
+        raise OutputError(f"{path}: pass names (or a rig) to name the weight columns")
+    perf = Performance.from_weights(a.weights, cols, times=a.times, head=a.head, source=str(path))
+    return write_livelinkface(path, perf)
+
+
+def _write_bvh(path: Path, a: Animation) -> Path:
+    from ._bvh import make_head_bvh, write_bvh
+
+    if a.head is None:
+        raise OutputError(f"{path}: a .bvh holds head motion; this animation has none")
+    return write_bvh(path, make_head_bvh(a.head, _fps(a.times)))
+
+
+def _write_npz(path: Path, a: Animation) -> Path:
+    from ._npz import write_npz
+
+    v, m = _frames(path, a)
+    unit = {"unit": a.rig.unit} if a.rig is not None else {}
+    return write_npz(path, v, a.times, m, **unit)
+
+
+def _write_folder(path: Path, a: Animation) -> Path:
+    from ._obj import write_obj_sequence
+
+    v, m = _frames(path, a)
+    if m is None:
+        raise OutputError(f"{path}: an OBJ sequence needs a mesh (or a rig) for its faces")
+    return write_obj_sequence(path, m, v, a.times)
+
+
+def _fps(times: np.ndarray) -> float:
+    from ..timebase import infer_fps
+
+    return infer_fps(times, default=30.0)
+
+
+def _read_csv(path: Path, fps=None) -> Performance:
+    from ._livelinkface import read_livelinkface
+
+    return read_livelinkface(path)
+
+
+def _read_c3d(path: Path, fps=None) -> Performance:
+    from ._c3d import read_c3d
+
+    return read_c3d(path)
+
+
+def _read_npz(path: Path, fps=None) -> Performance:
+    from ._npz import read_npz_performance
+
+    return read_npz_performance(path, fps=fps)
+
+
+def _read_glb(path: Path, fps=None) -> Performance:
+    from ._gltf import read_glb_weights
+
+    names, times, weights = read_glb_weights(path)
+    return Performance.from_weights(weights, names, times=times, source=str(path))
+
+
+def _read_bvh(path: Path, fps=None) -> Performance:
+    from ._head import read_bvh_head
+
+    return read_bvh_head(path)
+
+
+def _read_obj(path: Path, fps=None) -> Performance:
+    from ._obj import read_obj
+
+    mesh = read_obj(path)
+    return Performance.from_vertices(mesh.vertices[None], mesh, times=[0.0], fps=fps or 30.0, source=str(path))
+
+
+def _read_folder(path: Path, fps=None) -> Performance:
+    from ._obj import read_obj_sequence
+
+    return read_obj_sequence(path, fps=fps)
+
+
+for _ext_, _fn, _what in ((".csv", _read_csv, "Live Link Face"), (".c3d", _read_c3d, "markers"),
+                          (".npz", _read_npz, "vertices, weights or SMPL-X poses"),
+                          (".glb", _read_glb, "morph-target weights"), (".bvh", _read_bvh, "head motion"),
+                          (".obj", _read_obj, "one mesh"), ("folder", _read_folder, "OBJ frames")):
+    register_reader(_ext_, _fn, _what)
+for _ext_, _fn, _what in ((".glb", _write_glb, "glTF morph targets + head node"),
+                          (".npz", _write_npz, "vertices"), (".csv", _write_csv, "Live Link Face"),
+                          (".bvh", _write_bvh, "head motion"), ("folder", _write_folder, "OBJ frames")):
+    register_writer(_ext_, _fn, _what)
+
+#: Extensions :func:`read_performance` / :func:`write_animation` know (``"folder"`` for OBJ frames).
+READ_FORMATS = tuple(READERS)
+WRITE_FORMATS = tuple(WRITERS)
+
+
+def write_head_motion(path: str | os.PathLike, perf: Performance, protect: tuple = ()) -> Path:
+    """Write ``perf.head`` (and, to a ``.csv``, its weights) by file extension (module docstring).
 
     Parameters
     ----------
     path : path-like
-        ``.glb`` (needs ``rig`` and ``weights``), ``.npz`` (``vertices``, or ``rig`` + ``weights``
-        evaluated), ``.csv`` (``weights``; Live Link Face layout), or a path without extension / an
-        existing folder (OBJ sequence; ``vertices`` + ``mesh``, or ``rig`` + ``weights``).
-    rig : Rig, optional
-    weights : (T, K) float, optional
-        In the rig's shape order, or named by ``names``.
-    names : list of str, optional
-        Column names of ``weights`` (any spelling); default the rig's names.
-    vertices : (T, V, 3) float, optional
-    mesh : Mesh, optional
-        Topology for ``vertices`` (default the rig's neutral).
-    times : (T,) float
-        Frame times in seconds, strictly increasing.
-    head : HeadPose, optional
-        Head motion: the ``.csv`` head columns, the ``.glb`` head node.
-
-    Returns
-    -------
-    Path
-        ``path``.
-
-    Raises
-    ------
-    OutputError
-        Unknown extension, missing data the format needs, or a path that cannot be written (missing
-        or read-only folder); nothing partial is left.
+        ``.bvh``, ``.glb`` or ``.csv``.
+    perf : Performance
+        A take with a head pose.
+    protect : tuple of path-like
+        Inputs the output must not overwrite.
     """
     path = Path(path)
     ext = path.suffix.lower()
-    is_folder = path.is_dir() or ext == ""
-    if not is_folder and ext not in WRITE_FORMATS:
-        raise OutputError(f"{path}: unknown output format '{ext}'; use .glb, .npz, .csv or a folder "
-                          "(no extension) for an OBJ sequence")
-    check_output_path(path)  # fail before any work when the folder is missing or read-only
-    t = np.asarray(times, dtype=np.float64).reshape(-1)
-
-    def need_vertices() -> tuple[np.ndarray, Mesh | None]:
-        if vertices is not None:
-            return np.asarray(vertices, dtype=np.float64), mesh if mesh is not None else (
-                rig.neutral if rig is not None else None)
-        if rig is None or weights is None:
-            raise OutputError(f"{path}: writing {ext or 'an OBJ sequence'} needs vertices, or a rig and weights")
-        return RigFrames(rig, _weights_for(rig, weights, names, str(path))), mesh or rig.neutral
-
-    if ext == ".glb":
-        if rig is None or weights is None:
-            raise OutputError(f"{path}: a .glb needs a rig and weights (morph targets + animation)")
-        return write_glb(path, rig, weights, t, names=names, head=head)
-    if ext == ".csv":
-        if weights is None:
-            raise OutputError(f"{path}: a Live Link Face .csv needs weights")
-        cols = list(names) if names is not None else (rig.names if rig is not None else None)
-        if cols is None:
-            raise OutputError(f"{path}: pass names (or a rig) to name the weight columns")
-        perf = Performance.from_weights(weights, cols, times=t, head=head,
-                                        source=str(path))
-        return write_livelinkface(path, perf)
-    v, m = need_vertices()
-    if ext == ".npz":
-        unit = {"unit": rig.unit} if rig is not None else {}
-        return write_npz(path, v, t, m, **unit)
-    if m is None:
-        raise OutputError(f"{path}: an OBJ sequence needs a mesh (or a rig) for its faces")
-    return write_obj_sequence(path, m, v, t)
+    if ext not in HEAD_FORMATS:
+        raise OutputError(f"{path}: unknown head-motion output format '{ext}' (use {', '.join(HEAD_FORMATS)})")
+    for p in protect:
+        if p is not None and Path(p).exists() and path.exists() and os.path.samefile(p, path):
+            raise OutputError(f"{path}: refusing to overwrite an input file")
+    if perf.head is None:
+        raise InvalidDataError(f"{perf.source}: no head motion to write")
+    weights = perf.weights if ext == ".csv" else None
+    return write_animation(path, times=perf.times, head=perf.head, weights=weights,
+                           names=perf.names if weights is not None else None)
