@@ -38,7 +38,7 @@ from faceretarget.cloning import ExpressionCloner, keymodel_pair
 from faceretarget.cloning._noh import NohNeumannCloner
 from faceretarget.datasets import add_capture_noise
 from faceretarget.errors import FaceRetargetError
-from faceretarget.io import load_rig, read_livelinkface
+from faceretarget.io import read_livelinkface, read_rig
 from faceretarget.metrics import metrics, oracle_rel_motion_pct
 
 REPO = Path(__file__).resolve().parents[1]
@@ -51,8 +51,8 @@ PAPER = {
 
 
 def _load(data: Path):
-    ict = load_rig(data / "ict-face")
-    ark = load_rig(data / "arkit-face")
+    ict = read_rig(data / "ict-face")
+    ark = read_rig(data / "arkit-face")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rom = read_livelinkface(data / "livelinkface" / "alex_rom_3.csv")

@@ -47,7 +47,7 @@ from scipy.optimize import nnls as scipy_nnls
 
 from _plot import font as _font  # bench/_plot.py (same folder)
 from _plot import nice_step as _nice_step
-from faceretarget.io import load_rig, read_c3d, read_livelinkface
+from faceretarget.io import read_c3d, read_livelinkface, read_rig
 from faceretarget.numerics import SELECTION_METHODS, RigidAligner, nnls_greedy_path, reconstruction_error
 
 REPO = Path(__file__).resolve().parents[1]
@@ -80,7 +80,7 @@ def load_datasets(data: Path) -> dict[str, np.ndarray]:
             p = p[ok]
         scale = {"mm": 1.0, "cm": 10.0, "m": 1000.0}.get((take.unit or "mm").strip().lower(), 1.0)
         out[f"mocap/{f.stem}"] = ((p - p[0]) * scale).reshape(len(p), -1)
-    rig = load_rig(data / "ict-face")
+    rig = read_rig(data / "ict-face")
     D = rig.deltas[:, rig.landmarks].reshape(rig.n_shapes, -1) * rig.mm_per_unit
     for f in sorted((data / "livelinkface").glob("*.csv")):
         with warnings.catch_warnings():

@@ -67,8 +67,8 @@ import numpy as np
 from _plot import font as _font  # bench/_plot.py (same folder)
 from _plot import nice_step as _nice_step
 from faceretarget.datasets import make_p3_takes
-from faceretarget.io import load_rig, read_livelinkface
 from faceretarget.io import read_audio as read_wav
+from faceretarget.io import read_livelinkface, read_rig
 from faceretarget.metrics import metrics, rel_motion_pct
 from faceretarget.style import (
     PiecewiseWarp,
@@ -221,7 +221,7 @@ def p3_metrics(pred, gt, p3) -> dict[str, float]:
 def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dict:
     """P3 on one content take; plots under ``out`` (None: none)."""
     t0 = time.perf_counter()
-    rig = load_rig(data / "ict-face")
+    rig = read_rig(data / "ict-face")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         perf = read_livelinkface(data / "livelinkface" / f"{content}.csv")

@@ -33,13 +33,13 @@ def data_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def ict_rig(data_dir):
-    from faceretarget.io import load_rig
+    from faceretarget.io import read_rig
 
-    return load_rig(data_dir / "ict-face")
+    return read_rig(data_dir / "ict-face")
 
 
 @pytest.fixture(scope="session")
 def arkit_rig(data_dir):
-    from faceretarget.io import load_rig
+    from faceretarget.io import read_rig
 
-    return load_rig(data_dir / "arkit-face")
+    return read_rig(data_dir / "arkit-face")

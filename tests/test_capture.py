@@ -240,8 +240,8 @@ def test_capture_postprocess_performance_csv_and_npz(tmp_path):
     np.testing.assert_allclose(back.weights[:, idx], perf.weights, atol=1e-9)
     np.testing.assert_allclose(back.head.to_livelinkface(), perf.head.to_livelinkface(), atol=1e-9)
     assert back.weights[:, back.names.index("tongueOut")].max() == 0
-    q = cap.save_npz(tmp_path / "take.npz")
-    c2 = Capture.load_npz(q)
+    q = cap.write_npz(tmp_path / "take.npz")
+    c2 = Capture.read_npz(q)
     np.testing.assert_array_equal(c2.detected, cap.detected)
     np.testing.assert_allclose(c2.landmarks, cap.landmarks, atol=1e-4, equal_nan=True)
     assert c2.processing["smooth"]["beta"] == OneEuroParams().beta
@@ -397,7 +397,7 @@ def test_cli_capture_end_to_end_and_clone(video_dir, data_dir, tmp_path, capsys)
     assert "tracked 50 frames" in log and "face in 100.0%" in log
     take = read_livelinkface(csv)
     assert take.n_frames == 50 and len(take.names) == 52
-    cap = Capture.load_npz(npz)
+    cap = Capture.read_npz(npz)
     assert cap.landmarks.shape == (50, 478, 3) and cap.processing["neutral_percentile"] == 5
     with av.open(str(mp4)) as c:
         assert c.streams.video and c.streams.audio

@@ -9,7 +9,7 @@ import pytest
 
 from faceretarget.cli import main
 from faceretarget.datasets import make_demo_character, make_demo_take
-from faceretarget.io import read_glb_weights, save_rig_obj, write_livelinkface
+from faceretarget.io import read_glb_weights, write_livelinkface, write_rig
 from faceretarget.rig import Rig
 
 
@@ -17,8 +17,8 @@ from faceretarget.rig import Rig
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("cli")
     ada, bo = make_demo_character("ada"), make_demo_character("bo")
-    save_rig_obj(ada, d / "ada")
-    save_rig_obj(bo, d / "bo")
+    write_rig(ada, d / "ada")
+    write_rig(bo, d / "bo")
     (d / "ada" / "landmarks68.txt").write_text(" ".join(map(str, ada.landmarks)))
     (d / "bo" / "landmarks68.txt").write_text(" ".join(map(str, bo.landmarks)))
     take = make_demo_take(seconds=3.0, fps=30.0, seed=4)
@@ -26,7 +26,7 @@ def files(tmp_path_factory):
     # artist-style key-model folders: neutral + a few expressions, paired by file name
     names = ["jawOpen", "mouthSmileLeft", "mouthSmileRight", "eyeBlinkLeft", "eyeBlinkRight", "browInnerUp"]
     for rig, sub in ((ada, "ada_keys"), (bo, "bo_keys")):
-        save_rig_obj(rig.subset(names), d / sub)
+        write_rig(rig.subset(names), d / sub)
         (d / sub / "landmarks68.txt").write_text(" ".join(map(str, rig.landmarks)))
     return d, ada, bo, take
 

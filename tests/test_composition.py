@@ -300,11 +300,11 @@ def _read_obj(path):
 
 def _load_ict(folder):
     try:
-        from faceretarget.io import load_rig
+        from faceretarget.io import read_rig
     except ImportError:
-        load_rig = None
-    if load_rig is not None:
-        rig = load_rig(folder)
+        read_rig = None
+    if read_rig is not None:
+        rig = read_rig(folder)
     else:  # private fallback until faceretarget.io lands
         v, counts, idx = _read_obj(folder / "generic_neutral_mesh.obj")
         neutral = Mesh(v, counts, idx, name="ict-face")

@@ -10,13 +10,13 @@ import pytest
 
 from faceretarget.errors import InputFileError, MissingShapeError, OutputError, TopologyError
 from faceretarget.io import (
-    load_rig,
-    load_rig_npz,
     read_obj,
     read_obj_vertices,
-    save_rig_npz,
-    save_rig_obj,
+    read_rig,
+    read_rig_npz,
     write_obj,
+    write_rig,
+    write_rig_npz,
 )
 from faceretarget.mesh import Mesh
 from faceretarget.rig import Rig
@@ -169,27 +169,27 @@ def _tiny_rig_folder(tmp_path, neutral_name="Neutral"):
 
 def test_load_rig_synthetic(tmp_path):
     f, base = _tiny_rig_folder(tmp_path)
-    rig = load_rig(f)
+    rig = read_rig(f)
     assert rig.names == ["eyeBlinkLeft", "jawOpen"]  # sorted by file name, identity skipped
     assert rig.source_names == ["eyeBlink_L", "jawOpen"]
     np.testing.assert_allclose(rig.deltas[1], np.tile([0, -1, 0], (4, 1)))
     np.testing.assert_array_equal(rig.landmarks, [0, 1, 2, 3])
     assert rig.unit == "cm"  # a 14-unit face is centimetres
-    assert load_rig(f, unit="mm", exclude=()).n_shapes == 3
+    assert read_rig(f, unit="mm", exclude=()).n_shapes == 3
 
 
 def test_load_rig_explicit_neutral(tmp_path):
     f, _ = _tiny_rig_folder(tmp_path, neutral_name="base_pose")
     with pytest.raises(MissingShapeError):
-        load_rig(f)
-    rig = load_rig(f, neutral="base_pose.obj")
+        read_rig(f)
+    rig = read_rig(f, neutral="base_pose.obj")
     assert rig.names == ["eyeBlinkLeft", "jawOpen"]
 
 
 def test_missing_neutral_lists_names_and_folder(tmp_path):
     f, _ = _tiny_rig_folder(tmp_path, neutral_name="rest")
     with pytest.raises(MissingShapeError) as e:
-        load_rig(f)
+        read_rig(f)
     msg = str(e.value)
     assert str(f) in msg and "neutral.obj" in msg and "generic_neutral_mesh.obj" in msg
     assert "*_neutral.obj" in msg
@@ -200,27 +200,27 @@ def test_key_shape_with_other_vertex_count(tmp_path):
     (f / "mouthClose.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     with pytest.raises(TopologyError, match=r"mouthClose\.obj: key shape has 3 vertices but the "
                                             r"neutral Neutral\.obj has 4"):
-        load_rig(f)
+        read_rig(f)
 
 
 def test_missing_rig_folder(tmp_path):
     with pytest.raises(InputFileError, match="nowhere"):
-        load_rig(tmp_path / "nowhere")
+        read_rig(tmp_path / "nowhere")
 
 
 def test_save_rig_obj_and_npz_round_trip(tmp_path):
     f, _ = _tiny_rig_folder(tmp_path)
-    rig = load_rig(f)
-    back = load_rig(save_rig_obj(rig, tmp_path / "out"))
+    rig = read_rig(f)
+    back = read_rig(write_rig(rig, tmp_path / "out"))
     assert back.names == rig.names and back.unit == rig.unit
     np.testing.assert_array_equal(back.deltas, rig.deltas)
     np.testing.assert_array_equal(back.landmarks, rig.landmarks)
-    z = load_rig_npz(save_rig_npz(rig, tmp_path / "rig.npz"))
+    z = read_rig_npz(write_rig_npz(rig, tmp_path / "rig.npz"))
     assert z.names == rig.names and z.source_names == rig.source_names and z.unit == "cm"
     np.testing.assert_array_equal(z.deltas, rig.deltas)
     np.testing.assert_array_equal(z.neutral.face_indices, rig.neutral.face_indices)
     with pytest.raises(InputFileError, match=r"nope\.npz"):
-        load_rig_npz(tmp_path / "nope.npz")
+        read_rig_npz(tmp_path / "nope.npz")
 
 
 # -------------------------------------------------------------------------------------- real rigs
@@ -254,7 +254,7 @@ def test_all_ict_objs_load_fast(data_dir):
 
 
 def test_real_rig_npz_cache(arkit_rig, tmp_path):
-    z = load_rig_npz(save_rig_npz(arkit_rig, tmp_path / "arkit.npz"))
+    z = read_rig_npz(write_rig_npz(arkit_rig, tmp_path / "arkit.npz"))
     assert isinstance(z, Rig) and z.names == arkit_rig.names
     np.testing.assert_array_equal(z.deltas, arkit_rig.deltas)
     np.testing.assert_array_equal(z.landmarks, arkit_rig.landmarks)
@@ -263,4 +263,4 @@ def test_real_rig_npz_cache(arkit_rig, tmp_path):
 def test_no_warnings_loading_rigs(data_dir):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert load_rig(data_dir / "arkit-face").n_shapes == 51
+        assert read_rig(data_dir / "arkit-face").n_shapes == 51

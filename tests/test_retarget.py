@@ -9,7 +9,7 @@ import pytest
 
 from faceretarget.cli import main
 from faceretarget.errors import InvalidDataError, MissingShapeError
-from faceretarget.io import read_livelinkface, read_npz_performance, read_target_keyshapes, write_livelinkface
+from faceretarget.io import read_keyshapes, read_livelinkface, read_npz_performance, write_livelinkface
 from faceretarget.mesh import Mesh
 from faceretarget.performance import Performance
 from faceretarget.retarget import (
@@ -166,9 +166,9 @@ def test_missing_target_key_is_named():
 
 def test_consistency_flags_a_bad_key(data_dir, ict_rig):
     from faceretarget.cloning import keymodel_rig, keyset_weights
-    from faceretarget.io import load_rig
+    from faceretarget.io import read_rig
 
-    ark = load_rig(data_dir / "arkit-face")
+    ark = read_rig(data_dir / "arkit-face")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rom = read_livelinkface(data_dir / "livelinkface" / "alex_rom_3.csv")
@@ -189,10 +189,10 @@ def test_consistency_flags_a_bad_key(data_dir, ict_rig):
 
 def test_arkit_keys_retarget_exactly(data_dir, ict_rig):
     from faceretarget.cloning import keymodel_pair
-    from faceretarget.io import load_rig
+    from faceretarget.io import read_rig
     from faceretarget.metrics import rel_motion_pct
 
-    ark = load_rig(data_dir / "arkit-face")
+    ark = read_rig(data_dir / "arkit-face")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         take = read_livelinkface(data_dir / "livelinkface" / "S07-001.csv").slice(0, 300)
@@ -210,7 +210,7 @@ def test_cli_keys_select_and_retarget_markers(data_dir, tmp_path):
     assert rc == 0
     assert len(list(keys.glob("frame_*.obj"))) == 8
     assert (keys / "neutral.obj").is_file() and (keys / "markers.txt").is_file() and (keys / "contact_sheet.png").is_file()
-    sk = read_target_keyshapes(keys)
+    sk = read_keyshapes(keys)
     assert sk.n_shapes == 8
     out = tmp_path / "self.npz"
     rc = main(["-q", "retarget", "--performance", str(data_dir / "facial-mocap" / "Jaw.c3d"), "--source-keys", str(keys),
@@ -279,14 +279,14 @@ def test_2d_landmark_tracks_retarget_through_flat_keyshapes(tmp_path):
     pts = rest + np.einsum("tk,kpd->tpd", W, modes)
     perf = Performance.from_points(pts, [f"m{i}" for i in range(P)], fps=30)
     keys = tmp_path / "keys"
-    from faceretarget.io import export_keyshapes
+    from faceretarget.io import write_keyshapes
     from faceretarget.numerics import pivoted_qr
 
     X = (pts - pts[0]).reshape(T, -1)
     frames = sorted(pivoted_qr(X, 6).tolist())
     flat0 = np.c_[pts[0], np.zeros(P)]
-    export_keyshapes(perf, frames, keys, neutral=flat0)
-    sk = read_target_keyshapes(keys)
+    write_keyshapes(perf, frames, keys, neutral=flat0)
+    sk = read_keyshapes(keys)
     rt = BlendshapeRetargeter(denoise=False).fit(sk, sk)
     out = rt.blend(rt.transform(perf).weights)
     assert out.shape == (T, P, 3) and np.abs(out[..., 2]).max() == 0

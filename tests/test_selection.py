@@ -10,7 +10,7 @@ from scipy.optimize import nnls
 from scipy.spatial import ConvexHull
 
 from faceretarget.errors import InvalidDataError, MissingShapeError, TopologyError
-from faceretarget.io import export_keyshapes, read_obj, read_target_keyshapes, write_obj
+from faceretarget.io import read_keyshapes, read_obj, write_keyshapes, write_obj
 from faceretarget.mesh import Mesh
 from faceretarget.numerics._selection import (
     SELECTION_METHODS,
@@ -192,7 +192,7 @@ def _points_take(T=30, P=7, seed=1) -> Performance:
 def test_export_points_and_read_back(tmp_path):
     perf = _points_take()
     frames = [3, 17, 8]
-    out = export_keyshapes(perf, frames, tmp_path / "keys", labels=["open", "smile", "frown"])
+    out = write_keyshapes(perf, frames, tmp_path / "keys", labels=["open", "smile", "frown"])
     names = sorted(p.name for p in out.iterdir())
     assert names == ["contact_sheet.png", "frame_00003.obj", "frame_00008.obj", "frame_00017.obj", "keyshapes.txt",
                      "markers.txt"]
@@ -213,11 +213,11 @@ def test_export_points_and_read_back(tmp_path):
     for f, v in shapes.items():
         write_obj(tgt / f"frame_{f:05d}.obj", neutral, v)
     (tgt / "keyshapes.txt").write_text((out / "keyshapes.txt").read_text())
-    rig = read_target_keyshapes(tgt)                   # order and labels from keyshapes.txt
+    rig = read_keyshapes(tgt)                   # order and labels from keyshapes.txt
     assert rig.names == ["open", "smile", "frown"]
     assert rig.source_names == ["frame_00003", "frame_00017", "frame_00008"]
     np.testing.assert_allclose(rig.deltas[1], shapes[17] - neutral.vertices)
-    rig2 = read_target_keyshapes(tgt, [8, "open", "frame_00017"])
+    rig2 = read_keyshapes(tgt, [8, "open", "frame_00017"])
     assert rig2.names == ["frown", "open", "smile"]
     np.testing.assert_allclose(rig2.deltas[0], shapes[8] - neutral.vertices)
 
@@ -227,15 +227,15 @@ def test_read_target_names_the_missing_frame(tmp_path):
     write_obj(tmp_path / "neutral.obj", neutral)
     write_obj(tmp_path / "frame_00004.obj", neutral)
     with pytest.raises(MissingShapeError, match=r"frame 123 \(frame_00123\.obj\)"):
-        read_target_keyshapes(tmp_path, [4, 123])
+        read_keyshapes(tmp_path, [4, 123])
     with pytest.raises(MissingShapeError, match="labelled 'smile'"):
-        read_target_keyshapes(tmp_path, ["smile"])
+        read_keyshapes(tmp_path, ["smile"])
     write_obj(tmp_path / "frame_00005.obj", Mesh(np.zeros((4, 3))))
     with pytest.raises(TopologyError, match="frame 5"):
-        read_target_keyshapes(tmp_path, [4, 5])
+        read_keyshapes(tmp_path, [4, 5])
     (tmp_path / "neutral.obj").unlink()
     with pytest.raises(MissingShapeError, match="neutral"):
-        read_target_keyshapes(tmp_path, [4])
+        read_keyshapes(tmp_path, [4])
 
 
 def test_export_mesh_take(tmp_path):
@@ -243,7 +243,7 @@ def test_export_mesh_take(tmp_path):
                                np.array([[0, 1, 2], [1, 3, 2]]))
     V = mesh.vertices[None] + np.linspace(0, 1, 10)[:, None, None] * [0.0, 0.0, 0.3]
     perf = Performance.from_vertices(V, mesh=mesh, fps=30)
-    out = export_keyshapes(perf, np.array([9, 0]), tmp_path / "k", contact_sheet=False)
+    out = write_keyshapes(perf, np.array([9, 0]), tmp_path / "k", contact_sheet=False)
     m = read_obj(out / "frame_00009.obj")
     assert m.n_faces == 2
     np.testing.assert_allclose(m.vertices, V[9])
@@ -253,16 +253,16 @@ def test_export_mesh_take(tmp_path):
 def test_export_rejects_bad_input(tmp_path):
     perf = _points_take()
     with pytest.raises(InvalidDataError, match="outside"):
-        export_keyshapes(perf, [30], tmp_path / "a")
+        write_keyshapes(perf, [30], tmp_path / "a")
     with pytest.raises(InvalidDataError, match="more than once"):
-        export_keyshapes(perf, [1, 1], tmp_path / "a")
+        write_keyshapes(perf, [1, 1], tmp_path / "a")
     pts = perf.points.copy()
     pts[2, 4] = np.nan
     with pytest.raises(InvalidDataError, match="frame 2 has a missing point 'm4'"):
-        export_keyshapes(Performance.from_points(pts, labels=perf.labels, fps=60), [2], tmp_path / "a")
+        write_keyshapes(Performance.from_points(pts, labels=perf.labels, fps=60), [2], tmp_path / "a")
     w = Performance.from_weights(np.zeros((3, 2)), ["jawOpen", "mouthClose"], fps=30)
     with pytest.raises(InvalidDataError, match="weights"):
-        export_keyshapes(w, [0], tmp_path / "a")
+        write_keyshapes(w, [0], tmp_path / "a")
     assert not (tmp_path / "a").exists()
 
 

@@ -391,7 +391,7 @@ def _cli_main():
 def takes(tmp_path_factory):
     from faceretarget.cloning import EMOTIONS, weight_vector
     from faceretarget.datasets import StyleWarp, make_demo_character, make_demo_take
-    from faceretarget.io import save_rig_obj, write_livelinkface
+    from faceretarget.io import write_livelinkface, write_rig
     from faceretarget.names import ARKIT_NAMES
     from faceretarget.performance import Performance
 
@@ -408,7 +408,7 @@ def takes(tmp_path_factory):
         W = np.clip(W + e[[ARKIT_NAMES.index(n) for n in names]], 0, 1)
         write_livelinkface(d / f"{s}.csv", Performance.from_weights(W, names, times=tau))
         out[s] = d / f"{s}.csv"
-    save_rig_obj(make_demo_character("ada"), d / "ada")
+    write_rig(make_demo_character("ada"), d / "ada")
     return d, out
 
 

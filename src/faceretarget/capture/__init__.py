@@ -5,7 +5,7 @@ VIDEO mode) on every frame decoded with PyAV and gives a :class:`Capture`: 478 l
 ARKit blendshape scores MediaPipe estimates, head yaw/pitch/roll and translation, and masks of the
 frames with a face.  :meth:`Capture.postprocess` fills short gaps, calibrates to a neutral face and
 removes jitter with a One Euro filter; :meth:`Capture.to_performance`, :meth:`Capture.write_csv`
-(Live Link Face) and :meth:`Capture.save_npz` hand the take to the rest of the package.
+(Live Link Face) and :meth:`Capture.write_npz` hand the take to the rest of the package.
 
 :class:`AppearanceModel` is the appearance model of Chuang's thesis (Sec. 2.2.1): PCA of
 Procrustes-aligned landmark shapes and of shape-free textures (frames warped piecewise-affinely to

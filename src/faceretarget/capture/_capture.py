@@ -216,7 +216,7 @@ class Capture:
 
         return write_livelinkface(path, self.to_performance("weights"), rate=rate)
 
-    def save_npz(self, path: str | os.PathLike) -> Path:
+    def write_npz(self, path: str | os.PathLike) -> Path:
         """Write every frame's tracks to ``.npz`` (``np.load``-able, no pickles), whole or not at all.
 
         ===================== ================= ==========================================
@@ -261,8 +261,8 @@ class Capture:
         return save_npz_arrays(path, arrays)
 
     @classmethod
-    def load_npz(cls, path: str | os.PathLike) -> Capture:
-        """Read a file written by :meth:`save_npz`."""
+    def read_npz(cls, path: str | os.PathLike) -> Capture:
+        """Read a file written by :meth:`write_npz`."""
         import json
 
         from ..files import load_npz_arrays
@@ -384,7 +384,7 @@ def capture_video(path: str | os.PathLike, *, model: str | os.PathLike | None = 
     -------
     Capture
         Use :meth:`Capture.to_performance` for a :class:`~faceretarget.Performance`,
-        :meth:`Capture.write_csv` for a Live Link Face CSV, :meth:`Capture.save_npz` for the tracks.
+        :meth:`Capture.write_csv` for a Live Link Face CSV, :meth:`Capture.write_npz` for the tracks.
     """
     raw = track_video(path, model=model, max_frames=max_frames, duration=duration, progress=progress)
     return raw.postprocess(max_gap=max_gap, neutral_frames=neutral_frames,

@@ -104,7 +104,7 @@ def _capture(args, log) -> int:
     cap.write_csv(out, rate=args.timecode_rate)
     log(f"wrote {out} ({int(cap.valid.sum())} frames, {len(cap.names)} MediaPipe ARKit channels + head angles)")
     if lm_out is not None:
-        cap.save_npz(lm_out)
+        cap.write_npz(lm_out)
         log(f"wrote {lm_out} (478 landmarks per frame, blendshapes, head pose, masks)")
     if prev_out is not None:
         codec = write_preview(cap, video, prev_out, progress=not log.quiet, protect=(video,))

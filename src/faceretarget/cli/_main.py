@@ -24,9 +24,9 @@ _protect = protect
 
 
 def _rig(path, neutral=None, landmarks=None):
-    from ..io import load_rig
+    from ..io import read_rig
 
-    return load_rig(path, neutral=neutral, landmarks=landmarks) if path else None
+    return read_rig(path, neutral=neutral, landmarks=landmarks) if path else None
 
 
 def cmd_clone(args, log) -> int:
@@ -77,13 +77,13 @@ def _clone(args, log) -> int:
 
 
 def cmd_keys_compose(args, log) -> int:
-    from ..io import save_rig_obj
+    from ..io import write_rig
     from ..pipelines import compose_keys
 
     out = Path(args.out)
     _protect(out, [args.rig])
     keys = compose_keys(_rig(args.rig, args.neutral), log=log)
-    save_rig_obj(keys, out)
+    write_rig(keys, out)
     log(f"wrote the neutral and {keys.n_shapes} composed key-models (84 key-models) as OBJ to {out}")
     return 0
 
@@ -93,7 +93,7 @@ def _subset(text: str | None):
 
 
 def cmd_keys_select(args, log) -> int:
-    from ..io import export_keyshapes, read_performance
+    from ..io import read_performance, write_keyshapes
     from ..pipelines import select_keys
 
     out = Path(args.out)
@@ -107,9 +107,9 @@ def cmd_keys_select(args, log) -> int:
     geo = sel.geometry
     if perf.kind == "points":
         aligned = Performance.from_points(geo.points, geo.labels, times=perf.times, unit=perf.unit, source=perf.source)
-        export_keyshapes(aligned, sel.frames, out, neutral=sel.neutral)
+        write_keyshapes(aligned, sel.frames, out, neutral=sel.neutral)
     else:
-        export_keyshapes(geo.points, sel.frames, out, mesh=geo.mesh, neutral=sel.neutral)
+        write_keyshapes(geo.points, sel.frames, out, mesh=geo.mesh, neutral=sel.neutral)
     log(f"wrote {out}: {len(sel.frames)} keyshapes, neutral.obj, keyshapes.txt and contact_sheet.png; model the "
         "target counterparts under the same file names (frame_*.obj) beside the target's neutral.obj")
     return 0

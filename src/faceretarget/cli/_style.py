@@ -130,7 +130,7 @@ def cmd_style_fit(args, log) -> int:
 
 def cmd_restyle(args, log) -> int:
     """``restyle``: change the emotion of a take with a trained :class:`StyleModel`."""
-    from ..io import load_rig, write_animation
+    from ..io import read_rig, write_animation
     from ..style import StyleModel
 
     out = Path(args.out)
@@ -140,7 +140,7 @@ def cmd_restyle(args, log) -> int:
     ext = out.suffix.lower()
     if perf.kind == "weights" and ext in (".glb", ".npz", "") and args.rig is None:
         raise InvalidDataError(f"{out}: writing a weight take as {ext or 'an OBJ sequence'} needs the rig (--rig DIR)")
-    rig = load_rig(args.rig, neutral=args.rig_neutral) if args.rig else None
+    rig = read_rig(args.rig, neutral=args.rig_neutral) if args.rig else None
     window = None
     if args.window is not None:
         if not args.window > 0:

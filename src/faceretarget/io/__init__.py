@@ -25,12 +25,12 @@ from ._head import (
     read_smplx_head,
 )
 from ._keyshapes import (
-    export_keyshapes,
     is_keyshape_folder,
     keyshape_filename,
     read_keys,
+    read_keyshapes,
     read_marker_labels,
-    read_target_keyshapes,
+    write_keyshapes,
 )
 from ._livelinkface import LiveLinkFaceInfo, read_livelinkface, write_livelinkface
 from ._npz import read_npz_performance, write_npz
@@ -48,12 +48,12 @@ from ._registry import (
     write_animation,
     write_head_motion,
 )
-from ._rig import load_rig, load_rig_npz, save_rig_npz, save_rig_obj
+from ._rig import read_rig, read_rig_npz, write_rig, write_rig_npz
 from ._video import VideoInfo, iter_frames, probe_video, read_video_audio, write_video
 
 __all__ = [
     "read_obj", "read_obj_vertices", "write_obj", "read_obj_sequence", "write_obj_sequence",
-    "load_rig", "save_rig_obj", "save_rig_npz", "load_rig_npz",
+    "read_rig", "write_rig", "write_rig_npz", "read_rig_npz",
     "read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo",
     "write_glb", "read_glb_weights", "read_glb_rig", "glb_vertex_order", "write_glb_head", "read_glb_head",
     "write_npz", "read_npz_performance",
@@ -64,7 +64,7 @@ __all__ = [
     "Bvh", "BvhJoint", "bvh_chain", "make_head_bvh", "read_bvh", "write_bvh",
     "write_head_motion", "HEAD_FORMATS", "HEAD_READ_FORMATS", "read_head_motion", "read_head_take",
     "read_bvh_head", "read_smplx_head", "read_marker_head",
-    "export_keyshapes", "read_target_keyshapes", "read_marker_labels", "is_keyshape_folder", "keyshape_filename", "read_keys",
+    "write_keyshapes", "read_keyshapes", "read_marker_labels", "is_keyshape_folder", "keyshape_filename", "read_keys",
     "VideoInfo", "probe_video", "iter_frames", "read_video_audio", "write_video",
     "atomic_path", "atomic_dir", "check_output_path", "input_file", "load_npz_arrays", "save_npz_arrays",
 ]

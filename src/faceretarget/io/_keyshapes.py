@@ -1,6 +1,6 @@
 """Hand chosen keyshape frames to an artist and read the target keyshapes they model back.
 
-:func:`export_keyshapes` writes the selected frames of a source take (see
+:func:`write_keyshapes` writes the selected frames of a source take (see
 :mod:`faceretarget.numerics`) into a folder:
 
 * ``frame_00123.obj`` per frame: the marker / feature points as an OBJ point set (``v`` lines only,
@@ -11,7 +11,7 @@
 
 The artist models the target character's counterpart of each frame and saves it under the same
 name (``frame_00123.obj``) in a folder, with the target's neutral as ``neutral.obj``;
-:func:`read_target_keyshapes` reads them back by frame id (or label) into a
+:func:`read_keyshapes` reads them back by frame id (or label) into a
 :class:`~faceretarget.rig.Rig` whose key shapes are in the order asked for.
 """
 
@@ -31,7 +31,7 @@ from ..rig import Rig
 from ..units import guess_unit
 from ._obj import read_obj, read_obj_vertices, write_obj
 
-__all__ = ["export_keyshapes", "read_target_keyshapes", "read_marker_labels", "is_keyshape_folder", "read_keys",
+__all__ = ["write_keyshapes", "read_keyshapes", "read_marker_labels", "is_keyshape_folder", "read_keys",
            "keyshape_filename", "MANIFEST", "MARKERS", "CONTACT_SHEET"]
 
 MANIFEST = "keyshapes.txt"
@@ -95,7 +95,7 @@ def _mesh_sheet(vertices: np.ndarray, mesh: Mesh, frames: list[int], labels: lis
     return render_grid(imgs, text)
 
 
-def export_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence[int],
+def write_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence[int],
                      out_dir: str | os.PathLike, *, mesh: Mesh | None = None,
                      labels: Sequence[str] | None = None, contact_sheet: bool = True,
                      cell: int = 240, neutral: np.ndarray | None = None) -> Path:
@@ -116,7 +116,7 @@ def export_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequenc
         is written as a point set.
     labels : sequence of str, optional
         A label per frame (e.g. ``"jaw open"``), written to ``keyshapes.txt`` and the contact
-        sheet; ``read_target_keyshapes`` can then look frames up by label.
+        sheet; ``read_keyshapes`` can then look frames up by label.
     contact_sheet : bool
         Write ``contact_sheet.png``.
     cell : int
@@ -250,7 +250,7 @@ def _frame_of(item, folder: Path, rows: list[tuple[str, int, str]]) -> int:
     return int(item)
 
 
-def read_target_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str] | None = None, *,
+def read_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str] | None = None, *,
                           neutral: Mesh | str | os.PathLike | None = None, unit: str | None = None,
                           name: str | None = None) -> Rig:
     """Read the artist's target keyshapes (``frame_00123.obj`` ...) back, by frame id or label.
@@ -258,7 +258,7 @@ def read_target_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str]
     Parameters
     ----------
     folder : path-like
-        Folder holding the target keyshapes, one OBJ per frame named as :func:`export_keyshapes`
+        Folder holding the target keyshapes, one OBJ per frame named as :func:`write_keyshapes`
         named them, and by default the target's neutral ``neutral.obj``.
     frames : sequence of int or str, optional
         Which keyshapes, in which order: frame ids (``123``), file names or stems
@@ -359,13 +359,13 @@ def read_keys(folder: str | os.PathLike, *, neutral: str | os.PathLike | None = 
     rig : Rig, optional
         The rig the keyshapes were exported from: its landmarks are used when the topology matches.
     """
-    from ._rig import load_rig
+    from ._rig import read_rig
 
     if Path(folder).is_dir() and is_keyshape_folder(folder):
-        keys = read_target_keyshapes(folder, neutral=neutral)
+        keys = read_keyshapes(folder, neutral=neutral)
         if landmarks is not None:
             keys.landmarks = np.loadtxt(landmarks, dtype=np.int64, ndmin=1)
         elif rig is not None and rig.n_vertices == keys.n_vertices:
             keys.landmarks = rig.landmarks
         return keys, read_marker_labels(folder)
-    return load_rig(folder, neutral=neutral, landmarks=landmarks), []
+    return read_rig(folder, neutral=neutral, landmarks=landmarks), []

@@ -12,7 +12,7 @@ Key shapes are ordered by file name (case-insensitively, then exactly).  ``landm
 
 ``.npz`` cache layout
 ---------------------
-Written by :func:`save_rig_npz`, read by :func:`load_rig_npz` (``allow_pickle=False``):
+Written by :func:`write_rig_npz`, read by :func:`read_rig_npz` (``allow_pickle=False``):
 
 ================== ====================== ==================================================
 key                shape, dtype           meaning
@@ -49,7 +49,7 @@ from ..rig import Rig
 from ..units import guess_unit, normalize_unit
 from ._obj import read_obj, read_obj_vertices, write_obj
 
-__all__ = ["load_rig", "save_rig_obj", "save_rig_npz", "load_rig_npz", "NEUTRAL_NAMES",
+__all__ = ["read_rig", "write_rig", "write_rig_npz", "read_rig_npz", "NEUTRAL_NAMES",
            "RIG_NPZ_FORMAT"]
 
 #: File stems (case-insensitive) taken as the neutral; any stem ending in ``_neutral`` also is.
@@ -83,7 +83,7 @@ def _read_landmarks(path: Path, n_vertices: int) -> np.ndarray:
     return lm
 
 
-def load_rig(folder: str | os.PathLike, neutral: str | os.PathLike | None = None,
+def read_rig(folder: str | os.PathLike, neutral: str | os.PathLike | None = None,
              unit: str | None = None, landmarks: str | os.PathLike | np.ndarray | None = None,
              exclude: Sequence[str] = ("identity[0-9]*",)) -> Rig:
     """Load a blendshape rig from a folder of OBJ files.
@@ -179,8 +179,8 @@ def load_rig(folder: str | os.PathLike, neutral: str | os.PathLike | None = None
                name=folder.resolve().name or str(folder))
 
 
-def save_rig_obj(rig: Rig, folder: str | os.PathLike, *, precision: int | None = None) -> Path:
-    """Write a rig as a folder of OBJs that :func:`load_rig` reads back.
+def write_rig(rig: Rig, folder: str | os.PathLike, *, precision: int | None = None) -> Path:
+    """Write a rig as a folder of OBJs that :func:`read_rig` reads back.
 
     Writes ``neutral.obj``, one ``<name>.obj`` per key shape (normalised ARKit names) and, when the
     rig has landmarks, ``landmarks68.txt`` (68 landmarks) or ``landmarks.txt``.  The folder appears
@@ -221,7 +221,7 @@ def save_rig_obj(rig: Rig, folder: str | os.PathLike, *, precision: int | None =
 
 
 # ----------------------------------------------------------------------------------- npz cache
-def save_rig_npz(rig: Rig, path: str | os.PathLike) -> Path:
+def write_rig_npz(rig: Rig, path: str | os.PathLike) -> Path:
     """Write a rig to one ``.npz`` file (layout in the module docstring), whole or not at all."""
     path = check_output_path(path)
     arrays: dict[str, np.ndarray] = {
@@ -246,8 +246,8 @@ def save_rig_npz(rig: Rig, path: str | os.PathLike) -> Path:
     return path
 
 
-def load_rig_npz(path: str | os.PathLike) -> Rig:
-    """Read a rig written by :func:`save_rig_npz`.
+def read_rig_npz(path: str | os.PathLike) -> Rig:
+    """Read a rig written by :func:`write_rig_npz`.
 
     Raises
     ------

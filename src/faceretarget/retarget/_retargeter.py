@@ -172,7 +172,7 @@ class BlendshapeRetargeter(Model):
         ----------
         source_keys : Rig
             Source neutral and keyshapes (a rig, or point sets read with
-            :func:`~faceretarget.io.read_target_keyshapes`).
+            :func:`~faceretarget.io.read_keyshapes`).
         target_keys : Rig
             Target neutral and keyshapes; every source keyshape needs one of the same name.
         source_labels : list of str, optional
