@@ -12,7 +12,7 @@ import numpy as np
 
 from .errors import InvalidDataError
 
-__all__ = ["infer_fps", "frame_times", "check_times", "is_regular"]
+__all__ = ["infer_fps", "frame_times", "check_times", "is_regular", "even_grid"]
 
 
 def check_times(times, source: str = "times") -> np.ndarray:
@@ -63,8 +63,21 @@ def frame_times(n: int, fps: float, start: float = 0.0) -> np.ndarray:
 
 def is_regular(times, tolerance: float = 0.25) -> bool:
     """True when every frame step is within ``tolerance`` of the median step."""
-    d = np.diff(np.asarray(times, dtype=np.float64))
+    return not even_grid(times, tolerance)[1]
+
+
+def even_grid(times, tolerance: float = 0.25) -> tuple[np.ndarray, bool]:
+    """An evenly spaced grid at the median step over ``times``, and whether it differs from them.
+
+    Returns ``(times, False)`` when every step is within ``tolerance`` of the median step (a regular
+    take), else ``(grid, True)`` with the grid spanning the same interval (dropped frames filled).
+    """
+    t = np.asarray(times, dtype=np.float64)
+    d = np.diff(t)
     if d.size == 0:
-        return True
+        return t, False
     step = float(np.median(d))
-    return bool(np.all(np.abs(d - step) <= tolerance * step))
+    if np.all(np.abs(d - step) <= tolerance * step):
+        return t, False
+    n = int(round((t[-1] - t[0]) / step)) + 1
+    return t[0] + step * np.arange(n), True

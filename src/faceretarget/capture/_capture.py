@@ -137,7 +137,7 @@ class Capture:
             One Euro filter for every stream, each contiguous run of frames separately, with
             ``beta`` in face-relative units: weights as they are, angles in radians, landmarks
             divided by the face width in pixels (:meth:`face_width`, speed = norm of the point's
-            x, y, z velocity), translation by :data:`FACE_WIDTH_CM`.
+            x, y, z velocity), translation by :data:`FACE_WIDTH_M`.
         """
         if self.interpolated.any() or self.processing:
             raise InvalidDataError(f"{self.source}: this capture is already post-processed")

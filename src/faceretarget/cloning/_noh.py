@@ -64,6 +64,7 @@ from scipy.spatial import cKDTree
 from ..base import Model
 from ..errors import InvalidDataError
 from ..mesh import Mesh
+from ..numerics import nearest_rotation
 
 __all__ = ["NohNeumannCloner", "closest_points_on_mesh"]
 
@@ -204,12 +205,6 @@ def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.eye(3) + K + (K @ K) / (1.0 + c)[:, None, None]
 
 
-def _polar_rotation(J: np.ndarray) -> np.ndarray:
-    """``(n, 3, 3)`` rotation factors of the polar decompositions ``J = R U`` (proper rotations)."""
-    U, _, Vt = np.linalg.svd(J)
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[:, :, 2] *= d[:, None]
-    return U @ Vt
 
 
 def _mean_edge(mesh: Mesh, vertices: np.ndarray) -> float:
@@ -365,7 +360,7 @@ class NohNeumannCloner(Model):
         A = np.linalg.lstsq(np.c_[Ps - mu, np.ones(len(Ps))], Pt, rcond=None)[0][:3]
         self.global_scale_ = float(np.cbrt(abs(np.linalg.det(A))))
         if not self.local_scale:
-            J = _polar_rotation(J) * self.global_scale_
+            J = nearest_rotation(J) * self.global_scale_
         eye = np.broadcast_to(np.eye(3), (Vt, 3, 3))
         R, S = eye.copy(), eye.copy()
         if (self.local_rotation or self.local_scale) and has_normals and len(tri):

@@ -33,6 +33,7 @@ from ..headpose import HeadPose
 from ..names import ARKIT_NAMES, normalize_name, split_parent
 from ..performance import Performance
 from ..timebase import infer_fps
+from ._obj import _is_number
 
 __all__ = ["read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo", "HEAD_COLUMNS",
            "EYE_COLUMNS", "TIMECODE_RATES", "LLF_NAMES"]
@@ -252,7 +253,7 @@ def _parse_values(lines: list[str], rows: _Rows, header: list[str]) -> None:
         try:
             rows.values[j] = [float(c) for c in cells[1:]]
         except ValueError:
-            c, cell = next((c, cell) for c, cell in enumerate(cells[1:], 1) if not _is_float(cell))
+            c, cell = next((c, cell) for c, cell in enumerate(cells[1:], 1) if not _is_number(cell))
             rows.kind[j] = _JUNK
             rows.why[j] = f"column '{header[c]}' value {cell.strip()!r} is not a number"
 
@@ -313,12 +314,6 @@ def _kept_rows(path: Path, rows: _Rows) -> tuple[np.ndarray, list[int], list[int
     return good, trailing, noface
 
 
-def _is_float(s: str) -> bool:
-    try:
-        float(s)
-    except ValueError:
-        return False
-    return True
 
 
 def _timecodes(t_abs: np.ndarray, rate: int, decimals: int) -> list[str]:

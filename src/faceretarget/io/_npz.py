@@ -33,6 +33,7 @@ from ..files import atomic_path, check_output_path, load_npz_arrays
 from ..mesh import Mesh
 from ..performance import Performance
 from ..rig import RigFrames
+from ..timebase import infer_fps
 
 __all__ = ["write_npz", "read_npz_performance"]
 
@@ -79,7 +80,7 @@ def write_npz(path: str | os.PathLike, vertices: np.ndarray | RigFrames, times: 
         raise InvalidDataError(f"{path}: extra key(s) {', '.join(clash)} are reserved")
     arrays: dict[str, np.ndarray] = {"times": t}
     if t.size > 1:
-        arrays["fps"] = np.float64(1.0 / np.median(np.diff(t)))
+        arrays["fps"] = np.float64(infer_fps(t))
     if mesh is not None:
         if mesh.n_vertices != v.shape[1]:
             raise InvalidDataError(

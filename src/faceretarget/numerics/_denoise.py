@@ -41,6 +41,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.fft import dct, idct
 
+from ..timebase import even_grid
+
 __all__ = ["estimate_noise_sigma", "sure_whittaker", "denoise_take", "CHUNK", "OVERLAP"]
 
 #: Frames denoised at once in a long take, and the frames two windows share.
@@ -89,15 +91,6 @@ def sure_whittaker(Y: np.ndarray, sigma: float, order: int = 2) -> tuple[np.ndar
     return Z, _LAMBDAS[best]
 
 
-def _even_grid(times: np.ndarray) -> tuple[np.ndarray, bool]:
-    d = np.diff(times)
-    if d.size == 0:
-        return times, False
-    step = float(np.median(d))
-    if np.all(np.abs(d - step) <= 0.25 * step):
-        return times, False
-    n = int(round((times[-1] - times[0]) / step)) + 1
-    return times[0] + step * np.arange(n), True
 
 
 def _common_smoothed(Y: np.ndarray, sigma: float) -> np.ndarray:
@@ -135,7 +128,7 @@ def _denoise_window(Y: np.ndarray, times: np.ndarray | None, sigma: float | None
     """One window of :func:`denoise_take`."""
     if len(Y) < 8:
         return Y.copy(), 0.0
-    grid, resampled = (times, False) if times is None else _even_grid(np.asarray(times, dtype=np.float64))
+    grid, resampled = (times, False) if times is None else even_grid(np.asarray(times, dtype=np.float64))
     Yg = _interp_columns(grid, times, Y) if resampled else Y
     if sigma is None:
         sigma = estimate_noise_sigma(Yg)
@@ -201,7 +194,7 @@ def denoise_take(Y: np.ndarray, times: np.ndarray | None = None, sigma: float | 
 
 def _denoise_grid(Y: np.ndarray, times: np.ndarray) -> np.ndarray:
     """``Y`` on an even grid (for the noise estimate of an unevenly sampled take)."""
-    grid, resampled = _even_grid(times)
+    grid, resampled = even_grid(times)
     return _interp_columns(grid, times, Y) if resampled else Y
 
 

@@ -71,6 +71,18 @@ def source_geometry(take: Performance, source_rig: Rig | None, vertices: np.ndar
     return out
 
 
+def _apply(model: ExpressionCloner | BlendshapeRetargeter, take: Performance, source_rig: Rig | None,
+           log: Callable[..., None]) -> CloneResult | RetargetResult:
+    """``model.transform`` of what it reads of ``take`` (:func:`source_geometry`), with the take's head
+    motion and audio carried to the result."""
+    geo = source_geometry(take, source_rig, model.feature_idx_, model_vertices=len(model.source_neutral_), log=log)
+    if isinstance(geo, Performance):
+        return model.transform(geo)
+    res = model.transform(geo, take.times)
+    res.head, res.audio, res.audio_rate, res.source = take.head, take.audio, take.audio_rate, take.source
+    return res
+
+
 @dataclass(eq=False)
 class Transfer:
     """A take cloned or retargeted: the fitted model, its result, and the seconds it took."""
@@ -100,12 +112,7 @@ def clone_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_
     t0 = time.perf_counter()
     cloner = ExpressionCloner(method, features=features).fit(source_keys, target_keys)
     rig = source_rig if source_rig is not None else (source_keys if take.kind == "weights" else None)
-    geo = source_geometry(take, rig, cloner.feature_idx_, model_vertices=len(cloner.source_neutral_), log=log)
-    if isinstance(geo, Performance):
-        res = cloner.transform(geo)
-    else:
-        res = cloner.transform(geo, take.times)
-        res.head, res.audio, res.audio_rate, res.source = take.head, take.audio, take.audio_rate, take.source
+    res = _apply(cloner, take, rig, log)
     if res.noise_sigma > 0:
         log(f"estimated capture noise {res.noise_sigma * source_keys.mm_per_unit:.3f} mm: denoised over time")
     dt = time.perf_counter() - t0
@@ -136,12 +143,7 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, sour
     if check:
         log(check_consistency(source_keys, target_keys).table())
     rt = BlendshapeRetargeter(**params).fit(source_keys, target_keys, source_labels=list(source_labels))
-    geo = source_geometry(take, source_rig, rt.feature_idx_, model_vertices=len(rt.source_neutral_), log=log)
-    if isinstance(geo, Performance):
-        res = rt.transform(geo)
-    else:
-        res = rt.transform(geo, take.times)
-        res.head, res.audio, res.audio_rate, res.source = take.head, take.audio, take.audio_rate, take.source
+    res = _apply(rt, take, source_rig, log)
     if res.alignment is not None:
         log(res.alignment.report(take.unit))
     if res.noise_sigma > 0:

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import InvalidDataError
 from ..performance import Performance
+from ..timebase import infer_fps
 from ._features import audio_features
 from ._pointlocal import fit_point_map, point_count
 
@@ -253,7 +254,7 @@ def align_features(ref: np.ndarray, take: np.ndarray, ref_times, take_times, *, 
     tt = np.asarray(take_times, np.float64)
     if len(rt) != len(ref) or len(tt) != len(take):
         raise InvalidDataError("feature frames and their times differ in number")
-    rate = 1.0 / float(np.median(np.diff(rt))) if len(rt) > 1 else 1.0
+    rate = infer_fps(rt, default=1.0)
     path, dist = dtw_path(ref, take, window=_window_frames(window_s, rate))
     mapped = path_to_times(path, rt, tt, smooth=smooth)
     return Alignment(rt, mapped, path, rt, tt, dist, by)
@@ -400,7 +401,7 @@ def warp_performance(take: Performance, alignment: Alignment, ref_times=None) ->
     kw = {take.kind: resample(take.data(), take.times, q)}
     if take.kind == "weights":
         kw["names"] = take.names
-    fps = 1.0 / float(np.median(np.diff(rt))) if len(rt) > 1 else take.fps
+    fps = infer_fps(rt, default=take.fps)
     return Performance(times=rt.copy(), fps=fps, audio=None,
                        audio_rate=None, labels=take.labels, mesh=take.mesh, unit=take.unit,
                        source=f"{take.source} (aligned)", **kw)
