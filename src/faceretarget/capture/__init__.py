@@ -17,7 +17,7 @@ needs them, only running a tracker does.  See ``docs/capture.md``.
 """
 
 from ._appearance import AppearanceModel, procrustes_align
-from ._capture import Capture, capture_video, draw_overlay, track_video, write_preview
+from ._capture import Capture, capture_video, draw_overlay, pose_from_matrices, track_video, write_preview
 from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
 from ._tracker import FaceTracker, find_model
 from ._warp import PiecewiseAffineWarp
@@ -28,6 +28,7 @@ __all__ = [
     "capture_video",
     "write_preview",
     "draw_overlay",
+    "pose_from_matrices",
     "FaceTracker",
     "find_model",
     "OneEuroParams",

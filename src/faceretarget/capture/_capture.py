@@ -19,7 +19,7 @@ from ..performance import Performance
 from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
 from ._tracker import N_LANDMARKS, FaceTracker
 
-__all__ = ["Capture", "track_video", "capture_video", "write_preview", "draw_overlay", "FACE_WIDTH_M",
+__all__ = ["Capture", "track_video", "capture_video", "write_preview", "draw_overlay", "pose_from_matrices", "FACE_WIDTH_M",
            "DEFAULT_SMOOTH"]
 
 #: Landmarks at the left and right cheek edges of the face oval (face width).
@@ -289,6 +289,22 @@ class Capture:
                    processing=json.loads(str(d["processing"])) if "processing" in d else {})
 
 
+def pose_from_matrices(matrices: np.ndarray, *, source: str = "video") -> HeadPose:
+    """The head pose of MediaPipe's facial transformation matrices ``(T, 4, 4)``.
+
+    Their rotation maps MediaPipe's canonical face (looking down +Z, +X on the performer's left:
+    the package's frame) into the camera's frame (x to the image's right, y up, z toward the
+    viewer), and may carry a scale, which the nearest rotation removes; their translation is in
+    centimetres, the pose's in metres.  NaN matrices (frames without a face) give frames without
+    a pose.
+    """
+    M = np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4)
+    ok = np.isfinite(M).all(axis=(1, 2))
+    R = nearest_rotation(np.where(ok[:, None, None], M[:, :3, :3], np.eye(3)))
+    head = HeadPose.from_matrix(R, M[:, :3, 3] / 100.0, source=source)
+    return HeadPose(np.where(ok[:, None], head.quaternions, np.nan), head.translation, source=source)
+
+
 def _progress(total: int | None, enabled: bool, desc: str):
     from tqdm.auto import tqdm
 
@@ -363,9 +379,7 @@ def track_video(path: str | os.PathLike, *, model: str | os.PathLike | None = No
     M = np.full((T, 4, 4), np.nan)
     for i in np.flatnonzero(det):
         L[i], W[i], M[i] = lms[i], scores[i], mats[i]
-    head = HeadPose.from_matrix(nearest_rotation(np.where(np.isfinite(M[:, :3, :3]), M[:, :3, :3], np.eye(3))),
-                                M[:, :3, 3] / 100.0, source=str(path))
-    head = HeadPose(np.where(det[:, None], head.quaternions, np.nan), head.translation, source=str(path))
+    head = pose_from_matrices(M, source=str(path))
     au = read_video_audio(path, duration=(times[-1] + 1.0 / info.fps)) if audio and info.has_audio else None
     if timings is not None:
         timings.update(decode_s=decode_s, track_s=track_s, frames=T)

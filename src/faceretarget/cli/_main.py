@@ -156,12 +156,8 @@ def cmd_demo(args, log) -> int:
     return run_demo(Path(args.out), log=log)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="faceretarget", description="Facial performance retargeting and expression cloning.")
-    p.add_argument("--version", action="version", version=f"faceretarget {__version__}")
-    p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
-    sub = p.add_subparsers(dest="command", required=True)
-
+def _register_clone(sub) -> None:
+    """``faceretarget clone``."""
     c = sub.add_parser("clone", help="clone a performance onto another character (Pyun et al. 2003)",
                        description="Clone a performance from source key-models onto target key-models. "
                        "Either give key-model folders paired by file name (--source-keys/--target-keys), or two "
@@ -185,6 +181,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--target-neutral", help="the target folder's neutral OBJ when it is not named neutral*")
     c.set_defaults(func=cmd_clone)
 
+
+def _register_keys(sub) -> None:
+    """``faceretarget keys compose | select``."""
     k = sub.add_parser("keys", help="key-model tools")
     ksub = k.add_subparsers(dest="keys_command", required=True)
     kc = ksub.add_parser("compose", help="write the 84 composed emotion x viseme key-models of a rig as OBJ")
@@ -213,6 +212,9 @@ def build_parser() -> argparse.ArgumentParser:
     ks.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
     ks.set_defaults(func=cmd_keys_select)
 
+
+def _register_retarget(sub) -> None:
+    """``faceretarget retarget``."""
     r = sub.add_parser("retarget", help="retarget a take through source/target keyshapes (Chuang Ch. 3)",
                        description="Decompose every frame of a take into source keyshape weights and play them "
                        "on the target keyshapes.  Keyshape folders are exported frames (frame_*.obj + neutral.obj, "
@@ -242,6 +244,23 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
     r.set_defaults(func=cmd_retarget)
 
+
+def _register_demo(sub) -> None:
+    """``faceretarget demo``."""
+    d = sub.add_parser("demo", help="run the main job end to end on the embedded demo characters")
+    d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    d.set_defaults(func=cmd_demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="faceretarget", description="Facial performance retargeting and expression cloning.")
+    p.add_argument("--version", action="version", version=f"faceretarget {__version__}")
+    p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    _register_clone(sub)
+    _register_keys(sub)
+    _register_retarget(sub)
     from ._capture import register as _register_capture
     from ._headmotion import register as _register_headmotion
     from ._style import register as _register_style
@@ -250,9 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     _register_style(sub)
     _register_headmotion(sub)
 
-    d = sub.add_parser("demo", help="run the main job end to end on the embedded demo characters")
-    d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    d.set_defaults(func=cmd_demo)
+    _register_demo(sub)
     return p
 
 
