@@ -30,37 +30,17 @@ __all__ = ["register", "cmd_headmotion_build", "cmd_headmotion_synth", "main"]
 
 def cmd_headmotion_build(args, log) -> int:
     """``headmotion build``: analyse takes and write a database ``.npz``."""
-    from ..headmotion import HeadMotionDatabase, take_duration
-    from ..io import read_head_take
+    from ..files import check_output_path
+    from ..pipelines import build_head_database
 
     out = Path(args.out)
-    takes_in = [(Path(a), Path(m)) for a, m in args.take]
-    _protect(out, [p for pair in takes_in for p in pair])
-    db = HeadMotionDatabase(fps=args.fps, f0_min=args.f0_min, f0_max=args.f0_max, pause=args.pause,
-                            mirror=not args.no_mirror)
+    pairs = [(Path(a), Path(m)) for a, m in args.take]
+    _protect(out, [p for pair in pairs for p in pair])
+    check_output_path(out)                     # before any work
     t0 = time.perf_counter()
-    takes, pitches, used = [], [], set()
     with warnings_to_log(log):
-        for audio, motion in takes_in:
-            name = motion.stem
-            k = 2
-            while name in used:
-                name, k = f"{motion.stem}_{k}", k + 1
-            used.add(name)
-            take = read_head_take(audio, motion, name=name)
-            pitch = db.pitch(take.audio, take.audio_rate)
-            n_voiced = int(np.isfinite(pitch.f0).sum())
-            log(f"{audio.name} + {motion.name}: {take_duration(take):.1f} s, head motion at {take.fps:g} fps, "
-                f"{n_voiced * pitch.time_step:.1f} s voiced")
-            if n_voiced == 0:
-                log(f"warning: {audio}: no voiced speech found; take skipped")
-                continue
-            takes.append(take)
-            pitches.append(pitch)
-        if not takes:
-            raise InvalidDataError("no take has voiced speech: "
-                                   + ", ".join(str(a) for a, _ in takes_in))
-        db.fit(takes, pitch=pitches)
+        db = build_head_database(pairs, log=log, fps=args.fps, f0_min=args.f0_min, f0_max=args.f0_max,
+                                 pause=args.pause, mirror=not args.no_mirror)
     db.save(out)
     log(f"wrote {out}: {db.summary()} ({time.perf_counter() - t0:.1f} s)")
     return 0

@@ -70,21 +70,10 @@ def _pairs(items, what: str) -> dict[str, str]:
     return out
 
 
-def _read_take(path: str, fps, audio: str | None):
-    from dataclasses import replace
-
-    from ..io import read_audio, read_performance
-
-    perf = read_performance(path, fps=fps)
-    if audio is not None:
-        x, rate = read_audio(audio)
-        perf = replace(perf, audio=x, audio_rate=rate)
-    return perf
-
-
 def cmd_style_fit(args, log) -> int:
     """``style fit``: align takes of one text in several styles and write a :class:`StyleModel`."""
-    from ..style import StyleModel
+    from ..files import check_output_path
+    from ..pipelines import fit_style, read_style_take
 
     takes = _pairs(args.take, "--take")
     audio = _pairs(args.audio, "--audio")
@@ -101,28 +90,14 @@ def cmd_style_fit(args, log) -> int:
     _protect(out, [*takes.values(), *audio.values(), *adds.values()])
     if out.suffix.lower() != ".npz":
         raise OutputError(f"{out}: a style model is written as .npz")
-    perfs = {k: _read_take(v, args.fps, audio.get(k)) for k, v in takes.items()}
-    for k, p in perfs.items():
-        log(f"{k}: {p.n_frames} frames ({p.kind}) from {takes[k]}" + (" with audio" if p.audio is not None else ""))
-    ref = args.reference or next(iter(takes))
-    model = StyleModel(variance=args.variance, energy=args.energy, content_dims=args.content_dims,
-                       style_dims=args.style_dims, bundle=args.bundle, local=args.local, prior=args.prior,
-                       align=args.align,
-                       audio_features=args.audio_features, window_s=args.window_s)
+    check_output_path(out)                     # before any work
+    perfs = {k: read_style_take(v, args.fps, audio.get(k)) for k, v in takes.items()}
+    added = {k: read_style_take(v, args.fps, audio.get(k)) for k, v in adds.items()}
     with warnings_to_log(log):
-        model.fit(perfs, reference=ref)
-        log(f"settings: {model.settings_}" + (" (cross-validated on the training frames)"
-                                               if model.selection_ is not None else ""))
-        for k, al in model.alignments_.items():
-            rate = (al.take_times[-1] - al.take_times[0]) / max(al.ref_times[-1] - al.ref_times[0], 1e-9)
-            log(f"aligned {k} to {ref} by {al.by}: {len(al.path)} path steps; {k} lasts {rate:.3f} times as long")
-        for k, path in adds.items():
-            take = _read_take(path, args.fps, audio.get(k))
-            model.add_style_take(k, take, ref, perfs[ref])
-            log(f"added untrained style '{k}' from {path} (same text as '{ref}')")
-    A, S = model.asymmetric_, model.symmetric_
-    log(f"PCA: {model.n_components_} components; content dims J = {A.content_dims_}, style dims I = "
-        f"{S.style_dims_}; symmetric fit {S.n_iter_} iteration(s); styles: {', '.join(model.styles_)}")
+        model = fit_style(perfs, reference=args.reference, added=added, log=log, variance=args.variance,
+                          energy=args.energy, content_dims=args.content_dims, style_dims=args.style_dims,
+                          bundle=args.bundle, local=args.local, prior=args.prior, align=args.align,
+                          audio_features=args.audio_features, window_s=args.window_s)
     model.save(out)
     log(f"wrote {out}")
     return 0
@@ -131,12 +106,13 @@ def cmd_style_fit(args, log) -> int:
 def cmd_restyle(args, log) -> int:
     """``restyle``: change the emotion of a take with a trained :class:`StyleModel`."""
     from ..io import read_rig, write_animation
+    from ..pipelines import read_style_take
     from ..style import StyleModel
 
     out = Path(args.out)
     _protect(out, [args.model, args.performance, args.rig])
     model = StyleModel.load(args.model)
-    perf = _read_take(args.performance, args.fps, None)
+    perf = read_style_take(args.performance, args.fps)
     ext = out.suffix.lower()
     if perf.kind == "weights" and ext in (".glb", ".npz", "") and args.rig is None:
         raise InvalidDataError(f"{out}: writing a weight take as {ext or 'an OBJ sequence'} needs the rig (--rig DIR)")
