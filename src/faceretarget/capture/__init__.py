@@ -17,13 +17,22 @@ needs them, only running a tracker does.  See ``docs/capture.md``.
 """
 
 from ._appearance import AppearanceModel, procrustes_align
-from ._capture import Capture, capture_video, draw_overlay, pose_from_matrices, track_video, write_preview
+from ._capture import (
+    DEFAULT_SMOOTH,
+    Capture,
+    capture_video,
+    draw_overlay,
+    pose_from_matrices,
+    track_video,
+    write_preview,
+)
 from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
 from ._tracker import FaceTracker, find_model
 from ._warp import PiecewiseAffineWarp
 
 __all__ = [
     "Capture",
+    "DEFAULT_SMOOTH",
     "track_video",
     "capture_video",
     "write_preview",

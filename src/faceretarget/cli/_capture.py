@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,6 @@ import numpy as np
 from ..errors import InvalidDataError, OutputError
 from ._support import protect as _protect
 from ._support import run_command
-from ._support import warnings_to_log as _warnings_to_log
 
 __all__ = ["register", "cmd_capture", "cmd_appearance_fit", "cmd_appearance_encode", "main"]
 
@@ -57,50 +55,20 @@ def _neutral(text: str | None) -> tuple[int, int] | None:
     return a, b
 
 
-def _summary(raw, seconds: float, tm: dict, log) -> None:
-    det = raw.detected
-    work = tm.get("decode_s", 0.0) + tm.get("track_s", 0.0)
-    log(f"tracked {raw.n_frames} frames of {Path(raw.source).name} ({raw.image_size[0]}x{raw.image_size[1]}, "
-        f"{raw.fps:g} fps) in {seconds:.1f} s ({raw.n_frames / max(work, 1e-9):.0f} frames/s decoding + "
-        f"tracking, {tm.get('decode_s', 0.0):.1f} s of it decoding): face in {det.mean():.1%} of frames")
-
-
-def _gaps(cap, log) -> None:
-    n_fill = int(cap.interpolated.sum())
-    n_miss = int((~cap.valid).sum())
-    if n_fill:
-        log(f"filled {n_fill} frame(s) without a face by interpolation (gaps <= {cap.processing.get('max_gap')})")
-    if n_miss:
-        log(f"warning: {n_miss} frame(s) without a face could not be filled and are left out of the take")
-
-
 # ---------------------------------------------------------------------- capture
 def cmd_capture(args, log) -> int:
-    with _warnings_to_log(log):
-        return _capture(args, log)
-
-
-def _capture(args, log) -> int:
-    from ..capture import OneEuroParams, track_video, write_preview
+    from ..capture import OneEuroParams, write_preview
+    from ..pipelines import capture_take
 
     video = Path(args.video)
-    inputs = [video, args.model]
     out, lm_out, prev_out = _outputs([("--out", args.out, (".csv",)), ("--landmarks", args.landmarks, (".npz",)),
-                                      ("--preview", args.preview, (".mp4",))], inputs)
-    smooth = OneEuroParams.parse(args.smooth)
-    neutral = _neutral(args.neutral_frames)
+                                      ("--preview", args.preview, (".mp4",))], [video, args.model])
     if args.max_gap < 0:
         raise InvalidDataError(f"--max-gap must be >= 0, got {args.max_gap}")
-    t0, tm = time.perf_counter(), {}
-    raw = track_video(video, model=args.model, max_frames=args.max_frames, duration=args.duration,
-                      progress=not log.quiet, timings=tm)
-    _summary(raw, time.perf_counter() - t0, tm, log)
-    cap = raw.postprocess(max_gap=args.max_gap, neutral_frames=neutral, neutral_percentile=args.neutral_percentile,
-                          smooth=smooth)
-    _gaps(cap, log)
-    if smooth is not None:
-        log(f"One Euro smoothing: min_cutoff {smooth.min_cutoff:g} Hz, beta {smooth.beta:g}, "
-            f"d_cutoff {smooth.d_cutoff:g} Hz")
+    cap = capture_take(video, landmarker=args.model, max_frames=args.max_frames, duration=args.duration,
+                       max_gap=args.max_gap, neutral_frames=_neutral(args.neutral_frames),
+                       neutral_percentile=args.neutral_percentile, smooth=OneEuroParams.parse(args.smooth),
+                       progress=not log.quiet, log=log)
     cap.write_csv(out, rate=args.timecode_rate)
     log(f"wrote {out} ({int(cap.valid.sum())} frames, {len(cap.names)} MediaPipe ARKit channels + head angles)")
     if lm_out is not None:
@@ -113,78 +81,37 @@ def _capture(args, log) -> int:
 
 
 # ---------------------------------------------------------------------- appearance
-def _tracked(videos: list[Path], args, log):
-    """Track each video; yield (path, capture) with gaps filled (no smoothing unless asked)."""
-    from ..capture import OneEuroParams, track_video
+def _tracking(args, log) -> dict:
+    from ..capture import OneEuroParams
 
-    smooth = OneEuroParams.parse(args.smooth)
-    for v in videos:
-        t0, tm = time.perf_counter(), {}
-        raw = track_video(v, model=args.landmarker, max_frames=args.max_frames, audio=False,
-                          progress=not log.quiet, timings=tm)
-        _summary(raw, time.perf_counter() - t0, tm, log)
-        cap = raw.postprocess(max_gap=args.max_gap, smooth=smooth)
-        _gaps(cap, log)
-        yield v, cap
-
-
-def _valid_frames(video: Path, cap):
-    from ..io import iter_frames
-
-    v = cap.valid
-    for i, _t, rgb in iter_frames(video, max_frames=cap.n_frames):
-        if v[i]:
-            yield rgb
+    return dict(landmarker=args.landmarker, max_frames=args.max_frames, max_gap=args.max_gap,
+                smooth=OneEuroParams.parse(args.smooth), progress=not log.quiet, log=log)
 
 
 def cmd_appearance_fit(args, log) -> int:
-    with _warnings_to_log(log):
-        return _appearance_fit(args, log)
-
-
-def _appearance_fit(args, log) -> int:
-    from itertools import chain
-
-    from ..capture import AppearanceModel
+    from ..pipelines import fit_appearance
 
     videos = [Path(v) for v in args.videos]
     (out,) = _outputs([("--out", args.out, (".npz",))], videos + [args.landmarker])
-    model = AppearanceModel(args.shape_variance, args.texture_variance, width=args.width)
-    caps = list(_tracked(videos, args, log))
-    lms = np.concatenate([c.landmarks[c.valid] for _, c in caps])
-    t0 = time.perf_counter()
-    frames = chain.from_iterable(_valid_frames(v, c) for v, c in caps)
-    model.fit(frames, lms)
-    log(f"fitted the appearance model on {lms.shape[0]} frames in {time.perf_counter() - t0:.1f} s: "
-        f"{model.n_shape} shape modes ({model.shape_variance:.0%} of the variance), texture modes R/G/B "
-        f"{'/'.join(map(str, model.n_texture))} ({model.texture_variance:.0%}), canvas "
-        f"{model.warp_.shape[1]}x{model.warp_.shape[0]}, texture scale {model.texture_scale_:.4g}")
+    model = fit_appearance(videos, shape_variance=args.shape_variance, texture_variance=args.texture_variance,
+                           width=args.width, **_tracking(args, log))
     model.save(out)
     log(f"wrote {out} ({len(model.names_)}-dimensional configuration vectors)")
     return 0
 
 
 def cmd_appearance_encode(args, log) -> int:
-    with _warnings_to_log(log):
-        return _appearance_encode(args, log)
-
-
-def _appearance_encode(args, log) -> int:
     from ..capture import AppearanceModel
     from ..files import atomic_path
+    from ..pipelines import encode_appearance
 
     video = Path(args.video)
     (out,) = _outputs([("--out", args.out, (".npz",))], [video, args.model, args.landmarker])
     model = AppearanceModel.load(args.model)
-    [(_, cap)] = list(_tracked([video], args, log))
-    v = cap.valid
-    t0 = time.perf_counter()
-    vec = model.transform(_valid_frames(video, cap), cap.landmarks[v])
-    perf = model.to_performance(vec, cap.times[v], fps=cap.fps, source=str(video))
-    log(f"encoded {perf.n_frames} frames in {time.perf_counter() - t0:.1f} s")
+    perf, frame_index = encode_appearance(video, model, **_tracking(args, log))
     with atomic_path(out) as tmp, open(tmp, "wb") as f:
-        np.savez(f, weights=perf.weights, names=np.array(perf.names), times=perf.times, fps=np.float64(cap.fps),
-                 frame_index=np.flatnonzero(v), source=np.array(str(video)), model=np.array(str(args.model)),
+        np.savez(f, weights=perf.weights, names=np.array(perf.names), times=perf.times, fps=np.float64(perf.fps),
+                 frame_index=frame_index, source=np.array(str(video)), model=np.array(str(args.model)),
                  texture_scale=np.float64(model.texture_scale_), n_shape=np.int64(model.n_shape))
     log(f"wrote {out} ({perf.n_frames} x {len(perf.names)} configuration vectors: weights + names + times)")
     return 0

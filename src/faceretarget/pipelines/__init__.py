@@ -5,12 +5,14 @@
                                  a take onto a character, memory bounded by its weights
 :mod:`._keys`                    :func:`select_keys` (keyshapes for an artist), :func:`compose_keys`
                                  (emotion x viseme key-models)
+:mod:`._capture`                 :func:`capture_take`, :func:`fit_appearance`, :func:`encode_appearance`
 :mod:`._style`                   :func:`fit_style`, :func:`read_style_take`: emotion models from takes
 :mod:`._head`                    :func:`build_head_database`: a head-motion database from file pairs
 :mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
 ================================ ================================================================
 """
 
+from ._capture import capture_take, encode_appearance, fit_appearance, tracked_videos
 from ._demo import run_demo
 from ._head import build_head_database
 from ._keys import SELECTION_ALIASES, KeyGeometry, KeySelection, compose_keys, key_geometry, select_keys
@@ -20,5 +22,5 @@ from ._transfer import CHUNK_FRAMES, Transfer, clone_take, retarget_take, source
 __all__ = [
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
     "select_keys", "compose_keys", "key_geometry", "KeySelection", "KeyGeometry", "SELECTION_ALIASES",
-    "fit_style", "read_style_take", "build_head_database", "run_demo",
+    "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "fit_style", "read_style_take", "build_head_database", "run_demo",
 ]
