@@ -155,17 +155,19 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, sour
     return Transfer(rt, res, dt)
 
 
-def write_result(path: str | os.PathLike, transfer: Transfer, *, log: Callable[..., None] = _quiet) -> Path:
+def write_result(path: str | os.PathLike, transfer: Transfer, *, head: bool = False,
+                 log: Callable[..., None] = _quiet) -> Path:
     """Write a cloned or retargeted take in the format ``path`` asks for.
 
-    ``.glb`` holds the target keys as morph targets and the weights as their animation (with the
-    take's head motion as a ``head`` node); ``.csv`` the weights in Live Link Face's layout (the
-    target keys must be ARKit-named; a retarget's region weights are folded back per key);
-    ``.npz`` / a folder the target meshes, evaluated and written chunk by chunk.
+    ``.glb`` holds the target keys as morph targets and the weights as their animation; ``.csv``
+    the weights in Live Link Face's layout (the target keys must be ARKit-named; a retarget's region
+    weights are folded back per key; the take's head angles are carried); ``.npz`` / a folder the
+    target meshes, evaluated and written chunk by chunk.  With ``head=True`` a ``.glb`` also holds
+    the take's head motion as a ``head`` node above the face.
     """
     path = Path(path)
     res, model = transfer.result, transfer.model
-    W, names, head = res.weights, list(res.names), res.head
+    W, names = res.weights, list(res.names)
     if path.suffix.lower() == ".csv":
         if isinstance(model, BlendshapeRetargeter):
             W, names = model.key_weights(W), list(model.names_)
@@ -173,9 +175,9 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, log: Callable[.
         if not all(n in ARKIT_NAMES for n in arkit):
             raise OutputError(f"{path}: a Live Link Face CSV needs ARKit-named target keys ({names[0]} is not "
                               "one); write .glb or .npz instead")
-        out = write_animation(path, weights=W, names=arkit, times=res.times, head=head)
+        out = write_animation(path, weights=W, names=arkit, times=res.times, head=res.head)
     else:
         out = write_animation(path, rig=transfer.target_keys, weights=W, names=names, times=res.times,
-                              head=head if path.suffix.lower() == ".glb" else None)
+                              head=res.head if head and path.suffix.lower() == ".glb" else None)
     log(f"wrote {path} ({len(res.times)} frames, {len(names)} target {'keyshapes' if isinstance(model, BlendshapeRetargeter) else 'key-models'})")
     return out
