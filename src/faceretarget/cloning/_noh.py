@@ -156,43 +156,70 @@ def closest_points_on_mesh(points: np.ndarray, vertices: np.ndarray, triangles: 
     slack = 1e-9 * (1.0 + float(np.abs(v).max()))
     fn = _unit(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
     ctree = cKDTree(cen)
-
-    def evaluate(q, t):
-        bary = _closest_on_triangles(p[q], corners[t, 0], corners[t, 1], corners[t, 2])
-        cp = np.einsum("nk,nkj->nj", bary, corners[t])
-        dist = np.linalg.norm(cp - p[q], axis=1)
-        dist = np.where(np.isfinite(dist), dist, np.inf)
-        if point_normals is not None:
-            ok = np.einsum("nj,nj->n", fn[t], point_normals[q]) >= min_cos
-            dist = np.where(ok | unconstrained[q], dist, np.inf)
-        return bary, dist
-
-    unconstrained = np.ones(Q, bool)
     if point_normals is None:
+        unconstrained = np.ones(Q, bool)
         d0, _ = cKDTree(v).query(p)
-    else:  # bound from the nearest k triangles, compatible ones only
-        k = min(32, len(tri))
-        _, near = ctree.query(p, k)
-        near = near.reshape(Q, k)
-        unconstrained[:] = False
-        _, dk = evaluate(np.repeat(np.arange(Q), k), near.reshape(-1))
-        d0 = dk.reshape(Q, k).min(axis=1)
-        unconstrained = ~np.isfinite(d0)
-        if unconstrained.any():
-            d0[unconstrained] = cKDTree(v).query(p[unconstrained])[0]
-    lists = ctree.query_ball_point(p, d0 + rad.max() + slack)
-    lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=Q)
-    q = np.repeat(np.arange(Q), lens)
-    t = np.fromiter((i for x in lists for i in x), dtype=np.int64, count=int(lens.sum()))
-    keep = np.linalg.norm(p[q] - cen[t], axis=1) <= d0[q] + rad[t] + slack
-    q, t = q[keep], t[keep]
-    bary, dist = evaluate(q, t)
+    else:
+        d0, unconstrained = _compatible_bound(p, v, corners, fn, ctree, point_normals, min_cos)
+    q, t = _candidate_pairs(p, cen, rad, ctree, d0, slack)
+    bary, dist = _triangle_distances(p, corners, fn, q, t, point_normals, min_cos, unconstrained)
     # per query the candidate with the smallest distance
     order = np.lexsort((dist, q))
     first = np.ones(order.size, bool)
     first[1:] = q[order][1:] != q[order][:-1]
     best = order[first]
     return t[best], bary[best], dist[best]
+
+
+def _triangle_distances(p: np.ndarray, corners: np.ndarray, fn: np.ndarray, q: np.ndarray, t: np.ndarray,
+                        point_normals: np.ndarray | None, min_cos: float, unconstrained: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point on triangle ``t[n]`` to query ``q[n]``, for pairs ``(q, t)`` of (n,) ints.
+
+    ``p`` (Q, 3) queries, ``corners`` (F, 3, 3) triangle corners, ``fn`` (F, 3) unit normals.
+    Returns barycentrics (n, 3) and distances (n,); degenerate triangles and, with
+    ``point_normals`` (Q, 3), triangles not normal-compatible with a query that is not
+    ``unconstrained`` (Q,) bool, get distance inf.
+    """
+    bary = _closest_on_triangles(p[q], corners[t, 0], corners[t, 1], corners[t, 2])
+    cp = np.einsum("nk,nkj->nj", bary, corners[t])
+    dist = np.linalg.norm(cp - p[q], axis=1)
+    dist = np.where(np.isfinite(dist), dist, np.inf)
+    if point_normals is not None:
+        ok = np.einsum("nj,nj->n", fn[t], point_normals[q]) >= min_cos
+        dist = np.where(ok | unconstrained[q], dist, np.inf)
+    return bary, dist
+
+
+def _compatible_bound(p: np.ndarray, v: np.ndarray, corners: np.ndarray, fn: np.ndarray, ctree: cKDTree,
+                      point_normals: np.ndarray, min_cos: float) -> tuple[np.ndarray, np.ndarray]:
+    """Upper bound (Q,) of each query's distance to a normal-compatible triangle, from the nearest
+    k triangles (by centroid, ``ctree``); queries with none among them are ``unconstrained`` (Q,)
+    bool and bounded by their nearest vertex of ``v`` (V, 3) instead."""
+    Q = len(p)
+    k = min(32, len(corners))
+    _, near = ctree.query(p, k)
+    near = near.reshape(Q, k)
+    _, dk = _triangle_distances(p, corners, fn, np.repeat(np.arange(Q), k), near.reshape(-1),
+                                point_normals, min_cos, np.zeros(Q, bool))
+    d0 = dk.reshape(Q, k).min(axis=1)
+    unconstrained = ~np.isfinite(d0)
+    if unconstrained.any():
+        d0[unconstrained] = cKDTree(v).query(p[unconstrained])[0]
+    return d0, unconstrained
+
+
+def _candidate_pairs(p: np.ndarray, cen: np.ndarray, rad: np.ndarray, ctree: cKDTree, d0: np.ndarray,
+                     slack: float) -> tuple[np.ndarray, np.ndarray]:
+    """(query, triangle) pairs of (n,) ints whose triangle may hold the closest point: centroid
+    ``cen`` (F, 3) within the bound ``d0`` (Q,) plus the triangle's radius ``rad`` (F,)."""
+    Q = len(p)
+    lists = ctree.query_ball_point(p, d0 + rad.max() + slack)
+    lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=Q)
+    q = np.repeat(np.arange(Q), lens)
+    t = np.fromiter((i for x in lists for i in x), dtype=np.int64, count=int(lens.sum()))
+    keep = np.linalg.norm(p[q] - cen[t], axis=1) <= d0[q] + rad[t] + slack
+    return q[keep], t[keep]
 
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -205,6 +232,17 @@ def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.eye(3) + K + (K @ K) / (1.0 + c)[:, None, None]
 
 
+
+
+def _oriented_normals(tgt: Mesh, W: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """(Vt, 3) target vertex normals, flipped if need be to face like the warped source triangles
+    (``W`` (Vs, 3) warped source vertices, ``tri`` (F, 3) source triangles)."""
+    nt = tgt.vertex_normals()
+    fn = np.cross(W[tri[:, 1]] - W[tri[:, 0]], W[tri[:, 2]] - W[tri[:, 0]])
+    _, near = cKDTree(W[tri].mean(axis=1)).query(tgt.vertices)
+    if float(np.einsum("ij,ij->", nt, fn[near])) < 0:
+        nt = -nt
+    return nt
 
 
 def _mean_edge(mesh: Mesh, vertices: np.ndarray) -> float:
@@ -305,6 +343,41 @@ class NohNeumannCloner(Model):
         if self.projection not in ("triangle", "vertex"):
             raise InvalidDataError(f"projection must be 'triangle' or 'vertex', got {self.projection!r}")
         src, tgt = source_neutral, target_neutral
+        Ps, Pt = self._landmark_points(src, tgt, source_landmarks, target_landmarks)
+        Xs, Xt = src.vertices, tgt.vertices
+
+        # 1. the warp, on normalised source coordinates so that smoothing is unit-free
+        self._fit_warp(Ps, Pt)
+        W = self._warp(Xs)  # warped source neutral, target space
+
+        # 2. dense correspondence: closest point on the warped source surface
+        tri = src.triangles()
+        has_normals = tgt.n_faces > 0 and len(tri) > 0
+        nt = _oriented_normals(tgt, W, tri) if has_normals else None
+        t_idx, bary, dist, P = self._correspondence(Xt, W, tri, nt, src.n_vertices)
+        self.triangle_, self.barycentric_, self.distance_, self.interpolation_ = t_idx, bary, dist, P
+        self.correspondence_ = P @ Xs
+        Q = P @ W  # correspondences on the warped source surface
+
+        # 3. transfer matrices M = S R J
+        J = self._jacobian(self.correspondence_)
+        self.jacobian_ = J
+        # global scale: of the least-squares affine map between the landmark sets
+        A = np.linalg.lstsq(np.c_[Ps - self._mu, np.ones(len(Ps))], Pt, rcond=None)[0][:3]
+        self.global_scale_ = float(np.cbrt(abs(np.linalg.det(A))))
+        if not self.local_scale:
+            J = nearest_rotation(J) * self.global_scale_
+        R, S = self._local_adjustments(src, tgt, W, P, Q, nt, dist)
+        self.rotation_, self.scale_ = R, S
+        self.transfer_ = S @ R @ J
+        self.source_neutral_ = Xs.copy()
+        self.target_neutral_ = Xt.copy()
+        self._after_load()
+        return self
+
+    def _landmark_points(self, src: Mesh, tgt: Mesh, source_landmarks, target_landmarks
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """(P, 3) source and target landmark positions, checked for the warp."""
         ls = self._landmarks(source_landmarks, src, "source")
         lt = self._landmarks(target_landmarks, tgt, "target")
         if ls.size != lt.size:
@@ -315,8 +388,11 @@ class NohNeumannCloner(Model):
             raise InvalidDataError(
                 f"the RBF warp needs at least 4 source landmarks not all in one plane, got {ls.size}"
             )
+        return Ps, Pt
 
-        # 1. the warp, on normalised source coordinates so that smoothing is unit-free
+    def _fit_warp(self, Ps: np.ndarray, Pt: np.ndarray) -> None:
+        """Fit the RBF warp from (P, 3) source to (P, 3) target landmarks, on source coordinates
+        centred (``_mu``) and scaled to unit RMS radius (``_s``); stores ``_mu``, ``_s``, ``_rbf``."""
         mu = Ps.mean(axis=0)
         s = float(np.sqrt(((Ps - mu) ** 2).sum(axis=1).mean()))
         try:
@@ -324,20 +400,36 @@ class NohNeumannCloner(Model):
         except (ValueError, np.linalg.LinAlgError) as exc:
             raise InvalidDataError(f"RBF warp could not be fitted: {exc}") from exc
         self._mu, self._s, self._rbf = mu, s, rbf
-        W = self._warp(Xs)  # warped source neutral, target space
 
-        # 2. dense correspondence: closest point on the warped source surface
-        Vt, Vs = tgt.n_vertices, src.n_vertices
-        tri = src.triangles()
-        has_normals = tgt.n_faces > 0 and len(tri) > 0
-        nt = tgt.vertex_normals() if has_normals else None
-        if has_normals:  # orient the target normals like the source's triangles
-            fn = np.cross(W[tri[:, 1]] - W[tri[:, 0]], W[tri[:, 2]] - W[tri[:, 0]])
-            _, near = cKDTree(W[tri].mean(axis=1)).query(Xt)
-            if float(np.einsum("ij,ij->", nt, fn[near])) < 0:
-                nt = -nt
+    def _correspondence(self, Xt: np.ndarray, W: np.ndarray, tri: np.ndarray, nt: np.ndarray | None,
+                        Vs: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, csr_matrix]:
+        """Each target vertex's corresponding point on the warped source surface.
+
+        Parameters
+        ----------
+        Xt : (Vt, 3) float
+            Target vertices.
+        W : (Vs, 3) float
+            Warped source vertices.
+        tri : (F, 3) int
+            Source triangles.
+        nt : (Vt, 3) float or None
+            Target normals oriented like the source triangles (None: no normal check).
+        Vs : int
+            Source vertices.
+
+        Returns
+        -------
+        triangle : (Vt,) int
+            Source triangle, -1 for the nearest vertex (``projection="vertex"`` or no triangles).
+        bary : (Vt, 3) float
+        distance : (Vt,) float
+        interpolation : csr_matrix (Vt, Vs)
+            Barycentric interpolation at the correspondences.
+        """
+        Vt = len(Xt)
         if self.projection == "triangle" and len(tri):
-            check = has_normals and self.max_normal_angle is not None
+            check = nt is not None and self.max_normal_angle is not None
             t_idx, bary, dist = closest_points_on_mesh(
                 Xt, W, tri, nt if check else None,
                 np.cos(np.radians(self.max_normal_angle)) if check else 0.0)
@@ -349,21 +441,21 @@ class NohNeumannCloner(Model):
             cols = np.stack([nearest, nearest, nearest], axis=1)
         P = csr_matrix((bary.reshape(-1), (np.repeat(np.arange(Vt), 3), cols.reshape(-1))), shape=(Vt, Vs))
         P.sum_duplicates()
-        self.triangle_, self.barycentric_, self.distance_, self.interpolation_ = t_idx, bary, dist, P
-        self.correspondence_ = P @ Xs
-        Q = P @ W  # correspondences on the warped source surface
+        return t_idx, bary, dist, P
 
-        # 3. transfer matrices M = S R J
-        J = self._jacobian(self.correspondence_)
-        self.jacobian_ = J
-        # global scale: of the least-squares affine map between the landmark sets
-        A = np.linalg.lstsq(np.c_[Ps - mu, np.ones(len(Ps))], Pt, rcond=None)[0][:3]
-        self.global_scale_ = float(np.cbrt(abs(np.linalg.det(A))))
-        if not self.local_scale:
-            J = nearest_rotation(J) * self.global_scale_
+    def _local_adjustments(self, src: Mesh, tgt: Mesh, W: np.ndarray, P: csr_matrix, Q: np.ndarray,
+                           nt: np.ndarray | None, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``R_i`` and ``S_i`` (Vt, 3, 3): local rotation and scale (identities when not asked for).
+
+        ``W`` (Vs, 3) warped source vertices, ``P`` (Vt, Vs) interpolation, ``Q`` (Vt, 3) the
+        correspondences on the warped source, ``nt`` (Vt, 3) oriented target normals (None when the
+        meshes have no faces), ``dist`` (Vt,) distances to the warped source surface.
+        """
+        Xt = tgt.vertices
+        Vt = tgt.n_vertices
         eye = np.broadcast_to(np.eye(3), (Vt, 3, 3))
         R, S = eye.copy(), eye.copy()
-        if (self.local_rotation or self.local_scale) and has_normals and len(tri):
+        if (self.local_rotation or self.local_scale) and nt is not None:
             nw = _unit(P @ src.with_vertices(W).vertex_normals())
             if float(np.einsum("ij,ij->", nt, nw)) < 0:
                 nw = -nw
@@ -373,12 +465,7 @@ class NohNeumannCloner(Model):
                 R[ok] = _rotation_between(nw[ok], nt[ok])
             if self.local_scale:
                 S = self._local_scale(Xt, Q, nt, R, radius, dist)
-        self.rotation_, self.scale_ = R, S
-        self.transfer_ = S @ R @ J
-        self.source_neutral_ = Xs.copy()
-        self.target_neutral_ = Xt.copy()
-        self._after_load()
-        return self
+        return R, S
 
     @staticmethod
     def _landmarks(idx, mesh: Mesh, which: str) -> np.ndarray:

@@ -118,13 +118,46 @@ def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.nda
         raise ValueError(f"transition must be 'after', 'before' or 'split', got {transition!r}")
     share_after = {"after": 1.0, "before": 0.0, "split": 0.5}[transition]
     r = _resample(motion, f0, f1, n, head, step)
+    tau = max(tau_velocity * fps, 1e-6)
+    chain, raw = _chain(r, a, b, n, n_out, tau, share_after)
+    out = _remove_drift(chain, raw, knots, n_out)
+    # 4. smooth around joins
+    joins = a[1:]
+    out = _smooth_joins(out, joins, smooth * fps, n_out)
+    return out, joins
+
+
+def _chain(r: list[np.ndarray], a: np.ndarray, b: np.ndarray, n: np.ndarray, n_out: int, tau: float,
+           share_after: float) -> tuple[np.ndarray, np.ndarray]:
+    """Chain the resampled segments (step 2 of the module docstring).
+
+    Parameters
+    ----------
+    r : list of N (n_i + 1, D) float
+        Resampled database motion of each segment (:func:`_resample`).
+    a, b, n : (N,) int
+        First output frame, end output frame and length of each input segment.
+    n_out : int
+        Output frames.
+    tau : float
+        Fade time of the velocity correction, output frames.
+    share_after : float
+        Share of the velocity mismatch absorbed after the join (the rest before it).
+
+    Returns
+    -------
+    chain : (n_out, D) float
+        The segments offset to continue one another, velocity-corrected at joins.
+    raw : (n_out, D) float
+        The segments as resampled, unchained (the database's own poses).
+    """
+    D = r[0].shape[1]
     chain = np.zeros((n_out, D))
     raw = np.zeros((n_out, D))
-    tau = max(tau_velocity * fps, 1e-6)
     reach = int(np.ceil(6 * tau))  # k exp(-k / tau) < 0.015 tau beyond 6 tau
     prev_next = None  # where the previous segment would continue
     prev_v = None  # its last step
-    for i in range(N):
+    for i in range(a.size):
         ri = r[i]
         if prev_next is None:
             placed = ri.copy()
@@ -145,6 +178,12 @@ def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.nda
     if a[0] > 0:
         chain[: a[0]] = chain[a[0]]
         raw[: a[0]] = raw[a[0]]
+    return chain, raw
+
+
+def _remove_drift(chain: np.ndarray, raw: np.ndarray, knots: np.ndarray | None, n_out: int) -> np.ndarray:
+    """(n_out, D) ``chain`` minus the PCHIP through its drift from ``raw`` (both (n_out, D)) at the
+    sub-sequence starts ``knots`` (B,) and the last frame (step 3 of the module docstring)."""
     # 3. drift: warp each sub-sequence to end on database poses
     k = np.unique(np.r_[0, [] if knots is None else np.asarray(knots, int), n_out - 1]).astype(int)
     k = k[(k >= 0) & (k < n_out)]
@@ -155,9 +194,13 @@ def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.nda
         out = chain - corr
     else:
         out = chain
-    # 4. smooth around joins
-    joins = a[1:]
-    sig = smooth * fps
+    return out
+
+
+def _smooth_joins(out: np.ndarray, joins: np.ndarray, sig: float, n_out: int) -> np.ndarray:
+    """(n_out, D) trajectory ``out`` with a Gaussian of ``sig`` output frames blended in around the
+    (N - 1,) ``joins`` (step 4 of the module docstring); unchanged when ``sig`` is 0, there are no
+    joins or ``n_out <= 3``."""
     if sig > 0 and joins.size and n_out > 3:
         sm = gaussian_filter1d(out, sig, axis=0, mode="nearest")
         t = np.arange(n_out) + 0.5  # a join sits between frames joins - 1 and joins
@@ -165,4 +208,4 @@ def blend_segments(motion: np.ndarray, f0: np.ndarray, f1: np.ndarray, a: np.nda
         d = np.minimum(np.abs(t - joins[j]), np.abs(t - joins[np.minimum(j + 1, joins.size - 1)]))
         w = np.exp(-0.5 * (d / (2.0 * sig)) ** 2)[:, None]
         out = out * (1.0 - w) + sm * w
-    return out, joins
+    return out

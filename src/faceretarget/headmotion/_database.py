@@ -63,6 +63,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -183,6 +184,93 @@ def _energy_features(shape: np.ndarray, voiced: np.ndarray, phrase_mean: np.ndar
                      np.log(np.maximum(voiced, 1e-3))], axis=1)
 
 
+class _TakeAnalysis(NamedTuple):
+    """One take as :meth:`HeadMotionDatabase.fit` analyses it (:meth:`HeadMotionDatabase._analyse_take`).
+
+    Attributes
+    ----------
+    seg : Segmentation
+        Of the take's speech.
+    motion : (n_f, 6) float
+        Yaw, pitch, roll (rad), x, y, z (m) resampled to the database's ``fps``.
+    keep_phrase : (n_phrases,) bool
+        Phrases not overlapping an excluded stretch.
+    idx : (S,) int
+        The kept segments (of a kept phrase, at least 2 frames long, starting within the take).
+    f0, f1 : (n_segments,) int
+        First and last database frame of every segment, counted from the take's start.
+    n_f : int
+        Frames of ``motion``.
+    """
+
+    seg: Segmentation
+    motion: np.ndarray
+    keep_phrase: np.ndarray
+    idx: np.ndarray
+    f0: np.ndarray
+    f1: np.ndarray
+    n_f: int
+
+
+#: The lists :meth:`HeadMotionDatabase.fit` collects: per stored copy (motion, offset, names,
+#: mirrored, mean), per segment (copy, base, frames, time, shape, phrase, next) and per phrase
+#: (phrase_stats, phrase_copy).
+_TABLES = ("motion", "offset", "names", "mirrored", "mean", "copy", "base", "frames", "time", "shape",
+           "phrase", "next", "phrase_stats", "phrase_copy")
+
+
+def _checked_takes(takes: Iterable[Performance], pitch: Iterable[PitchTrack | None] | None
+                   ) -> tuple[list[Performance], list[PitchTrack | None]]:
+    """The takes and one pitch track (or None) per take, checked for :meth:`HeadMotionDatabase.fit`."""
+    takes = list(takes)
+    if not takes:
+        raise InvalidDataError("HeadMotionDatabase.fit: no takes given")
+    pitches = list(pitch) if pitch is not None else [None] * len(takes)
+    if len(pitches) != len(takes):
+        raise InvalidDataError(f"HeadMotionDatabase.fit: {len(pitches)} pitch tracks for {len(takes)} takes")
+    for t in takes:
+        if not isinstance(t, Performance) or t.head is None or t.audio is None:
+            raise InvalidDataError(f"{getattr(t, 'source', t)}: a head-motion take needs audio and a "
+                                   "head pose")
+    return takes, pitches
+
+
+def _resampled_motion(take: Performance, n_f: int, F: float) -> np.ndarray:
+    """(n_f, 6) yaw, pitch, roll (rad, unwrapped), x, y, z (m, 0 where missing) of ``take`` at ``F`` fps
+    (cubic spline)."""
+    t_src = np.arange(take.n_frames) / take.fps
+    t_db = np.arange(n_f) / F
+    rot = np.unwrap(take.head.to_euler(EULER), axis=0)
+    tr = take.head.translation
+    tr = np.zeros_like(rot) if tr is None else np.where(np.isfinite(tr), tr, 0.0)
+    m = np.concatenate([rot, tr], axis=1)
+    return CubicSpline(t_src, m, axis=0)(t_db)
+
+
+def _speech_samples(speech: Performance | np.ndarray, rate: float | None, source: str | None
+                    ) -> tuple[np.ndarray, float, str]:
+    """(N,) samples, sampling rate and take name of :meth:`HeadMotionDatabase.transform`'s input."""
+    if isinstance(speech, Performance):
+        if speech.audio is None:
+            raise InvalidDataError(f"{speech.source}: the take has no audio to follow")
+        x, rate, source = speech.audio, speech.audio_rate, source or speech.source
+    else:
+        if rate is None:
+            raise InvalidDataError("give the audio's sampling rate (rate=)")
+        x = np.asarray(speech, np.float32).reshape(-1)
+    return x, rate, source or "headmotion"
+
+
+def _checked_output(fps: float, amplitude: float) -> float:
+    """The output frame rate as a float, after checking it and ``amplitude`` are usable."""
+    fps = float(fps)
+    if not (np.isfinite(fps) and fps > 0):
+        raise InvalidDataError(f"fps must be positive, got {fps}")
+    if not np.isfinite(amplitude):
+        raise InvalidDataError(f"amplitude must be finite, got {amplitude}")
+    return fps
+
+
 class HeadMotionDatabase(Model):
     """Synthesize head motion for new speech from a database of recorded phrases.
 
@@ -293,96 +381,102 @@ class HeadMotionDatabase(Model):
         pitch : iterable of PitchTrack or None, optional
             Each take's pitch (:meth:`pitch`) when already extracted; computed when absent.
         """
-        takes = list(takes)
-        if not takes:
-            raise InvalidDataError("HeadMotionDatabase.fit: no takes given")
-        pitches = list(pitch) if pitch is not None else [None] * len(takes)
-        if len(pitches) != len(takes):
-            raise InvalidDataError(f"HeadMotionDatabase.fit: {len(pitches)} pitch tracks for {len(takes)} takes")
-        for t in takes:
-            if not isinstance(t, Performance) or t.head is None or t.audio is None:
-                raise InvalidDataError(f"{getattr(t, 'source', t)}: a head-motion take needs audio and a head pose")
+        takes, pitches = _checked_takes(takes, pitch)
         excl: dict[str, list[tuple[float, float]]] = {}
         for nm, t0, t1 in exclude or ():
             excl.setdefault(nm, []).append((float(t0), float(t1)))
-        F = float(self.fps)
-        motion, offs, names, mirrored, means = [], [0], [], [], []
-        seg_cols: dict[str, list] = {k: [] for k in ("copy", "base", "frames", "time", "shape", "phrase", "next")}
-        ph_stats, ph_copy = [], []
+        tables: dict[str, list] = {k: [] for k in _TABLES}
+        tables["offset"].append(0)
         base0 = 0
         for take, track in zip(takes, pitches, strict=True):
-            name = take.source
-            track = track if track is not None else self.pitch(take.audio, take.audio_rate)
-            seg = segment_speech(track, pause=self.pause, n_shape=self.n_shape)
-            dur = take_duration(take)
-            n_f = int(np.floor(dur * F + 1e-9)) + 1
-            t_src = np.arange(take.n_frames) / take.fps
-            t_db = np.arange(n_f) / F
-            rot = np.unwrap(take.head.to_euler(EULER), axis=0)
-            tr = take.head.translation
-            tr = np.zeros_like(rot) if tr is None else np.where(np.isfinite(tr), tr, 0.0)
-            m = np.concatenate([rot, tr], axis=1)
-            m = CubicSpline(t_src, m, axis=0)(t_db)
-            # segments and phrases kept
-            keep_ph = np.ones(seg.n_phrases, bool)
-            for t0, t1 in excl.get(name, []):
-                p_end = np.r_[seg.phrase_start[1:], seg.duration]
-                keep_ph &= ~((seg.phrase_start < t1) & (p_end > t0))
-            f0 = np.round(seg.start * F).astype(int)
-            f1 = np.minimum(np.round(seg.end * F).astype(int), n_f - 1)
-            ok = keep_ph[seg.phrase] & (f1 - f0 >= 2) & (seg.start < dur)
-            idx = np.flatnonzero(ok)
-            if idx.size == 0:
+            analysis = self._analyse_take(take, track, excl.get(take.source, []))
+            if analysis.idx.size == 0:
                 continue
-            new_ph = np.cumsum(keep_ph) - 1  # renumber kept phrases
-            copies = [(False, m)]
-            if self.mirror:
-                r2, t2 = mirror_yxz(m[:, :3], m[:, 3:])
-                copies.append((True, np.concatenate([r2, t2], axis=1)))
-            nxt_local = np.full(idx.size, -1)
-            consec = np.diff(idx) == 1
-            nxt_local[:-1][consec] = np.arange(1, idx.size)[consec]
-            for is_mirror, mm in copies:
-                c = len(names)
-                mean = mm.mean(axis=0)
-                row0 = offs[-1]
-                motion.append(mm - mean)
-                offs.append(row0 + n_f)
-                names.append(name + ("~mirror" if is_mirror else ""))
-                mirrored.append(is_mirror)
-                means.append(mean)
-                s0 = sum(len(x) for x in seg_cols["copy"])
-                p0 = sum(len(x) for x in ph_copy)
-                seg_cols["copy"].append(np.full(idx.size, c))
-                seg_cols["base"].append(base0 + np.arange(idx.size))
-                seg_cols["frames"].append(np.stack([f0[idx], f1[idx]], axis=1) + row0)
-                seg_cols["time"].append(np.stack([seg.start[idx], seg.voiced_end[idx], seg.end[idx]], axis=1))
-                seg_cols["shape"].append(seg.shape[idx])
-                seg_cols["phrase"].append(p0 + new_ph[seg.phrase[idx]])
-                seg_cols["next"].append(np.where(nxt_local >= 0, nxt_local + s0, -1))
-                ph_stats.append(seg.phrase_stats[keep_ph])
-                ph_copy.append(np.full(int(keep_ph.sum()), c))
-            base0 += idx.size
-        if not names:
+            self._store_take(tables, take.source, analysis, base0)
+            base0 += analysis.idx.size
+        if not tables["names"]:
             raise InvalidDataError("HeadMotionDatabase.fit: no voiced speech with head motion in the "
                                    f"takes ({', '.join(t.source for t in takes)})")
-        self.motion_ = np.concatenate(motion)
-        self.copy_offset_ = np.asarray(offs, int)
-        self.take_names_ = names
-        self.copy_mirrored_ = np.asarray(mirrored, bool)
-        self.copy_mean_ = np.asarray(means)
-        self.mean_pose_ = self.copy_mean_.mean(axis=0)
-        self.seg_copy_ = np.concatenate(seg_cols["copy"])
-        self.seg_base_ = np.concatenate(seg_cols["base"])
-        self.seg_frames_ = np.concatenate(seg_cols["frames"])
-        self.seg_time_ = np.concatenate(seg_cols["time"])
-        self.seg_shape_ = np.concatenate(seg_cols["shape"])
-        self.seg_next_ = np.concatenate(seg_cols["next"])
-        self.seg_phrase_ = np.concatenate(seg_cols["phrase"])
-        self.phrase_stats_ = np.concatenate(ph_stats)
-        self.phrase_copy_ = np.concatenate(ph_copy)
+        self._set_tables(tables)
         self._prepare()
         return self
+
+    def _analyse_take(self, take: Performance, track: PitchTrack | None,
+                      spans: list[tuple[float, float]]) -> _TakeAnalysis:
+        """Pitch, segmentation and motion of one take, and which of its segments are kept
+        (``track`` is extracted here when None; ``spans`` are the excluded (t0, t1) seconds)."""
+        F = float(self.fps)
+        track = track if track is not None else self.pitch(take.audio, take.audio_rate)
+        seg = segment_speech(track, pause=self.pause, n_shape=self.n_shape)
+        dur = take_duration(take)
+        n_f = int(np.floor(dur * F + 1e-9)) + 1
+        m = _resampled_motion(take, n_f, F)
+        # segments and phrases kept
+        keep_ph = np.ones(seg.n_phrases, bool)
+        for t0, t1 in spans:
+            p_end = np.r_[seg.phrase_start[1:], seg.duration]
+            keep_ph &= ~((seg.phrase_start < t1) & (p_end > t0))
+        f0 = np.round(seg.start * F).astype(int)
+        f1 = np.minimum(np.round(seg.end * F).astype(int), n_f - 1)
+        ok = keep_ph[seg.phrase] & (f1 - f0 >= 2) & (seg.start < dur)
+        idx = np.flatnonzero(ok)
+        return _TakeAnalysis(seg, m, keep_ph, idx, f0, f1, n_f)
+
+    def _store_take(self, tables: dict[str, list], name: str, analysis: _TakeAnalysis, base0: int) -> None:
+        """Append one analysed take (:meth:`_analyse_take`), and its mirrored copy, to ``tables``.
+
+        Each stored copy adds its motion (``(n_f, 6)`` minus its mean) and, per kept segment, its copy,
+        base segment (``base0`` onwards, shared by the mirrored copy), frames ``(S, 2)`` in the
+        concatenated motion, times ``(S, 3)``, pitch shape, renumbered phrase and the following
+        segment of the same take (or -1); per kept phrase its statistics and copy.
+        """
+        seg, m, keep_ph, idx, f0, f1, n_f = analysis
+        new_ph = np.cumsum(keep_ph) - 1  # renumber kept phrases
+        copies = [(False, m)]
+        if self.mirror:
+            r2, t2 = mirror_yxz(m[:, :3], m[:, 3:])
+            copies.append((True, np.concatenate([r2, t2], axis=1)))
+        nxt_local = np.full(idx.size, -1)
+        consec = np.diff(idx) == 1
+        nxt_local[:-1][consec] = np.arange(1, idx.size)[consec]
+        for is_mirror, mm in copies:
+            c = len(tables["names"])
+            mean = mm.mean(axis=0)
+            row0 = tables["offset"][-1]
+            tables["motion"].append(mm - mean)
+            tables["offset"].append(row0 + n_f)
+            tables["names"].append(name + ("~mirror" if is_mirror else ""))
+            tables["mirrored"].append(is_mirror)
+            tables["mean"].append(mean)
+            s0 = sum(len(x) for x in tables["copy"])
+            p0 = sum(len(x) for x in tables["phrase_copy"])
+            tables["copy"].append(np.full(idx.size, c))
+            tables["base"].append(base0 + np.arange(idx.size))
+            tables["frames"].append(np.stack([f0[idx], f1[idx]], axis=1) + row0)
+            tables["time"].append(np.stack([seg.start[idx], seg.voiced_end[idx], seg.end[idx]], axis=1))
+            tables["shape"].append(seg.shape[idx])
+            tables["phrase"].append(p0 + new_ph[seg.phrase[idx]])
+            tables["next"].append(np.where(nxt_local >= 0, nxt_local + s0, -1))
+            tables["phrase_stats"].append(seg.phrase_stats[keep_ph])
+            tables["phrase_copy"].append(np.full(int(keep_ph.sum()), c))
+
+    def _set_tables(self, tables: dict[str, list]) -> None:
+        """Store the learned tables (:meth:`_store_take`'s lists, concatenated)."""
+        self.motion_ = np.concatenate(tables["motion"])
+        self.copy_offset_ = np.asarray(tables["offset"], int)
+        self.take_names_ = tables["names"]
+        self.copy_mirrored_ = np.asarray(tables["mirrored"], bool)
+        self.copy_mean_ = np.asarray(tables["mean"])
+        self.mean_pose_ = self.copy_mean_.mean(axis=0)
+        self.seg_copy_ = np.concatenate(tables["copy"])
+        self.seg_base_ = np.concatenate(tables["base"])
+        self.seg_frames_ = np.concatenate(tables["frames"])
+        self.seg_time_ = np.concatenate(tables["time"])
+        self.seg_shape_ = np.concatenate(tables["shape"])
+        self.seg_next_ = np.concatenate(tables["next"])
+        self.seg_phrase_ = np.concatenate(tables["phrase"])
+        self.phrase_stats_ = np.concatenate(tables["phrase_stats"])
+        self.phrase_copy_ = np.concatenate(tables["phrase_copy"])
 
     def _prepare(self) -> None:
         """Derived tables (not stored): scales, boundary states, phrase-to-segment lists."""
@@ -558,10 +652,10 @@ class HeadMotionDatabase(Model):
         labels = [self.seg_base_[c] for c in cands]
         return unary, pair, labels
 
-    def transform(self, speech: Performance | np.ndarray, rate: float | None = None, *, amplitude: float = 1.0,
-                  rotation: bool = True, translation: bool = True, seed: int | None = None,
-                  fps: float | None = None, pitch: PitchTrack | None = None, source: str | None = None,
-                  path: np.ndarray | None = None) -> HeadMotionResult:
+    def transform(self, speech: Performance | np.ndarray, rate: float | None = None, *,
+                  amplitude: float = 1.0, rotation: bool = True, translation: bool = True,
+                  seed: int | None = None, fps: float | None = None, pitch: PitchTrack | None = None,
+                  source: str | None = None, path: np.ndarray | None = None) -> HeadMotionResult:
         """Head motion for new speech (Chuang Ch. 4's synthesis).
 
         Parameters
@@ -599,36 +693,32 @@ class HeadMotionDatabase(Model):
             No voiced speech in the audio, or a database not built.
         """
         self._check_fitted()
-        if isinstance(speech, Performance):
-            if speech.audio is None:
-                raise InvalidDataError(f"{speech.source}: the take has no audio to follow")
-            x, rate, source = speech.audio, speech.audio_rate, source or speech.source
-        else:
-            if rate is None:
-                raise InvalidDataError("give the audio's sampling rate (rate=)")
-            x = np.asarray(speech, np.float32).reshape(-1)
-        source = source or "headmotion"
-        fps = float(self.fps if fps is None else fps)
-        if not (np.isfinite(fps) and fps > 0):
-            raise InvalidDataError(f"fps must be positive, got {fps}")
-        if not np.isfinite(amplitude):
-            raise InvalidDataError(f"amplitude must be finite, got {amplitude}")
+        x, rate, source = _speech_samples(speech, rate, source)
+        fps = _checked_output(self.fps if fps is None else fps, amplitude)
         t0 = time.perf_counter()
         track = pitch if pitch is not None else self.pitch(x, rate)
         t1 = time.perf_counter()
         y, info = self._synthesize_track(track, fps, seed, path)
         info.pitch_seconds = t1 - t0
+        rot, tr = self._absolute_pose(y, amplitude, rotation, translation)
+        info.search_seconds = time.perf_counter() - t1
+        head = HeadPose.from_euler(EULER, rot, tr, source=source)
+        take = Performance(times=np.arange(len(rot)) / fps, fps=fps, head=head, audio=x,
+                           audio_rate=float(rate), source=source)
+        return HeadMotionResult(take, info)
+
+    def _absolute_pose(self, y: np.ndarray, amplitude: float, rotation: bool, translation: bool
+                       ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Rotation (T, 3) yaw, pitch, roll wrapped to [-pi, pi) (zeros without ``rotation``) and
+        translation (T, 3) (None without ``translation``) of the deviation ``y`` (T, 6) scaled by
+        ``amplitude`` about the mean pose."""
         y = y * float(amplitude)
         pose = self.mean_pose_ + y
         n = len(pose)
         rot = pose[:, :3] if rotation else np.zeros((n, 3))
         rot = (rot + np.pi) % (2 * np.pi) - np.pi
         tr = pose[:, 3:] if translation else None
-        info.search_seconds = time.perf_counter() - t1
-        head = HeadPose.from_euler(EULER, rot, tr, source=source)
-        take = Performance(times=np.arange(n) / fps, fps=fps, head=head, audio=x, audio_rate=float(rate),
-                           source=source)
-        return HeadMotionResult(take, info)
+        return rot, tr
 
     def _synthesize_track(self, track: PitchTrack, fps: float, seed: int | None,
                           path: np.ndarray | None = None) -> tuple[np.ndarray, SynthesisInfo]:

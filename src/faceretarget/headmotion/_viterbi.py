@@ -63,6 +63,22 @@ def viterbi(unary: Sequence[np.ndarray], pairwise: Sequence[np.ndarray], *,
     if len(pairwise) != N - 1:
         raise InvalidDataError(f"viterbi: {len(pairwise)} pairwise tables for {N} steps (need {N - 1})")
     use_hist = labels is not None and history_penalty != 0.0 and window > 0
+    acc, back = _forward(unary, pairwise, labels if use_hist else None, history_penalty, window)
+    return _backtrack(acc, back)
+
+
+def _forward(unary: Sequence[np.ndarray], pairwise: Sequence[np.ndarray], labels: Sequence[np.ndarray] | None,
+             history_penalty: float, window: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Forward pass of :func:`viterbi` over N >= 1 steps (``labels`` None: no history penalty).
+
+    Returns
+    -------
+    acc : (K_{N-1},) float
+        Cost of the best path into each state of the last step.
+    back : list of N - 1 arrays (K_i,) int
+        For steps 1..N-1, the best predecessor of each state.
+    """
+    use_hist = labels is not None
     acc = np.asarray(unary[0], np.float64).copy()
     back: list[np.ndarray] = []
     hist = None
@@ -70,11 +86,12 @@ def viterbi(unary: Sequence[np.ndarray], pairwise: Sequence[np.ndarray], *,
         lab0 = np.asarray(labels[0])
         hist = np.full((acc.size, window), -1, dtype=np.int64)
         hist[:, -1] = lab0
-    for i in range(1, N):
+    for i in range(1, len(unary)):
         P = np.asarray(pairwise[i - 1], np.float64)
         u = np.asarray(unary[i], np.float64)
         if P.shape != (acc.size, u.size):
-            raise InvalidDataError(f"viterbi: pairwise table {i - 1} is {P.shape}, expected {(acc.size, u.size)}")
+            raise InvalidDataError(f"viterbi: pairwise table {i - 1} is {P.shape}, "
+                                   f"expected {(acc.size, u.size)}")
         tot = acc[:, None] + P
         if use_hist:
             lab = np.asarray(labels[i])
@@ -85,6 +102,13 @@ def viterbi(unary: Sequence[np.ndarray], pairwise: Sequence[np.ndarray], *,
         back.append(b)
         if use_hist:
             hist = np.concatenate([hist[b, 1:], lab[:, None]], axis=1)
+    return acc, back
+
+
+def _backtrack(acc: np.ndarray, back: list[np.ndarray]) -> tuple[np.ndarray, float]:
+    """(N,) path ending in the cheapest state of ``acc`` (K_{N-1},) following the N - 1 predecessor
+    arrays ``back``, and its cost."""
+    N = len(back) + 1
     path = np.zeros(N, dtype=int)
     path[-1] = int(np.argmin(acc))
     cost = float(acc[path[-1]])

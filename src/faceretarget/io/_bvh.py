@@ -187,24 +187,8 @@ def _num(path: Path, lineno: int, s: str) -> float:
     return v
 
 
-def read_bvh(path: str | os.PathLike) -> Bvh:
-    """Read a ``.bvh`` file.
-
-    Returns
-    -------
-    Bvh
-        Joints with offsets and channels, frame time, and the (T, C) channel values.
-
-    Raises
-    ------
-    InputFileError
-        Missing file, malformed hierarchy (naming the line), unknown channel names, a frame row with
-        the wrong number of values or a non-numeric value (naming the line), or fewer frames than
-        ``Frames:`` announces.
-    """
-    path = input_file(path)
-    text = read_text(path)
-    lines = text.splitlines()
+def _hierarchy_tokens(path: Path, lines: list[str]) -> tuple[list[tuple[str, int]], int]:
+    """Split the lines before ``MOTION`` into tokens; also return the index of the ``MOTION`` line."""
     # tokens of the hierarchy with their line numbers
     toks: list[tuple[str, int]] = []
     motion_line = None
@@ -217,42 +201,82 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
         raise InputFileError(f"{path}: not a BVH file (it must start with 'HIERARCHY')")
     if motion_line is None:
         raise InputFileError(f"{path}: no MOTION section")
+    return toks, motion_line
 
+
+def _token(path: Path, toks: list[tuple[str, int]], j: int, what: str) -> tuple[str, int]:
+    """Token ``j`` with its line number, or an error saying the hierarchy ends before ``what``."""
+    if j >= len(toks):
+        raise InputFileError(f"{path}: hierarchy ends early, expected {what}")
+    return toks[j]
+
+
+def _read_offset(path: Path, toks: list[tuple[str, int]], k: int, joints: list[BvhJoint],
+                 stack: list[int]) -> None:
+    """Store the 3 values after the ``OFFSET`` at ``toks[k]`` in the joint (or End Site) being read."""
+    vals = np.array([_num(path, _token(path, toks, k + j, "3 offset values")[1],
+                          _token(path, toks, k + j, "3 offset values")[0]) for j in (1, 2, 3)])
+    if stack[-1] == -2:
+        owner = next((s for s in reversed(stack) if s >= 0), None)
+        if owner is not None:
+            joints[owner].end_site = vals
+    else:
+        joints[stack[-1]].offset = vals
+
+
+def _read_channels(path: Path, toks: list[tuple[str, int]], k: int, ln: int) -> tuple[int, tuple[str, ...]]:
+    """The channel count and names after the ``CHANNELS`` at ``toks[k]`` (on line ``ln``)."""
+    cnt_s, _ = _token(path, toks, k + 1, "a channel count")
+    try:
+        cnt = int(cnt_s)
+    except ValueError:
+        raise InputFileError(f"{path}: line {ln}: channel count {cnt_s!r} is not an integer") from None
+    chans = []
+    for j in range(cnt):
+        c, cl = _token(path, toks, k + 2 + j, f"{cnt} channel names")
+        if c.lower() not in _ROT and c.lower() not in _POS:
+            raise InputFileError(f"{path}: line {cl}: unknown channel {c!r}")
+        chans.append(c)
+    return cnt, tuple(chans)
+
+
+def _open_brace(path: Path, ln: int, pending: tuple[str, int] | None, joints: list[BvhJoint],
+                stack: list[int]) -> None:
+    """Open the block of the pending joint (appended to ``joints``) or End Site (``-2``)."""
+    if pending is None:
+        raise InputFileError(f"{path}: line {ln}: unexpected '{{'")
+    if pending[1] == -2:
+        stack.append(-2)
+    else:
+        joints.append(BvhJoint(pending[0], pending[1], np.zeros(3)))
+        stack.append(len(joints) - 1)
+
+
+def _parse_hierarchy(path: Path, toks: list[tuple[str, int]]) -> list[BvhJoint]:
+    """The joints of the hierarchy tokens (``toks[0]`` is ``HIERARCHY``), in file order."""
     joints: list[BvhJoint] = []
     stack: list[int] = []  # joint index per open brace (-2 for an End Site)
     pending: tuple[str, int] | None = None  # (name, parent) of a joint whose brace is not open yet
     k = 1
     n = len(toks)
-
-    def need(j: int, what: str) -> tuple[str, int]:
-        if j >= n:
-            raise InputFileError(f"{path}: hierarchy ends early, expected {what}")
-        return toks[j]
-
     while k < n:
         t, ln = toks[k]
         u = t.upper()
         if u in ("ROOT", "JOINT"):
-            name, _ = need(k + 1, "a joint name")
+            name, _ = _token(path, toks, k + 1, "a joint name")
             if u == "JOINT" and not stack:
                 raise InputFileError(f"{path}: line {ln}: JOINT outside of any ROOT")
             parent = -1 if u == "ROOT" else next((s for s in reversed(stack) if s >= 0), -1)
             pending = (name, parent)
             k += 2
         elif u == "END":
-            nxt, _ = need(k + 1, "'Site'")
+            nxt, _ = _token(path, toks, k + 1, "'Site'")
             if nxt.upper() != "SITE":
                 raise InputFileError(f"{path}: line {ln}: expected 'End Site'")
             pending = ("__end__", -2)
             k += 2
         elif t == "{":
-            if pending is None:
-                raise InputFileError(f"{path}: line {ln}: unexpected '{{'")
-            if pending[1] == -2:
-                stack.append(-2)
-            else:
-                joints.append(BvhJoint(pending[0], pending[1], np.zeros(3)))
-                stack.append(len(joints) - 1)
+            _open_brace(path, ln, pending, joints, stack)
             pending = None
             k += 1
         elif t == "}":
@@ -263,30 +287,13 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
         elif u == "OFFSET":
             if not stack:
                 raise InputFileError(f"{path}: line {ln}: OFFSET outside of a joint")
-            vals = np.array([_num(path, need(k + j, "3 offset values")[1], need(k + j, "3 offset values")[0])
-                             for j in (1, 2, 3)])
-            if stack[-1] == -2:
-                owner = next((s for s in reversed(stack) if s >= 0), None)
-                if owner is not None:
-                    joints[owner].end_site = vals
-            else:
-                joints[stack[-1]].offset = vals
+            _read_offset(path, toks, k, joints, stack)
             k += 4
         elif u == "CHANNELS":
             if not stack or stack[-1] < 0:
                 raise InputFileError(f"{path}: line {ln}: CHANNELS outside of a joint")
-            cnt_s, _ = need(k + 1, "a channel count")
-            try:
-                cnt = int(cnt_s)
-            except ValueError:
-                raise InputFileError(f"{path}: line {ln}: channel count {cnt_s!r} is not an integer") from None
-            chans = []
-            for j in range(cnt):
-                c, cl = need(k + 2 + j, f"{cnt} channel names")
-                if c.lower() not in _ROT and c.lower() not in _POS:
-                    raise InputFileError(f"{path}: line {cl}: unknown channel {c!r}")
-                chans.append(c)
-            joints[stack[-1]].channels = tuple(chans)
+            cnt, chans = _read_channels(path, toks, k, ln)
+            joints[stack[-1]].channels = chans
             k += 2 + cnt
         else:
             raise InputFileError(f"{path}: line {ln}: unexpected {t!r} in the hierarchy")
@@ -294,8 +301,11 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
         raise InputFileError(f"{path}: the hierarchy has {len(stack)} unclosed '{{'")
     if not joints:
         raise InputFileError(f"{path}: the hierarchy has no joint")
+    return joints
 
-    # MOTION: Frames: N / Frame Time: dt / rows
+
+def _motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int, float, int]:
+    """``Frames:`` and ``Frame Time:`` after the ``MOTION`` line, and the index of the next line."""
     i = motion_line + 1
     header: dict[str, tuple[str, int]] = {}
     while i < len(lines) and len(header) < 2:
@@ -317,8 +327,12 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
     frame_time = _num(path, header["frame time"][1], header["frame time"][0])
     if frame_time <= 0:
         raise InputFileError(f"{path}: line {header['frame time'][1]}: frame time must be positive")
-    C = sum(len(j.channels) for j in joints)
-    rows_text = [(j + 1, lines[j]) for j in range(i, len(lines)) if lines[j].strip()]
+    return n_frames, frame_time, i
+
+
+def _motion_rows(path: Path, lines: list[str], start: int, n_frames: int, C: int) -> np.ndarray:
+    """The (n_frames, C) channel values of the frame rows from ``lines[start]`` on."""
+    rows_text = [(j + 1, lines[j]) for j in range(start, len(lines)) if lines[j].strip()]
     if len(rows_text) < n_frames:
         raise InputFileError(f"{path}: 'Frames: {n_frames}' but only {len(rows_text)} frame rows")
     rows_text = rows_text[:n_frames]
@@ -330,11 +344,39 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
         for ln, r in rows_text:  # find the faulty row for the message
             parts = r.split()
             if len(parts) != C:
-                raise InputFileError(f"{path}: line {ln}: {len(parts)} values, the hierarchy has {C} channels")
+                raise InputFileError(f"{path}: line {ln}: {len(parts)} values, "
+                                     f"the hierarchy has {C} channels")
             for p in parts:
                 _num(path, ln, p)
         raise InputFileError(f"{path}: malformed motion data")
-    return Bvh(joints, frame_time, flat.reshape(n_frames, C), source=str(path))
+    return flat.reshape(n_frames, C)
+
+
+def read_bvh(path: str | os.PathLike) -> Bvh:
+    """Read a ``.bvh`` file.
+
+    Returns
+    -------
+    Bvh
+        Joints with offsets and channels, frame time, and the (T, C) channel values.
+
+    Raises
+    ------
+    InputFileError
+        Missing file, malformed hierarchy (naming the line), unknown channel names, a frame row with
+        the wrong number of values or a non-numeric value (naming the line), or fewer frames than
+        ``Frames:`` announces.
+    """
+    path = input_file(path)
+    text = read_text(path)
+    lines = text.splitlines()
+    toks, motion_line = _hierarchy_tokens(path, lines)
+    joints = _parse_hierarchy(path, toks)
+    # MOTION: Frames: N / Frame Time: dt / rows
+    n_frames, frame_time, first_row = _motion_header(path, lines, motion_line)
+    C = sum(len(j.channels) for j in joints)
+    motion = _motion_rows(path, lines, first_row, n_frames, C)
+    return Bvh(joints, frame_time, motion, source=str(path))
 
 
 # ------------------------------------------------------------------------------------------ writing

@@ -116,24 +116,11 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
         fewer frames than its header declares (a truncated file).
     """
     path = input_file(path)
-    ezc3d = _ezc3d()
-    try:
-        c = ezc3d.c3d(str(path))
-    except (OSError, RuntimeError, ValueError, IndexError) as e:
-        raise InputFileError(f"{path}: cannot read as a C3D file ({str(e).strip() or type(e).__name__})") from e
-    data = c["data"]["points"]
-    if data.ndim != 3 or data.shape[1] == 0 or data.shape[2] == 0:
-        n_p = data.shape[1] if data.ndim == 3 else 0
-        raise InputFileError(f"{path}: the C3D file holds no 3D point data ({n_p} points, "
-                             f"{data.shape[2] if data.ndim == 3 else 0} frames)")
+    c = _open_c3d(path)
+    data = _point_data(path, c)
     n_points, n_frames = int(data.shape[1]), int(data.shape[2])
     point = c["parameters"]["POINT"]
-    rate = float(c["header"]["points"]["frame_rate"] or 0.0)
-    prate = _param(point, "RATE")
-    if not rate > 0 and prate is not None and len(prate):
-        rate = float(prate[0])
-    if not (np.isfinite(rate) and rate > 0):
-        raise InputFileError(f"{path}: the C3D file has no positive point rate (POINT:RATE = {rate})")
+    rate = _point_rate(path, c, point)
     units = _param(point, "UNITS")
     unit = str(units[0]).strip() if units is not None and len(units) and str(units[0]).strip() else None
     labels, dup = _labels(point, n_points)
@@ -141,6 +128,50 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
         warnings.warn(f"{path}: repeated marker label(s) {', '.join(dup)}; later ones renamed with "
                       "a _2, _3... suffix", DataWarning, stacklevel=2)
 
+    pts = _marker_points(path, c, data, labels, zero_is_missing)
+    declared = _declared_frames(path)
+    if declared is not None and n_frames < declared:
+        warnings.warn(f"{path}: holds {n_frames} frame(s) but its header declares {declared}; "
+                      "the file may be truncated", DataWarning, stacklevel=2)
+    first = int(c["header"]["points"]["first_frame"])
+    times = (first + np.arange(n_frames)) / rate
+    return Performance(times=times, fps=rate, points=pts, labels=labels, unit=unit, source=str(path))
+
+
+def _open_c3d(path: Path):
+    """The ``ezc3d.c3d`` of ``path`` (an :class:`InputFileError` when ezc3d cannot read it)."""
+    ezc3d = _ezc3d()
+    try:
+        return ezc3d.c3d(str(path))
+    except (OSError, RuntimeError, ValueError, IndexError) as e:
+        raise InputFileError(f"{path}: cannot read as a C3D file "
+                             f"({str(e).strip() or type(e).__name__})") from e
+
+
+def _point_data(path: Path, c) -> np.ndarray:
+    """The (4, P, T) point array of the file; an error when it holds no point or no frame."""
+    data = c["data"]["points"]
+    if data.ndim != 3 or data.shape[1] == 0 or data.shape[2] == 0:
+        n_p = data.shape[1] if data.ndim == 3 else 0
+        raise InputFileError(f"{path}: the C3D file holds no 3D point data ({n_p} points, "
+                             f"{data.shape[2] if data.ndim == 3 else 0} frames)")
+    return data
+
+
+def _point_rate(path: Path, c, point: dict) -> float:
+    """The point rate: the header's, else ``POINT:RATE``; it must be positive."""
+    rate = float(c["header"]["points"]["frame_rate"] or 0.0)
+    prate = _param(point, "RATE")
+    if not rate > 0 and prate is not None and len(prate):
+        rate = float(prate[0])
+    if not (np.isfinite(rate) and rate > 0):
+        raise InputFileError(f"{path}: the C3D file has no positive point rate (POINT:RATE = {rate})")
+    return rate
+
+
+def _marker_points(path: Path, c, data: np.ndarray, labels: list[str], zero_is_missing: bool) -> np.ndarray:
+    """(T, P, 3) marker positions, NaN where missing (warns, for the caller, about never-seen markers)."""
+    n_points, n_frames = int(data.shape[1]), int(data.shape[2])
     pts = np.ascontiguousarray(np.asarray(data[:3], dtype=np.float64).transpose(2, 1, 0))  # (T, P, 3)
     missing = ~np.isfinite(pts).all(axis=2)
     meta = c["data"]["meta_points"] if "meta_points" in c["data"].keys() else {}
@@ -153,14 +184,8 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
     never = np.flatnonzero(missing.all(axis=0))
     if never.size:
         warnings.warn(f"{path}: marker(s) missing in every frame: {', '.join(labels[i] for i in never)}",
-                      DataWarning, stacklevel=2)
-    declared = _declared_frames(path)
-    if declared is not None and n_frames < declared:
-        warnings.warn(f"{path}: holds {n_frames} frame(s) but its header declares {declared}; "
-                      "the file may be truncated", DataWarning, stacklevel=2)
-    first = int(c["header"]["points"]["first_frame"])
-    times = (first + np.arange(n_frames)) / rate
-    return Performance(times=times, fps=rate, points=pts, labels=labels, unit=unit, source=str(path))
+                      DataWarning, stacklevel=3)
+    return pts
 
 
 def write_c3d(path: str | os.PathLike, perf: Performance, *, unit: str | None = None) -> Path:
@@ -200,22 +225,40 @@ def write_c3d(path: str | os.PathLike, perf: Performance, *, unit: str | None = 
     if T == 0 or P == 0:
         raise InvalidDataError(f"{perf.source}: nothing to write ({T} frames of {P} points)")
     fps = float(perf.fps)
-    frame = (perf.times - perf.times[0]) * fps
-    off = np.abs(frame - np.arange(T))
-    if off.max() > 0.01:
-        k = int(np.argmax(off > 0.01))
-        raise InvalidDataError(f"{perf.source}: frame {k} (t={perf.times[k]:.6f} s) is not on the {fps:g} fps "
-                               "grid; a C3D file needs evenly spaced frames (resample the take first)")
-    f0 = perf.times[0] * fps
-    first = int(round(f0))
-    if first < 0 or abs(f0 - first) > 0.01:
-        warnings.warn(f"{perf.source}: the first frame time {perf.times[0]:.6f} s is not a whole frame "
-                      f"number at {fps:g} fps; written as frame 0", DataWarning, stacklevel=2)
-        first = 0
+    first = _first_frame(perf, fps, T)
     labels = list(perf.labels) if perf.labels else [f"M{i + 1:03d}" for i in range(P)]
     unit = unit or perf.unit or "mm"
 
     ezc3d = _ezc3d()
+    c = _c3d_of_points(ezc3d, pts, fps, labels, unit, first)
+    _save_c3d(path, c)
+    return path
+
+
+def _first_frame(perf: Performance, fps: float, T: int) -> int:
+    """The take's first frame number at ``fps`` (0, with a warning, when not a whole number).
+
+    Raises :class:`InvalidDataError` when the frames are not evenly spaced at ``fps``.
+    """
+    frame = (perf.times - perf.times[0]) * fps
+    off = np.abs(frame - np.arange(T))
+    if off.max() > 0.01:
+        k = int(np.argmax(off > 0.01))
+        raise InvalidDataError(f"{perf.source}: frame {k} (t={perf.times[k]:.6f} s) is not on the "
+                               f"{fps:g} fps grid; a C3D file needs evenly spaced frames "
+                               "(resample the take first)")
+    f0 = perf.times[0] * fps
+    first = int(round(f0))
+    if first < 0 or abs(f0 - first) > 0.01:
+        warnings.warn(f"{perf.source}: the first frame time {perf.times[0]:.6f} s is not a whole frame "
+                      f"number at {fps:g} fps; written as frame 0", DataWarning, stacklevel=3)
+        first = 0
+    return first
+
+
+def _c3d_of_points(ezc3d, pts: np.ndarray, fps: float, labels: list[str], unit: str, first: int):
+    """An ``ezc3d.c3d`` holding the (T, P, 3) points (NaN ones invalid: residual -1, coordinates 0)."""
+    T, P, _ = pts.shape
     c = ezc3d.c3d()
     c["parameters"]["POINT"]["RATE"]["value"] = [fps]
     c["parameters"]["POINT"]["LABELS"]["value"] = labels
@@ -227,6 +270,11 @@ def write_c3d(path: str | os.PathLike, perf: Performance, *, unit: str | None = 
     data[:3] = np.where(missing[..., None], 0.0, pts).transpose(2, 1, 0)
     c["data"]["points"] = data
     c["data"]["meta_points"] = {"residuals": np.where(missing, -1.0, 0.0).T[None]}
+    return c
+
+
+def _save_c3d(path: Path, c) -> None:
+    """Write ``c`` to ``path``, whole or not at all."""
     with atomic_path(path) as tmp:
         named = tmp.with_name(tmp.name + ".c3d")  # ezc3d appends .c3d to any other name
         try:
@@ -236,4 +284,3 @@ def write_c3d(path: str | os.PathLike, perf: Performance, *, unit: str | None = 
             raise OutputError(f"{path}: cannot write C3D ({e})") from e
         finally:
             named.unlink(missing_ok=True)
-    return path

@@ -181,6 +181,25 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
         The file cannot be written (nothing partial is left).
     """
     path = check_output_path(path)
+    w, t = _checked_weights(path, rig, weights, times, names)
+    t32 = _key_times(path, t)
+
+    b = _Builder()
+    src, primitive = _mesh_primitive(b, rig)
+    t_acc = b.accessor(t32, "SCALAR")
+    w_acc = b.accessor(w.astype(np.float32).reshape(-1), "SCALAR", minmax=False)
+
+    head_keys = None if head is None else _head_keys(path, b, t.size, head, head_pivot)
+
+    gltf = _face_document(b, rig, src, primitive, node_name, animation_name, t_acc, w_acc)
+    if head_keys is not None:
+        _add_head(gltf, head_keys, t_acc, child=0)
+    return _write_glb_file(path, gltf, b)
+
+
+def _checked_weights(path: Path, rig: Rig, weights: np.ndarray, times: np.ndarray,
+                     names: list[str] | None) -> tuple[np.ndarray, np.ndarray]:
+    """``weights`` as (T, K) in the rig's shape order and ``times`` as (T,), checked."""
     w = np.asarray(weights, dtype=np.float64)
     if w.ndim == 1:  # a single frame
         w = w[None]
@@ -199,8 +218,14 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     if not np.isfinite(w).all():
         f, k = (int(x[0]) for x in np.nonzero(~np.isfinite(w)))
         raise InvalidDataError(f"{path}: frame {f} weight '{rig.names[k]}' is {w[f, k]}")
-    t32 = _key_times(path, t)
+    return w, t
 
+
+def _mesh_primitive(b: _Builder, rig: Rig) -> tuple[np.ndarray, dict]:
+    """Store the neutral (in metres) and the morph targets in ``b``.
+
+    Returns the source vertex of each glTF vertex (:func:`glb_vertex_order`) and the mesh primitive.
+    """
     scale = rig.mm_per_unit / 1000.0
     mesh = rig.neutral
     src, uv, tri = _split_seams(mesh)
@@ -210,7 +235,6 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     nrm[zero] = (0.0, 0.0, 1.0)
     nrm = (nrm / np.linalg.norm(nrm, axis=1, keepdims=True)).astype(np.float32)
 
-    b = _Builder()
     attrs = {"POSITION": b.accessor(pos, "VEC3", target=_ARRAY_BUFFER),
              "NORMAL": b.accessor(nrm, "VEC3", target=_ARRAY_BUFFER)}
     if uv is not None:
@@ -223,15 +247,17 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     for k in range(rig.n_shapes):
         d = (rig.deltas[k][src] * scale).astype(np.float32)
         targets.append({"POSITION": b.accessor(d, "VEC3", target=_ARRAY_BUFFER)})
-    t_acc = b.accessor(t32, "SCALAR")
-    w_acc = b.accessor(w.astype(np.float32).reshape(-1), "SCALAR", minmax=False)
+    return src, {"attributes": attrs, "indices": indices, "mode": 4, "targets": targets}
 
-    head_keys = None if head is None else _head_keys(path, b, t.size, head, head_pivot)
 
+def _face_document(b: _Builder, rig: Rig, src: np.ndarray, primitive: dict, node_name: str,
+                   animation_name: str, t_acc: int, w_acc: int) -> dict:
+    """The glTF JSON of the face node, its mesh and its weight animation (buffer length set later)."""
+    mesh = rig.neutral
     mesh_extras: dict = {"targetNames": list(rig.names)}
     if len(src) != mesh.n_vertices or not np.array_equal(src, np.arange(mesh.n_vertices)):
         mesh_extras["sourceVertices"] = src.tolist()
-    gltf = {
+    return {
         "asset": {"version": "2.0", "generator": "faceretarget"},
         "extras": {"unit": "m", "sourceUnit": rig.unit, "rig": rig.name},
         "scene": 0,
@@ -239,7 +265,7 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
         "nodes": [{"name": node_name, "mesh": 0}],
         "meshes": [{
             "name": rig.name,
-            "primitives": [{"attributes": attrs, "indices": indices, "mode": 4, "targets": targets}],
+            "primitives": [primitive],
             "weights": [0.0] * rig.n_shapes,
             "extras": mesh_extras,
         }],
@@ -252,9 +278,6 @@ def write_glb(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
         "bufferViews": b.views,
         "accessors": b.accessors,
     }
-    if head_keys is not None:
-        _add_head(gltf, head_keys, t_acc, child=0)
-    return _write_glb_file(path, gltf, b)
 
 
 def _write_glb_file(path: Path, gltf: dict, b: _Builder) -> Path:

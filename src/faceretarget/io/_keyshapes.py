@@ -138,6 +138,26 @@ def write_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence
     OutputError
         The folder cannot be written.
     """
+    data, times, unit, marker_labels, mesh, source = _take_arrays(perf_or_vertices, mesh)
+    T, P, _ = data.shape
+    fr = _frames(frames, T)
+    labs = _keyshape_labels(labels, fr)
+    if mesh is not None and mesh.n_vertices != P:
+        raise TopologyError(f"{source}: frames have {P} points but the mesh has {mesh.n_vertices} vertices")
+    pts = _keyshape_points(data, fr, marker_labels, source)
+    out = Path(out_dir)
+    with atomic_dir(out) as tmp:
+        _write_frames(tmp, pts, fr, labs, times, unit, mesh, marker_labels, source)
+        if neutral is not None:
+            _write_source_neutral(tmp, neutral, P, mesh, unit, source)
+        if contact_sheet:
+            _write_contact_sheet(tmp, pts, fr, labs, mesh, cell)
+    return out
+
+
+def _take_arrays(perf_or_vertices: Performance | np.ndarray, mesh: Mesh | None
+                 ) -> tuple[np.ndarray, np.ndarray | None, str | None, list[str], Mesh | None, str]:
+    """``(data, times, unit, marker_labels, mesh, source)`` of a take or an array of frames."""
     times = None
     unit = None
     marker_labels: list[str] = []
@@ -157,20 +177,27 @@ def write_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence
         data = np.asarray(perf_or_vertices, dtype=np.float64)
         source = "take"
     if data.ndim != 3 or data.shape[2] not in (2, 3):
-        raise InvalidDataError(f"{source}: expected frames of points (T, P, 3) or (T, P, 2), got {data.shape}")
-    T, P, _ = data.shape
-    fr = _frames(frames, T)
+        raise InvalidDataError(f"{source}: expected frames of points (T, P, 3) or (T, P, 2), "
+                               f"got {data.shape}")
+    return data, times, unit, marker_labels, mesh, source
+
+
+def _keyshape_labels(labels: Sequence[str] | None, fr: list[int]) -> list[str]:
+    """One checked label per frame (``frame 123`` when none are given)."""
     if labels is None:
-        labs = [f"frame {f}" for f in fr]
-    else:
-        labs = [str(s) for s in labels]
-        if len(labs) != len(fr):
-            raise InvalidDataError(f"{len(labs)} labels for {len(fr)} keyshape frames")
-        for s in labs:
-            if not s.strip() or any(c in s for c in "\t\n\r"):
-                raise InvalidDataError(f"keyshape label {s!r} must be non-empty without tabs or line breaks")
-    if mesh is not None and mesh.n_vertices != P:
-        raise TopologyError(f"{source}: frames have {P} points but the mesh has {mesh.n_vertices} vertices")
+        return [f"frame {f}" for f in fr]
+    labs = [str(s) for s in labels]
+    if len(labs) != len(fr):
+        raise InvalidDataError(f"{len(labs)} labels for {len(fr)} keyshape frames")
+    for s in labs:
+        if not s.strip() or any(c in s for c in "\t\n\r"):
+            raise InvalidDataError(f"keyshape label {s!r} must be non-empty without tabs or line breaks")
+    return labs
+
+
+def _keyshape_points(data: np.ndarray, fr: list[int], marker_labels: list[str], source: str) -> np.ndarray:
+    """The chosen frames as (n, P, 3) points (``z = 0`` for 2-D ones), with no missing point."""
+    P = data.shape[1]
     pts = np.zeros((len(fr), P, 3))
     pts[:, :, : data.shape[2]] = data[fr]
     bad = ~np.isfinite(pts).all(axis=2)
@@ -179,39 +206,50 @@ def write_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence
         who = f"'{marker_labels[j]}'" if marker_labels else str(j)
         raise InvalidDataError(f"{source}: frame {fr[i]} has a missing point {who}; choose another frame "
                                "or fill the gap first")
-    out = Path(out_dir)
-    with atomic_dir(out) as tmp:
-        lines = ["# file\tframe\ttime_s\tlabel"]
-        for n, f in enumerate(fr):
-            name = keyshape_filename(f)
-            t = "" if times is None else f"{float(times[f]):.6f}"
-            head = [f"faceretarget keyshape: frame {f} of {Path(source).name}" + (f", t = {t} s" if t else ""),
-                    f"label: {labs[n]}"] + ([f"unit: {unit}"] if unit else [])
-            if mesh is None:
-                head.append("point set (no faces): one vertex per point, in the take's order")
-                head += [f"point {j}: {lab}" for j, lab in enumerate(marker_labels)]
-                write_obj(tmp / name, Mesh(pts[n], name=name), header="\n".join(head))
-            else:
-                write_obj(tmp / name, mesh, pts[n], header="\n".join(head))
-            lines.append(f"{name}\t{f}\t{t}\t{labs[n]}")
-        (tmp / MANIFEST).write_text("\n".join(lines) + "\n", encoding="utf-8")
-        if marker_labels:
-            (tmp / MARKERS).write_text("\n".join(marker_labels) + "\n", encoding="utf-8")
-        if neutral is not None:
-            nv = np.zeros((P, 3))
-            n_arr = np.asarray(neutral, dtype=np.float64)
-            if n_arr.shape[0] != P or n_arr.shape[1] not in (2, 3) or not np.isfinite(n_arr).all():
-                raise InvalidDataError(f"{source}: the neutral must be {P} finite points, got {n_arr.shape}")
-            nv[:, : n_arr.shape[1]] = n_arr
-            head = [f"faceretarget source neutral of {Path(source).name}"] + ([f"unit: {unit}"] if unit else [])
-            write_obj(tmp / "neutral.obj", Mesh(nv, name="neutral") if mesh is None else mesh,
-                      None if mesh is None else nv, header="\n".join(head))
-        if contact_sheet:
-            from ..render import save_png
+    return pts
 
-            sheet = _scatter_sheet(pts, fr, labs, cell) if mesh is None else _mesh_sheet(pts, mesh, fr, labs, cell)
-            save_png(tmp / CONTACT_SHEET, sheet)
-    return out
+
+def _write_frames(tmp: Path, pts: np.ndarray, fr: list[int], labs: list[str], times: np.ndarray | None,
+                  unit: str | None, mesh: Mesh | None, marker_labels: list[str], source: str) -> None:
+    """Write one OBJ per frame into ``tmp``, the manifest and (for markers) their labels."""
+    lines = ["# file\tframe\ttime_s\tlabel"]
+    for n, f in enumerate(fr):
+        name = keyshape_filename(f)
+        t = "" if times is None else f"{float(times[f]):.6f}"
+        head = [f"faceretarget keyshape: frame {f} of {Path(source).name}" + (f", t = {t} s" if t else ""),
+                f"label: {labs[n]}"] + ([f"unit: {unit}"] if unit else [])
+        if mesh is None:
+            head.append("point set (no faces): one vertex per point, in the take's order")
+            head += [f"point {j}: {lab}" for j, lab in enumerate(marker_labels)]
+            write_obj(tmp / name, Mesh(pts[n], name=name), header="\n".join(head))
+        else:
+            write_obj(tmp / name, mesh, pts[n], header="\n".join(head))
+        lines.append(f"{name}\t{f}\t{t}\t{labs[n]}")
+    (tmp / MANIFEST).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    if marker_labels:
+        (tmp / MARKERS).write_text("\n".join(marker_labels) + "\n", encoding="utf-8")
+
+
+def _write_source_neutral(tmp: Path, neutral: np.ndarray, P: int, mesh: Mesh | None, unit: str | None,
+                          source: str) -> None:
+    """Write the source's rest pose as ``tmp/neutral.obj`` (a point set without ``mesh``)."""
+    nv = np.zeros((P, 3))
+    n_arr = np.asarray(neutral, dtype=np.float64)
+    if n_arr.shape[0] != P or n_arr.shape[1] not in (2, 3) or not np.isfinite(n_arr).all():
+        raise InvalidDataError(f"{source}: the neutral must be {P} finite points, got {n_arr.shape}")
+    nv[:, : n_arr.shape[1]] = n_arr
+    head = [f"faceretarget source neutral of {Path(source).name}"] + ([f"unit: {unit}"] if unit else [])
+    write_obj(tmp / "neutral.obj", Mesh(nv, name="neutral") if mesh is None else mesh,
+              None if mesh is None else nv, header="\n".join(head))
+
+
+def _write_contact_sheet(tmp: Path, pts: np.ndarray, fr: list[int], labs: list[str], mesh: Mesh | None,
+                         cell: int) -> None:
+    """Write ``tmp/contact_sheet.png``: the markers' scatter plots or the mesh renders."""
+    from ..render import save_png
+
+    sheet = _scatter_sheet(pts, fr, labs, cell) if mesh is None else _mesh_sheet(pts, mesh, fr, labs, cell)
+    save_png(tmp / CONTACT_SHEET, sheet)
 
 
 def _manifest(folder: Path) -> list[tuple[str, int, str]]:
@@ -291,6 +329,20 @@ def read_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str] | None
     if not folder.is_dir():
         raise InputFileError(f"{folder}: target keyshape folder not found")
     rows = _manifest(folder)
+    ids = _keyshape_ids(folder, frames, rows)
+    base = _target_neutral(folder, neutral)
+    label_of = {f: lab for _, f, lab in rows}
+    deltas = _keyshape_deltas(folder, ids, base)
+    stems = [Path(keyshape_filename(f)).stem for f in ids]
+    labels = [label_of.get(f, stems[n]) for n, f in enumerate(ids)]
+    labels = [stems[n] if lab == f"frame {f}" else lab
+              for n, (f, lab) in enumerate(zip(ids, labels, strict=True))]
+    return Rig(base, labels, deltas, unit or guess_unit(base), None, stems, name or folder.name)
+
+
+def _keyshape_ids(folder: Path, frames: Sequence[int | str] | str | None,
+                  rows: list[tuple[str, int, str]]) -> list[int]:
+    """The frame ids asked for (by default those of the manifest, else of every ``frame_*.obj``)."""
     if frames is None:
         if rows:
             ids = [f for _, f, _ in rows]
@@ -299,19 +351,27 @@ def read_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str] | None
             if not ids:
                 raise MissingShapeError(f"{folder}: no target keyshapes (frame_00123.obj files) found")
     else:
-        ids = [_frame_of(item, folder, rows) for item in (frames if not isinstance(frames, str) else [frames])]
+        ids = [_frame_of(item, folder, rows)
+               for item in (frames if not isinstance(frames, str) else [frames])]
     dup = sorted({f for f in ids if ids.count(f) > 1})
     if dup:
         raise InvalidDataError(f"keyshape frame(s) {', '.join(map(str, dup))} asked for more than once")
+    return ids
+
+
+def _target_neutral(folder: Path, neutral: Mesh | str | os.PathLike | None) -> Mesh:
+    """The target's neutral: ``neutral`` itself, the OBJ it names, or ``folder/neutral.obj``."""
     if isinstance(neutral, Mesh):
-        base = neutral
-    else:
-        npath = folder / "neutral.obj" if neutral is None else Path(neutral)
-        if not npath.is_file():
-            raise MissingShapeError(f"{folder}: no target neutral '{npath.name}'; pass neutral= or save the "
-                                    "target's rest face as neutral.obj in the folder")
-        base = read_obj(npath)
-    label_of = {f: lab for _, f, lab in rows}
+        return neutral
+    npath = folder / "neutral.obj" if neutral is None else Path(neutral)
+    if not npath.is_file():
+        raise MissingShapeError(f"{folder}: no target neutral '{npath.name}'; pass neutral= or save the "
+                                "target's rest face as neutral.obj in the folder")
+    return read_obj(npath)
+
+
+def _keyshape_deltas(folder: Path, ids: list[int], base: Mesh) -> np.ndarray:
+    """(K, V, 3) each frame's target keyshape minus the neutral (every file checked to exist first)."""
     missing = [f for f in ids if not (folder / keyshape_filename(f)).is_file()]
     if missing:
         which = ", ".join(f"frame {f} ({keyshape_filename(f)})" for f in missing)
@@ -321,13 +381,10 @@ def read_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str] | None
         path = folder / keyshape_filename(f)
         v = read_obj_vertices(path)
         if v.shape != base.vertices.shape:
-            raise TopologyError(f"{path}: the keyshape of frame {f} has {len(v)} vertices, the target neutral "
-                                f"has {base.n_vertices}")
+            raise TopologyError(f"{path}: the keyshape of frame {f} has {len(v)} vertices, "
+                                f"the target neutral has {base.n_vertices}")
         deltas[n] = v - base.vertices
-    stems = [Path(keyshape_filename(f)).stem for f in ids]
-    labels = [label_of.get(f, stems[n]) for n, f in enumerate(ids)]
-    labels = [stems[n] if lab == f"frame {f}" else lab for n, (f, lab) in enumerate(zip(ids, labels, strict=True))]
-    return Rig(base, labels, deltas, unit or guess_unit(base), None, stems, name or folder.name)
+    return deltas
 
 
 def read_marker_labels(folder: str | os.PathLike) -> list[str]:

@@ -126,32 +126,61 @@ def read_rig(folder: str | os.PathLike, neutral: str | os.PathLike | None = None
                              else f"{folder}: is not a folder; a rig is a folder of OBJ files")
     objs = sorted((p for p in folder.iterdir() if p.suffix.lower() == ".obj" and p.is_file()),
                   key=lambda p: (p.name.lower(), p.name))
+    npath = _neutral_path(folder, objs, neutral)
+    keys = _key_shape_files(objs, npath, exclude)
+    base = _read_neutral(npath)
+    V = base.n_vertices
+    deltas = _key_shape_deltas(keys, base, npath)
+    lm = _rig_landmarks(folder, landmarks, V)
+    if unit is None:
+        unit = guess_unit(base)
+    else:
+        unit = normalize_unit(unit, what=str(folder))
+    stems = [p.stem for p in keys]
+    return Rig(base, stems, deltas, unit=unit, landmarks=lm, source_names=stems,
+               name=folder.resolve().name or str(folder))
+
+
+def _neutral_path(folder: Path, objs: list[Path], neutral: str | os.PathLike | None) -> Path:
+    """The neutral OBJ: ``neutral`` (a path, or a name in ``folder``) or the one OBJ named like one."""
     if neutral is not None:
         npath = Path(neutral)
         if not npath.is_absolute() and not npath.exists():
             npath = folder / npath
         if not npath.exists():
             raise MissingShapeError(f"{npath}: neutral OBJ not found")
-    else:
-        cands = [p for p in objs if _is_neutral_name(p.stem)]
-        if not cands:
-            raise MissingShapeError(
-                f"{folder}: no neutral mesh found among {len(objs)} OBJ file(s); looked for a file "
-                f"named {' / '.join(n + '.obj' for n in NEUTRAL_NAMES)} or '*_neutral.obj' "
-                "(any case); pass neutral=... to choose one")
-        if len(cands) > 1:
-            raise InputFileError(
-                f"{folder}: several files look like the neutral ({', '.join(p.name for p in cands)}); "
-                "pass neutral=... to choose one")
-        npath = cands[0]
+        return npath
+    cands = [p for p in objs if _is_neutral_name(p.stem)]
+    if not cands:
+        raise MissingShapeError(
+            f"{folder}: no neutral mesh found among {len(objs)} OBJ file(s); looked for a file "
+            f"named {' / '.join(n + '.obj' for n in NEUTRAL_NAMES)} or '*_neutral.obj' "
+            "(any case); pass neutral=... to choose one")
+    if len(cands) > 1:
+        raise InputFileError(
+            f"{folder}: several files look like the neutral ({', '.join(p.name for p in cands)}); "
+            "pass neutral=... to choose one")
+    return cands[0]
+
+
+def _key_shape_files(objs: list[Path], npath: Path, exclude: Sequence[str]) -> list[Path]:
+    """The OBJs that are key shapes: all but the neutral and those matching an ``exclude`` pattern."""
     pats = [p.lower() for p in exclude]
-    keys = [p for p in objs
+    return [p for p in objs
             if not (p.exists() and npath.exists() and p.resolve() == npath.resolve())
             and not any(fnmatch.fnmatchcase(p.stem.lower(), pat) for pat in pats)]
+
+
+def _read_neutral(npath: Path) -> Mesh:
+    """The neutral OBJ as a mesh named after its file."""
     base = read_obj(npath)
-    V = base.n_vertices
-    base = Mesh(base.vertices, base.face_counts, base.face_indices, base.uvs, base.face_uv_indices,
+    return Mesh(base.vertices, base.face_counts, base.face_indices, base.uvs, base.face_uv_indices,
                 name=npath.name)
+
+
+def _key_shape_deltas(keys: list[Path], base: Mesh, npath: Path) -> np.ndarray:
+    """(K, V, 3) each key shape OBJ minus the neutral ``base`` (read from ``npath``)."""
+    V = base.n_vertices
     deltas = np.empty((len(keys), V, 3))
     for k, p in enumerate(keys):
         v = read_obj_vertices(p)
@@ -160,6 +189,12 @@ def read_rig(folder: str | os.PathLike, neutral: str | os.PathLike | None = None
                 f"{p}: key shape has {len(v)} vertices but the neutral {npath.name} has {V}; "
                 "every shape must share the neutral's vertex order")
         np.subtract(v, base.vertices, out=deltas[k])
+    return deltas
+
+
+def _rig_landmarks(folder: Path, landmarks: str | os.PathLike | np.ndarray | None,
+                   V: int) -> np.ndarray | None:
+    """Landmark indices: given, read from the given file, or from ``landmarks68.txt`` / ``landmarks.txt``."""
     if isinstance(landmarks, str | os.PathLike):
         lm = _read_landmarks(Path(landmarks), V)
     elif landmarks is not None:
@@ -170,13 +205,7 @@ def read_rig(folder: str | os.PathLike, neutral: str | os.PathLike | None = None
             if (folder / fn).is_file():
                 lm = _read_landmarks(folder / fn, V)
                 break
-    if unit is None:
-        unit = guess_unit(base)
-    else:
-        unit = normalize_unit(unit, what=str(folder))
-    stems = [p.stem for p in keys]
-    return Rig(base, stems, deltas, unit=unit, landmarks=lm, source_names=stems,
-               name=folder.resolve().name or str(folder))
+    return lm
 
 
 def write_rig(rig: Rig, folder: str | os.PathLike, *, precision: int | None = None) -> Path:

@@ -224,42 +224,22 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: floa
     try:
         vs = None
         for img in frames:
-            img = np.ascontiguousarray(img, dtype=np.uint8)
-            h, w = img.shape[:2]
-            if h % 2 or w % 2:
-                img = np.pad(img, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+            img = _even_frame(img)
             if vs is None:
-                vs = out.add_stream(codec, rate=rate)
-                vs.width, vs.height = img.shape[1], img.shape[0]
-                vs.pix_fmt = "yuv420p"
-                if codec == "libx264":
-                    vs.options = {"crf": str(crf), "preset": "veryfast"}
-                else:
-                    vs.bit_rate = 4_000_000
+                vs = _add_video_stream(out, codec, rate, img, crf)
                 a_in = None
                 if audio_from is not None:
                     src = av.open(str(audio_from))
-                    if src.streams.audio:
-                        a_in = src.streams.audio[0]
-                        a_out = out.add_stream_from_template(a_in)
+                    a_in, a_out = _add_audio_stream(out, src)
             frame = av.VideoFrame.from_ndarray(img, format="rgb24")
-            for pkt in vs.encode(frame):
-                out.mux(pkt)
+            _mux(out, vs.encode(frame))
             if on_frame is not None:
                 on_frame()
         if vs is None:
             raise OutputError(f"{path}: no frame to write")
-        for pkt in vs.encode():
-            out.mux(pkt)
+        _mux(out, vs.encode())
         if src is not None and a_in is not None:
-            for pkt in src.demux(a_in):
-                if pkt.dts is None:
-                    continue
-                if audio_duration is not None and pkt.pts is not None and \
-                        float(pkt.pts * pkt.time_base) >= audio_duration:
-                    break
-                pkt.stream = a_out
-                out.mux(pkt)
+            _copy_audio(out, src, a_in, a_out, audio_duration)
     except av.FFmpegError as e:
         raise OutputError(f"{path}: cannot encode the video ({e.strerror or e})") from e
     finally:
@@ -267,3 +247,50 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: floa
         if src is not None:
             src.close()
     return codec
+
+
+def _even_frame(img: np.ndarray) -> np.ndarray:
+    """The frame as contiguous uint8, its height and width padded to even numbers (edge pixels repeated)."""
+    img = np.ascontiguousarray(img, dtype=np.uint8)
+    h, w = img.shape[:2]
+    if h % 2 or w % 2:
+        img = np.pad(img, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+    return img
+
+
+def _add_video_stream(out, codec: str, rate: Fraction, img: np.ndarray, crf: int):
+    """Add the video stream, sized for ``img``, to the output container ``out``."""
+    vs = out.add_stream(codec, rate=rate)
+    vs.width, vs.height = img.shape[1], img.shape[0]
+    vs.pix_fmt = "yuv420p"
+    if codec == "libx264":
+        vs.options = {"crf": str(crf), "preset": "veryfast"}
+    else:
+        vs.bit_rate = 4_000_000
+    return vs
+
+
+def _add_audio_stream(out, src):
+    """The first audio stream of ``src`` and its copy added to ``out``; ``(None, None)`` without one."""
+    if not src.streams.audio:
+        return None, None
+    a_in = src.streams.audio[0]
+    return a_in, out.add_stream_from_template(a_in)
+
+
+def _mux(out, packets) -> None:
+    """Mux the encoded ``packets`` into ``out``."""
+    for pkt in packets:
+        out.mux(pkt)
+
+
+def _copy_audio(out, src, a_in, a_out, audio_duration: float | None) -> None:
+    """Copy the packets of stream ``a_in`` of ``src`` to ``a_out`` of ``out``, up to ``audio_duration`` s."""
+    for pkt in src.demux(a_in):
+        if pkt.dts is None:
+            continue
+        if audio_duration is not None and pkt.pts is not None and \
+                float(pkt.pts * pkt.time_base) >= audio_duration:
+            break
+        pkt.stream = a_out
+        out.mux(pkt)

@@ -192,6 +192,33 @@ def _rasterize(p: np.ndarray, tris: np.ndarray, W: int, H: int) -> tuple[np.ndar
     if not len(tris):
         return tri_id, bary
     x, y, z = p[tris, 0], p[tris, 1], p[tris, 2]  # (F, 3)
+    ix0, ix1, iy0, iy1 = _pixel_boxes(x, y, W, H)
+    a, b, c, ok = _edge_functions(x, y, ix0, ix1, iy0, iy1)
+    bw = ix1 - ix0 + 1
+    bh = iy1 - iy0 + 1
+    kw = np.ceil(np.log2(np.maximum(bw, 1))).astype(np.int64)
+    kh = np.ceil(np.log2(np.maximum(bh, 1))).astype(np.int64)
+    key = np.where(ok, kw * 64 + kh, -1)  # groups of boxes that fit in the same power-of-two box
+    for k in np.unique(key[key >= 0]):
+        sel = np.flatnonzero(key == k)
+        sw, sh = 1 << int(k // 64), 1 << int(k % 64)
+        oy, ox = np.divmod(np.arange(sw * sh), sw)
+        step = max(1, _BATCH // (sw * sh))
+        for s0 in range(0, sel.size, step):
+            t = sel[s0:s0 + step]
+            tt, ci, L0, L1, L2 = _inside_fragments(t, a, b, c, ox, oy, bw, bh)
+            if not tt.size:
+                continue
+            depth = L0 * z[tt, 0] + L1 * z[tt, 1] + L2 * z[tt, 2]
+            pix = (iy0[tt] + oy[ci]) * W + (ix0[tt] + ox[ci])
+            _keep_nearest(zbuf, tri_id, bary, pix, depth, tt, (L0, L1, L2))
+    return tri_id, bary
+
+
+def _pixel_boxes(x: np.ndarray, y: np.ndarray, W: int, H: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(F,) first and last pixel column and row whose centres the box of each triangle's corners
+    ``x``, ``y`` (F, 3) covers, clipped to the ``W x H`` image (empty where last < first)."""
     # pixel (i, j) has its centre at (i + 0.5, j + 0.5)
     ix0 = np.ceil(x.min(1) - 0.5).astype(np.int64)
     ix1 = np.floor(x.max(1) - 0.5).astype(np.int64)
@@ -201,6 +228,14 @@ def _rasterize(p: np.ndarray, tris: np.ndarray, W: int, H: int) -> tuple[np.ndar
     np.clip(iy0, 0, None, out=iy0)
     np.clip(ix1, None, W - 1, out=ix1)
     np.clip(iy1, None, H - 1, out=iy1)
+    return ix0, ix1, iy0, iy1
+
+
+def _edge_functions(x: np.ndarray, y: np.ndarray, ix0: np.ndarray, ix1: np.ndarray, iy0: np.ndarray,
+                    iy1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Barycentric edge functions of each triangle (corners ``x``, ``y`` (F, 3)) in pixel offsets
+    from its box's first pixel centre: ``a``, ``b``, ``c`` (F, 3), and ``ok`` (F,) for triangles
+    with a non-empty box and a non-degenerate, finite area."""
     # local coordinates relative to each box's first pixel centre keep the edge functions exact
     lx = x - (ix0[:, None] + 0.5)
     ly = y - (iy0[:, None] + 0.5)
@@ -213,44 +248,43 @@ def _rasterize(p: np.ndarray, tris: np.ndarray, W: int, H: int) -> tuple[np.ndar
     a = np.stack([y1 - y2, y2 - y0, y0 - y1], 1) / safe[:, None]
     b = np.stack([x2 - x1, x0 - x2, x1 - x0], 1) / safe[:, None]
     c = np.stack([x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0], 1) / safe[:, None]
-    bw = ix1 - ix0 + 1
-    bh = iy1 - iy0 + 1
-    kw = np.ceil(np.log2(np.maximum(bw, 1))).astype(np.int64)
-    kh = np.ceil(np.log2(np.maximum(bh, 1))).astype(np.int64)
-    key = np.where(ok, kw * 64 + kh, -1)
+    return a, b, c, ok
+
+
+def _inside_fragments(t: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, ox: np.ndarray,
+                      oy: np.ndarray, bw: np.ndarray, bh: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels of the triangles ``t`` (n,) inside them, testing offsets ``ox``, ``oy`` (S,) within
+    boxes of (F,) ``bw x bh`` pixels: for each fragment (m,) its triangle, offset index and the
+    three barycentrics."""
     eps = -1e-9
-    for k in np.unique(key[key >= 0]):
-        sel = np.flatnonzero(key == k)
-        sw, sh = 1 << int(k // 64), 1 << int(k % 64)
-        oy, ox = np.divmod(np.arange(sw * sh), sw)
-        step = max(1, _BATCH // (sw * sh))
-        for s0 in range(0, sel.size, step):
-            t = sel[s0:s0 + step]
-            l0 = a[t, 0:1] * ox + b[t, 0:1] * oy + c[t, 0:1]
-            l1 = a[t, 1:2] * ox + b[t, 1:2] * oy + c[t, 1:2]
-            l2 = 1.0 - l0 - l1
-            inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps)
-            inside &= (ox <= bw[t, None] - 1) & (oy <= bh[t, None] - 1)
-            ti, ci = np.nonzero(inside)
-            if not ti.size:
-                continue
-            tt = t[ti]
-            L0, L1, L2 = l0[ti, ci], l1[ti, ci], l2[ti, ci]
-            depth = L0 * z[tt, 0] + L1 * z[tt, 1] + L2 * z[tt, 2]
-            pix = (iy0[tt] + oy[ci]) * W + (ix0[tt] + ox[ci])
-            # nearest fragment per pixel within the batch (stable: earlier triangle wins ties)
-            order = np.lexsort((-depth, pix))
-            ps = pix[order]
-            first = np.ones(ps.size, bool)
-            first[1:] = ps[1:] != ps[:-1]
-            win = order[first]
-            pw = pix[win]
-            better = depth[win] > zbuf[pw]
-            win, pw = win[better], pw[better]
-            zbuf[pw] = depth[win]
-            tri_id[pw] = tt[win]
-            bary[pw, 0], bary[pw, 1], bary[pw, 2] = L0[win], L1[win], L2[win]
-    return tri_id, bary
+    l0 = a[t, 0:1] * ox + b[t, 0:1] * oy + c[t, 0:1]
+    l1 = a[t, 1:2] * ox + b[t, 1:2] * oy + c[t, 1:2]
+    l2 = 1.0 - l0 - l1
+    inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps)
+    inside &= (ox <= bw[t, None] - 1) & (oy <= bh[t, None] - 1)
+    ti, ci = np.nonzero(inside)
+    return t[ti], ci, l0[ti, ci], l1[ti, ci], l2[ti, ci]
+
+
+def _keep_nearest(zbuf: np.ndarray, tri_id: np.ndarray, bary: np.ndarray, pix: np.ndarray, depth: np.ndarray,
+                  tt: np.ndarray, lam: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    """Z-test fragments (m,) at pixels ``pix`` with ``depth`` from triangles ``tt`` and barycentrics
+    ``lam``: where one is nearer than ``zbuf`` (H*W,), update it, ``tri_id`` (H*W,) and ``bary``
+    (H*W, 3) in place."""
+    L0, L1, L2 = lam
+    # nearest fragment per pixel within the batch (stable: earlier triangle wins ties)
+    order = np.lexsort((-depth, pix))
+    ps = pix[order]
+    first = np.ones(ps.size, bool)
+    first[1:] = ps[1:] != ps[:-1]
+    win = order[first]
+    pw = pix[win]
+    better = depth[win] > zbuf[pw]
+    win, pw = win[better], pw[better]
+    zbuf[pw] = depth[win]
+    tri_id[pw] = tt[win]
+    bary[pw, 0], bary[pw, 1], bary[pw, 2] = L0[win], L1[win], L2[win]
 
 
 def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
@@ -324,39 +358,55 @@ def render_mesh(
     out[:] = bg
     hit = np.flatnonzero(tri_id >= 0)
     if hit.size:
-        t = tri_id[hit]
-        B = bary[hit]
-        R = cam.rotation
-        if shading == "smooth":
-            vn = _vertex_normals(verts, tris) @ R.T
-            n = np.einsum("pk,pkd->pd", B, vn[tris[t]])
-        else:
-            v = verts @ R.T
-            fn = np.cross(v[tris[:, 1]] - v[tris[:, 0]], v[tris[:, 2]] - v[tris[:, 0]])
-            n = fn[t]
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        # two-sided: a face seen from behind is lit as if it faced the viewer
-        n *= np.where(n[:, 2:3] < 0, -1.0, 1.0)
-        L = np.asarray(light, np.float64).reshape(3)
-        L = L / max(np.linalg.norm(L), 1e-12)
-        fill = np.array([0.6, -0.1, 0.8])
-        fill /= np.linalg.norm(fill)
-        diff = np.clip(n @ L, 0, None) * 0.85 + np.clip(n @ fill, 0, None) * 0.18
-        half = L + np.array([0.0, 0.0, 1.0])
-        half /= np.linalg.norm(half)
-        spec = specular * np.clip(n @ half, 0, None) ** 40
-        col = np.asarray(color, np.float64)
-        if col.ndim == 2:
-            if col.shape != (len(verts), 3):
-                raise InvalidDataError(f"per-vertex colours must be ({len(verts)}, 3), got {col.shape}")
-            base = _srgb_to_linear(np.einsum("pk,pkd->pd", B, col[tris[t]]))
-        else:
-            base = _srgb_to_linear(col.reshape(1, 3))
-        out[hit] = _linear_to_srgb(base * (ambient + diff)[:, None] + spec[:, None])
+        out[hit] = _shade(verts, tris, tri_id[hit], bary[hit], cam.rotation, shading=shading, light=light,
+                          color=color, ambient=ambient, specular=specular)
     out = out.reshape(Hs, Ws, 3)
     if ss > 1:
         out = out.reshape(H, ss, W, ss, 3).mean(axis=(1, 3))
     return np.round(out * 255.0).astype(np.uint8)
+
+
+def _shade(verts: np.ndarray, tris: np.ndarray, t: np.ndarray, B: np.ndarray, R: np.ndarray, *, shading: str,
+           light: Sequence[float], color: Sequence[float] | np.ndarray, ambient: float, specular: float
+           ) -> np.ndarray:
+    """(n, 3) sRGB colours (0..1) of n covered pixels, each on triangle ``t`` (n,) of ``tris`` (F, 3)
+    at barycentrics ``B`` (n, 3); ``verts`` (V, 3) in world space, ``R`` the world-to-view rotation.
+    The other arguments are :func:`render_mesh`'s."""
+    n = _pixel_normals(verts, tris, t, B, R, shading)
+    L = np.asarray(light, np.float64).reshape(3)
+    L = L / max(np.linalg.norm(L), 1e-12)
+    fill = np.array([0.6, -0.1, 0.8])
+    fill /= np.linalg.norm(fill)
+    diff = np.clip(n @ L, 0, None) * 0.85 + np.clip(n @ fill, 0, None) * 0.18
+    half = L + np.array([0.0, 0.0, 1.0])
+    half /= np.linalg.norm(half)
+    spec = specular * np.clip(n @ half, 0, None) ** 40
+    col = np.asarray(color, np.float64)
+    if col.ndim == 2:
+        if col.shape != (len(verts), 3):
+            raise InvalidDataError(f"per-vertex colours must be ({len(verts)}, 3), got {col.shape}")
+        base = _srgb_to_linear(np.einsum("pk,pkd->pd", B, col[tris[t]]))
+    else:
+        base = _srgb_to_linear(col.reshape(1, 3))
+    return _linear_to_srgb(base * (ambient + diff)[:, None] + spec[:, None])
+
+
+def _pixel_normals(verts: np.ndarray, tris: np.ndarray, t: np.ndarray, B: np.ndarray, R: np.ndarray,
+                   shading: str) -> np.ndarray:
+    """(n, 3) unit view-space normals at n pixels (triangle ``t`` (n,), barycentrics ``B`` (n, 3)),
+    interpolated from vertex normals (``"smooth"``) or the triangle's own (``"flat"``), turned
+    toward the viewer."""
+    if shading == "smooth":
+        vn = _vertex_normals(verts, tris) @ R.T
+        n = np.einsum("pk,pkd->pd", B, vn[tris[t]])
+    else:
+        v = verts @ R.T
+        fn = np.cross(v[tris[:, 1]] - v[tris[:, 0]], v[tris[:, 2]] - v[tris[:, 0]])
+        n = fn[t]
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    # two-sided: a face seen from behind is lit as if it faced the viewer
+    n *= np.where(n[:, 2:3] < 0, -1.0, 1.0)
+    return n
 
 
 def render_frames(

@@ -55,6 +55,33 @@ _NOSE_TIP = 30
 
 
 
+def _moving_part(V: np.ndarray, deltas: np.ndarray | None) -> np.ndarray:
+    """(n, 3) vertices of ``V`` (Vt, 3) that some keyshape of ``deltas`` (K, Vt, 3) moves (more than
+    1e-3 of the largest motion); all of ``V`` without deltas or motion."""
+    moving = np.ones(len(V), dtype=bool)
+    if deltas is not None and len(deltas):
+        m = np.linalg.norm(deltas, axis=2).max(axis=0)
+        if m.max() > 0:
+            moving = m > 1e-3 * m.max()
+    return V[moving]
+
+
+def _memberships(V: np.ndarray, owner: np.ndarray, names: list[str], width: float) -> np.ndarray:
+    """(R, Vt) memberships from the (Vt,) owning region of each vertex of ``V`` (Vt, 3): 1 inside the
+    region, falling off smoothly to 0 at ``width`` from it; columns normalised to sum to 1."""
+    R = len(names)
+    W = np.zeros((R, len(V)))
+    for r in range(R):
+        inside = owner == r
+        if not inside.any():
+            raise InvalidDataError(f"region '{names[r]}' holds no target vertex")
+        d, _ = cKDTree(V[inside]).query(V, distance_upper_bound=width)
+        W[r] = np.where(np.isfinite(d), 1.0 - smoothstep(np.nan_to_num(d, posinf=width) / width), 0.0)
+        W[r, inside] = np.maximum(W[r, inside], 1.0)
+    # inside its own region a vertex keeps full weight; near a seam memberships are shared
+    return W / W.sum(axis=0, keepdims=True)
+
+
 class Regions(Model):
     """Source feature subsets and smoothly blended target vertex memberships.
 
@@ -166,34 +193,13 @@ class Regions(Model):
             The source feature points at rest (for the default seam's relative height).
         """
         V = np.asarray(neutral, dtype=np.float64)
-        moving = np.ones(len(V), dtype=bool)
-        if deltas is not None and len(deltas):
-            m = np.linalg.norm(deltas, axis=2).max(axis=0)
-            if m.max() > 0:
-                moving = m > 1e-3 * m.max()
-        face = V[moving]
+        face = _moving_part(V, deltas)
         size = float(np.linalg.norm(face.max(axis=0) - face.min(axis=0)))
         width = self.width if self.width is not None else 0.12 * size
         if not width > 0:
             raise InvalidDataError(f"regions: blend width must be > 0, got {width}")
         if self.target is not None:
-            sets = []
-            for name in self.names:
-                t = self.target[name]
-                if t.size == 0:
-                    raise InvalidDataError(f"region '{name}' has no target vertices")
-                if t.min() < 0 or t.max() >= len(V):
-                    raise InvalidDataError(f"region '{name}': target vertex index outside 0..{len(V) - 1}")
-                sets.append(t)
-            # vertices nobody named join the nearest named one's region
-            owner = np.full(len(V), -1)
-            for r, t in enumerate(sets):
-                owner[t] = np.where(owner[t] < 0, r, owner[t])
-            free = np.flatnonzero(owner < 0)
-            if free.size:
-                named = np.flatnonzero(owner >= 0)
-                _, j = cKDTree(V[named]).query(V[free])
-                owner[free] = owner[named[j]]
+            owner = self._owners_from_sets(V)
         else:
             if len(self.names) != 2:
                 raise InvalidDataError("regions: without target vertex sets only a two-region upper/lower "
@@ -203,31 +209,48 @@ class Regions(Model):
             if seam is None and landmarks is not None and len(landmarks) == 68:
                 seam = float(V[int(landmarks[_NOSE_TIP]), self.up])
             if seam is None:
-                frac = 0.5
-                if source_points is not None and getattr(self, "source_idx_", None) is not None:
-                    y = np.asarray(source_points)[:, self.up]
-                    lo_, hi_ = y.min(), y.max()
-                    up_min = y[self.source_idx_[0]].min()
-                    lo_max = y[self.source_idx_[1]].max()
-                    if hi_ > lo_:
-                        frac = float(np.clip((0.5 * (up_min + lo_max) - lo_) / (hi_ - lo_), 0.1, 0.9))
-                fy = face[:, self.up]
-                seam = float(fy.min() + frac * (fy.max() - fy.min()))
+                seam = self._default_seam(face, source_points)
             self.seam_ = seam
             owner = np.where(h >= seam, 0, 1)
-        R = len(self.names)
-        W = np.zeros((R, len(V)))
-        for r in range(R):
-            inside = owner == r
-            if not inside.any():
-                raise InvalidDataError(f"region '{self.names[r]}' holds no target vertex")
-            d, _ = cKDTree(V[inside]).query(V, distance_upper_bound=width)
-            W[r] = np.where(np.isfinite(d), 1.0 - smoothstep(np.nan_to_num(d, posinf=width) / width), 0.0)
-            W[r, inside] = np.maximum(W[r, inside], 1.0)
-        # inside its own region a vertex keeps full weight; near a seam memberships are shared
-        self.masks_ = W / W.sum(axis=0, keepdims=True)
+        self.masks_ = _memberships(V, owner, self.names, width)
         self.width_ = float(width)
         return self.masks_
+
+    def _owners_from_sets(self, V: np.ndarray) -> np.ndarray:
+        """(Vt,) region index of each target vertex (``V`` (Vt, 3)) from the target vertex sets;
+        vertices no set names join the nearest named vertex's region."""
+        sets = []
+        for name in self.names:
+            t = self.target[name]
+            if t.size == 0:
+                raise InvalidDataError(f"region '{name}' has no target vertices")
+            if t.min() < 0 or t.max() >= len(V):
+                raise InvalidDataError(f"region '{name}': target vertex index outside 0..{len(V) - 1}")
+            sets.append(t)
+        # vertices nobody named join the nearest named one's region
+        owner = np.full(len(V), -1)
+        for r, t in enumerate(sets):
+            owner[t] = np.where(owner[t] < 0, r, owner[t])
+        free = np.flatnonzero(owner < 0)
+        if free.size:
+            named = np.flatnonzero(owner >= 0)
+            _, j = cKDTree(V[named]).query(V[free])
+            owner[free] = owner[named[j]]
+        return owner
+
+    def _default_seam(self, face: np.ndarray, source_points: np.ndarray | None) -> float:
+        """Seam height on the target's moving part ``face`` (n, 3): at the relative height between the
+        source's upper and lower feature points (``source_points`` (P, 3)), else halfway."""
+        frac = 0.5
+        if source_points is not None and getattr(self, "source_idx_", None) is not None:
+            y = np.asarray(source_points)[:, self.up]
+            lo_, hi_ = y.min(), y.max()
+            up_min = y[self.source_idx_[0]].min()
+            lo_max = y[self.source_idx_[1]].max()
+            if hi_ > lo_:
+                frac = float(np.clip((0.5 * (up_min + lo_max) - lo_) / (hi_ - lo_), 0.1, 0.9))
+        fy = face[:, self.up]
+        return float(fy.min() + frac * (fy.max() - fy.min()))
 
     def split(self, deltas: np.ndarray) -> np.ndarray:
         """Target key shapes ``(K, Vt, 3)`` split by the regions' memberships: ``(R x K, Vt, 3)``,
