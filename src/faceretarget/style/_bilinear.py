@@ -389,6 +389,35 @@ class AsymmetricBilinearModel(BilinearModel):
         return self
 
 
+def _style_windows(T: int, window: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """Style windows of ``window`` frames (all ``T`` when None), for :meth:`SymmetricBilinearModel.infer`.
+
+    Returns the window boundaries ``(n_windows + 1,) int`` and every frame's window ``(T,) int``.
+    """
+    n = T if window is None else int(window)
+    if n < 1:
+        raise InvalidDataError(f"style window must be >= 1 frame, got {window}")
+    windows = np.append(np.arange(0, T, n), T)
+    widx = np.repeat(np.arange(len(windows) - 1), np.diff(windows))
+    return windows, widx
+
+
+def _window_means(v: np.ndarray, windows: np.ndarray) -> np.ndarray:
+    """Mean ``(n_windows,)`` of the per-frame values ``v`` ``(T,)`` over every window."""
+    return np.add.reduceat(v, windows[:-1]) / np.diff(windows)
+
+
+def _rescale_windows(aw: np.ndarray, b: np.ndarray, widx: np.ndarray, m1: np.ndarray,
+                     ref: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(aw l, b / l)`` with ``l = m1 / ref`` per window (1 where ``m1`` is about 0), so ``m1 -> ref``.
+
+    ``aw`` ``(n_windows, I)`` window styles, ``b`` ``(T, J)`` contents, ``widx`` ``(T,)`` each frame's
+    window, ``m1`` ``(n_windows,)`` the windows' current values of the quantity to bring to ``ref``.
+    """
+    lam = np.where(np.abs(m1) > 1e-12 * abs(ref), m1 / ref, 1.0)
+    return aw * lam[:, None], b / lam[widx][:, None]
+
+
 # ============================================================================================ symmetric
 class InferResult:
     """What :meth:`SymmetricBilinearModel.infer` found.
@@ -671,12 +700,24 @@ class SymmetricBilinearModel(BilinearModel):
         self._check_fitted()
         y, _ = _frames(y, self.n_dims, "observations")
         use_prior = self.prior if prior is None else prior
-        T = len(y)
-        n = T if window is None else int(window)
-        if n < 1:
-            raise InvalidDataError(f"style window must be >= 1 frame, got {window}")
-        windows = np.append(np.arange(0, T, n), T)
-        widx = np.repeat(np.arange(len(windows) - 1), np.diff(windows))
+        windows, widx = _style_windows(len(y), window)
+        first = self._first_range(margin)                               # (lo, hi, mean, anchored)
+        aw = np.tile(self._initial_style(init), (len(windows) - 1, 1))
+        aw, hist, resets = self._alternate(y, aw, windows, widx, use_prior, first, reinit_first and first[3],
+                                           anchor, max_iter, tol)
+        aw, b = self._final_contents(y, aw, windows, widx, use_prior, first, anchor)
+        d = ((aw[:, None, :] - self.style_vectors_[None]) ** 2).sum(-1)
+        nearest = np.argmin(d, axis=1)[widx]
+        return InferResult(aw[widx], b, aw, windows, nearest, hist, len(hist), resets)
+
+    def _first_range(self, margin: float) -> tuple[float, float, float, bool]:
+        """The training range of the first content component, as :meth:`infer` uses it.
+
+        Returns ``(lo, hi, mean, anchored)``: the range of the training contents' first component
+        widened by ``margin`` times its width on both sides, its training mean, and whether it is
+        constant-like (mean more than 3 standard deviations from 0), so that it can anchor the
+        scale and be re-initialised.
+        """
         B0 = self.content_vectors_[:, 0]
         lo, hi = float(B0.min()), float(B0.max())
         pad = margin * (hi - lo)
@@ -684,52 +725,93 @@ class SymmetricBilinearModel(BilinearModel):
         mean_first = float(B0.mean())
         # the first content component anchors the scale only when it is constant-like (a mean)
         anchored = abs(mean_first) > 3.0 * float(B0.std())
-        reinit_first = reinit_first and anchored
-        a0 = self.style_vectors_.mean(0) if init is None else (
+        return lo, hi, mean_first, anchored
+
+    def _initial_style(self, init) -> np.ndarray:
+        """The starting style vector ``(I,)`` of :meth:`infer`.
+
+        The mean training style vector when ``init`` is None, the vector of the style named
+        ``init``, else ``init`` itself as a float array.
+        """
+        return self.style_vectors_.mean(0) if init is None else (
             self.style_vector(init) if isinstance(init, str) else np.asarray(init, np.float64))
-        aw = np.tile(a0, (len(windows) - 1, 1))
+
+    def _alternate(self, y, aw, windows, widx, use_prior, first, reinit_first, anchor, max_iter: int,
+                   tol: float) -> tuple[np.ndarray, list[float], int]:
+        """The alternation of :meth:`infer`: contents given styles, styles given contents, until it settles.
+
+        ``y`` ``(T, K)``; ``aw`` ``(n_windows, I)`` the starting window styles; ``windows`` the window
+        boundaries and ``widx`` ``(T,)`` each frame's window; ``first`` from :meth:`_first_range`.
+        Every iteration solves all contents, re-initialises out-of-range first components (when
+        ``reinit_first``, :meth:`_reinit_first`), solves every window's style and fixes the scale
+        (:meth:`_fix_scale`).  Stops after ``max_iter`` iterations or when the mean squared residual
+        changes by at most ``tol`` times the mean square of ``y``.  Returns ``(aw, history, resets)``.
+        """
         ms = max(float(np.mean(y**2)), 1e-300)
         hist: list[float] = []
         resets = 0
-        b = None
         for _ in range(max_iter):
             b = self._content(y, aw, windows, None, use_prior)
             if reinit_first and self.content_dims_ > 1:
-                out = (b[:, 0] < lo) | (b[:, 0] > hi) | ~np.isfinite(b[:, 0])
-                if out.any():
-                    resets += int(out.sum())
-                    fixed = np.where(out, mean_first, np.nan)
-                    b = self._content(y, aw, windows, fixed, use_prior)
+                b, n_reset = self._reinit_first(y, aw, windows, b, use_prior, first)
+                resets += n_reset
             aw = self._style(y, b, windows)
-            # scale: mean first content component of each window = training mean
-            if anchor is not None:
-                idx, val = np.asarray(anchor[0]).reshape(-1), float(anchor[1])
-                Mm = np.einsum("i,ijk->jk", self.style_vectors_[: len(self.styles_)].mean(0), self.core_[..., idx])
-                c = (b @ Mm).mean(1)                                    # per frame
-                m1 = np.add.reduceat(c, windows[:-1]) / np.diff(windows)
-                lam = np.where(np.abs(m1) > 1e-12 * abs(val), m1 / val, 1.0)
-                aw = aw * lam[:, None]
-                b = b / lam[widx][:, None]
-            elif anchored:
-                m1 = np.add.reduceat(b[:, 0], windows[:-1]) / np.diff(windows)
-                lam = np.where(np.abs(m1) > 1e-12 * abs(mean_first), m1 / mean_first, 1.0)
-                aw = aw * lam[:, None]
-                b = b / lam[widx][:, None]
+            aw, b = self._fix_scale(aw, b, windows, widx, anchor, first)
             Ma = np.einsum("wi,ijk->wjk", aw, self.core_)
             r = y - np.einsum("tj,tjk->tk", b, Ma[widx])
             hist.append(float(np.mean(r**2)))
             if len(hist) > 1 and abs(hist[-2] - hist[-1]) <= tol * ms:
                 break
+        return aw, hist, resets
+
+    def _reinit_first(self, y, aw, windows, b, use_prior, first) -> tuple[np.ndarray, int]:
+        """Contents ``b`` ``(T, J)`` with every out-of-range first component reset to the training mean.
+
+        A frame whose first component is outside ``first``'s ``(lo, hi)`` (or not finite) gets it
+        fixed at the training mean and its other components solved again given it
+        (:meth:`_content`).  Returns the contents and the number of frames reset.
+        """
+        lo, hi, mean_first, _ = first
+        out = (b[:, 0] < lo) | (b[:, 0] > hi) | ~np.isfinite(b[:, 0])
+        if not out.any():
+            return b, 0
+        fixed = np.where(out, mean_first, np.nan)
+        return self._content(y, aw, windows, fixed, use_prior), int(out.sum())
+
+    def _fix_scale(self, aw, b, windows, widx, anchor, first) -> tuple[np.ndarray, np.ndarray]:
+        """Fix the bilinear scale ambiguity of every window: ``a -> l a``, ``b -> b / l``.
+
+        With ``anchor = (indices, value)``: ``l`` makes the mean over the window of the anchored
+        coordinates, rendered with the mean training style, equal ``value``; else, when the first
+        content component is constant-like (``first``, :meth:`_first_range`), ``l`` makes the window's
+        mean first component equal the training mean; else nothing changes.  Returns ``(aw, b)``.
+        """
+        _, _, mean_first, anchored = first
+        # scale: mean first content component of each window = training mean
+        if anchor is not None:
+            idx, val = np.asarray(anchor[0]).reshape(-1), float(anchor[1])
+            Mm = np.einsum("i,ijk->jk", self.style_vectors_[: len(self.styles_)].mean(0),
+                           self.core_[..., idx])
+            c = (b @ Mm).mean(1)                                    # per frame
+            return _rescale_windows(aw, b, widx, _window_means(c, windows), val)
+        if anchored:
+            return _rescale_windows(aw, b, widx, _window_means(b[:, 0], windows), mean_first)
+        return aw, b
+
+    def _final_contents(self, y, aw, windows, widx, use_prior, first,
+                        anchor) -> tuple[np.ndarray, np.ndarray]:
+        """The contents ``(T, J)`` returned by :meth:`infer`, solved freely given the final window styles.
+
+        Without ``anchor`` and with a constant-like first component (``first``), each window is
+        rescaled so its mean first component equals the training mean.  Returns ``(aw, b)``.
+        """
         # the final contents given the final styles, unconstrained (the re-initialisation only steers
         # the alternation)
+        _, _, mean_first, anchored = first
         b = self._content(y, aw, windows, None, use_prior)
         if anchor is None and anchored:
-            m1 = np.add.reduceat(b[:, 0], windows[:-1]) / np.diff(windows)
-            lam = np.where(np.abs(m1) > 1e-12 * abs(mean_first), m1 / mean_first, 1.0)
-            aw, b = aw * lam[:, None], b / lam[widx][:, None]
-        d = ((aw[:, None, :] - self.style_vectors_[None]) ** 2).sum(-1)
-        nearest = np.argmin(d, axis=1)[widx]
-        return InferResult(aw[widx], b, aw, windows, nearest, hist, len(hist), resets)
+            aw, b = _rescale_windows(aw, b, widx, _window_means(b[:, 0], windows), mean_first)
+        return aw, b
 
     def fit_style(self, y, b) -> np.ndarray:
         """A new style vector from examples with known contents ``b``: least squares (Eq. 2.13)."""

@@ -754,6 +754,32 @@ class StyleModel(Model):
             examples leave the style at (or near) the additive offset.
         """
         self._check_fitted()
+        known, x_new, x_known = self._style_examples(name, frames, like)
+        self._extend_basis(x_new - self.mean_)
+        z = (x_new - self.mean_) @ self.basis_
+        self.coef_lo_, self.coef_hi_ = (np.minimum(self.coef_lo_, z.min(0)),
+                                        np.maximum(self.coef_hi_, z.max(0)))
+        y_new, y_known = self.encode(x_new), self.encode(x_known)
+        A = self.asymmetric_
+        b = A.content(y_known, known)
+        Ak = A.style_matrix(known)
+        w = ones_weights(A.content_vectors_)
+        ridge, table = self._new_style_ridge(name, known, shrink, b, y_new, y_known, Ak, w)
+        self._fit_new_style(name, known, y_new, y_known, b, Ak, w, ridge)
+        self.added_ = {**getattr(self, "added_", {}), str(name): {"shrink": ridge, "table": table}}
+        self.styles_ = [*self.styles_, str(name)]
+        self.pair_sets_.append({known: (x_known - self.mean_) @ self.basis_, name: z})
+        self._local_cache = {}
+        return self
+
+    def _style_examples(self, name: str, frames,
+                        like: tuple[str, np.ndarray]) -> tuple[str, np.ndarray, np.ndarray]:
+        """Check :meth:`add_style`'s arguments; returns ``(known, x_new, x_known)``.
+
+        ``x_new`` ``(T, D)`` and ``x_known`` ``(T, D)`` are the flattened example frames of the new
+        style and of the known style ``known`` (``like``); raises :class:`InvalidDataError` when
+        ``name`` is already a style, ``known`` is not one, or the two differ in length.
+        """
         known, kf = like
         if name in self.styles_:
             raise InvalidDataError(f"style '{name}' is already in the model")
@@ -761,16 +787,21 @@ class StyleModel(Model):
             raise InvalidDataError(f"unknown style '{known}'; the model has {', '.join(self.styles_)}")
         x_new, x_known = self._flat(frames), self._flat(kf)
         if len(x_new) != len(x_known):
-            raise InvalidDataError(f"style '{name}': {len(x_new)} example frames but {len(x_known)} frames in "
-                                   f"'{known}'; align them first")
-        self._extend_basis(x_new - self.mean_)
-        z = (x_new - self.mean_) @ self.basis_
-        self.coef_lo_, self.coef_hi_ = np.minimum(self.coef_lo_, z.min(0)), np.maximum(self.coef_hi_, z.max(0))
-        y_new, y_known = self.encode(x_new), self.encode(x_known)
-        A, S = self.asymmetric_, self.symmetric_
-        b = A.content(y_known, known)
-        Ak = A.style_matrix(known)
-        w = ones_weights(A.content_vectors_)
+            raise InvalidDataError(f"style '{name}': {len(x_new)} example frames but {len(x_known)} "
+                                   f"frames in '{known}'; align them first")
+        return known, x_new, x_known
+
+    def _new_style_ridge(self, name: str, known: str, shrink: float | str, b: np.ndarray, y_new: np.ndarray,
+                         y_known: np.ndarray, Ak: np.ndarray, w: np.ndarray) -> tuple[float, list]:
+        """The shrinkage ``ridge`` of a new style's matrix, and the cross-validation's scores.
+
+        ``shrink="auto"``: chosen by :func:`~._select.select_style_ridge` from the contents ``b``
+        ``(T, J)``, the observations ``y_new`` and ``y_known`` ``(T, K)``, the known style's matrix
+        ``Ak`` ``(K, J)`` and ``w`` ``(J,)`` (:func:`~._select.ones_weights`), scored on the
+        non-constant coordinates, with a :class:`StyleFitWarning` (at :meth:`add_style`'s caller)
+        when it ends at the strongest shrinkage or the examples are too few; else ``float(shrink)``
+        (checked >= 0) and an empty table.  Returns ``(ridge, table)``.
+        """
         const = np.zeros(y_new.shape[1], bool)
         if self.offset_ > 0:
             const[np.arange(self.bundle) * (y_new.shape[1] // self.bundle)] = True
@@ -779,27 +810,35 @@ class StyleModel(Model):
             if shrink != "auto":
                 raise InvalidDataError(f"shrink must be a number >= 0 or 'auto', got {shrink!r}")
             ridge, table = select_style_ridge(b, y_new, y_known, Ak, w, score_cols=np.flatnonzero(~const),
-                                              detail=self.detail, local=self.settings_["local"], bundle=self.bundle)
+                                              detail=self.detail, local=self.settings_["local"],
+                                              bundle=self.bundle)
             if not table or ridge >= max(STYLE_RIDGE_GRID):
                 how = (f"{len(b)} example frames are too few to cross-validate" if not table else
                        "cross-validation on the examples chose the strongest shrinkage")
-                warnings.warn(f"style '{name}': {how}; its matrix stays close to '{known}' plus the examples' mean "
-                              f"offset (shrink {ridge:.3g}, {len(b)} frames for {b.shape[1]} content dimensions)",
-                              StyleFitWarning, stacklevel=2)
+                warnings.warn(f"style '{name}': {how}; its matrix stays close to '{known}' plus the "
+                              f"examples' mean offset (shrink {ridge:.3g}, {len(b)} frames for {b.shape[1]} "
+                              "content dimensions)", StyleFitWarning, stacklevel=3)
         else:
             ridge = float(shrink)
             if not ridge >= 0:
                 raise InvalidDataError(f"shrink must be >= 0, got {shrink}")
+        return ridge, table
+
+    def _fit_new_style(self, name: str, known: str, y_new: np.ndarray, y_known: np.ndarray, b: np.ndarray,
+                       Ak: np.ndarray, w: np.ndarray, ridge: float) -> None:
+        """Add the new style to both bilinear models, each pulled by ``ridge`` towards its additive edit.
+
+        The asymmetric model's matrix is pulled towards ``Ak + d w'`` and the symmetric model's new
+        core slice towards the known style's ``W a_known`` plus ``d`` along its content weights, with
+        ``d`` ``(K,)`` the examples' mean difference ``y_new - y_known``; ``b`` ``(T, J)``: the
+        asymmetric model's contents of ``y_known``.
+        """
+        A, S = self.asymmetric_, self.symmetric_
         d = (y_new - y_known).mean(0)
         A.add_style(name, y_new, b, ridge=ridge, toward=Ak + np.outer(d, w))
         bs = S.content(y_known, known)
         Mk = np.einsum("i,ijk->jk", S.style_vector(known), S.core_)
         S.add_style(name, y_new, bs, ridge=ridge, toward=Mk + np.outer(ones_weights(S.content_vectors_), d))
-        self.added_ = {**getattr(self, "added_", {}), str(name): {"shrink": ridge, "table": table}}
-        self.styles_ = [*self.styles_, str(name)]
-        self.pair_sets_.append({known: (x_known - self.mean_) @ self.basis_, name: z})
-        self._local_cache = {}
-        return self
 
     def _extend_basis(self, d: np.ndarray) -> int:
         """Grow the PCA basis until it keeps ``variance`` of the rows of ``d`` (about the mean)."""

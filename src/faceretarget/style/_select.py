@@ -234,141 +234,280 @@ def select_settings(make_model, X: dict[str, np.ndarray], *, fixed: dict | None 
     if C < min_frames:
         d = {k: fixed.get(k, v) for k, v in FALLBACK.items()}
         return Selection(d["variance"], d["energy"], d["prior"], d["local"])
+    folds, gap, splits = _fold_plan(make_model, C, folds, gap)
+    base = _unchanged_error(X, splits)
+    vs, es, ps = _candidate_grids(fixed, g)
+    table: list[dict] = []
+    (v, e, p), pcas = _select_bilinear(make_model, X, splits, vs, es, ps, base, table)
+    if "local" in fixed:
+        local = fixed["local"]
+    else:
+        local = _select_local(make_model, X, splits, pcas, (v, e, p), g, search, points_rest, base, table)
+    return Selection(v, e, p, local, folds, gap, table)
+
+
+def _fold_plan(make_model, C: int, folds: int, gap: int | None) -> tuple[int, int, list]:
+    """The cross-validation's folds for ``C`` aligned frames.
+
+    ``gap`` defaults to 1 % of the frames, at least the bundle size of ``make_model``'s models;
+    ``folds`` is reduced so every block keeps at least ``max(10, 2 gap + 2)`` frames (at least 2
+    folds).  Returns ``(folds, gap, splits)`` with ``splits`` from :func:`cv_folds`.
+    """
     probe = make_model(variance=0.9999, energy=0.9999, prior=1.0)
     gap = max(int(probe.bundle), C // 100) if gap is None else int(gap)
     folds = int(max(2, min(folds, C // max(10, 2 * gap + 2))))
     splits = cv_folds(C, folds, gap)
+    return folds, gap, splits
+
+
+def _unchanged_error(X: dict[str, np.ndarray], splits: list) -> float:
+    """The score's unit: the squared error of leaving the input unchanged.
+
+    Summed over the validation blocks of ``splits`` and every ordered pair of distinct styles
+    ``(s, t)`` of ``X`` (``X[s]`` ``(C, D)`` float), ``|X[s] - X[t]|^2``; at least ``1e-300``.
+    """
+    styles = list(X)
     base = 0.0                                                         # error of leaving the input unchanged
     for _, va in splits:
         for s in styles:
             for t in styles:
                 if t != s:
                     base += float(np.sum((X[s][va] - X[t][va]) ** 2))
-    base = max(base, 1e-300)
+    return max(base, 1e-300)
+
+
+def _candidate_grids(fixed: dict, g: dict) -> tuple[list, list, list]:
+    """The searched values ``(variances, energies, priors)``: the fixed value alone, else the grid ``g``'s."""
     vs = [fixed["variance"]] if "variance" in fixed else list(g["variance"])
     es = [fixed["energy"]] if "energy" in fixed else list(g["energy"])
     ps = [float(fixed["prior"])] if "prior" in fixed else list(g["prior"])
-    table: list[dict] = []
+    return vs, es, ps
 
-    # ---- stage 1: the bilinear model's settings
+
+# ------------------------------------------------------------------------------------------ stage 1: bilinear
+def _select_bilinear(make_model, X: dict[str, np.ndarray], splits: list, vs: list, es: list, ps: list,
+                     base: float, table: list) -> tuple[tuple, dict]:
+    """Stage 1: the bilinear model's ``(variance, energy, prior)`` with the lowest fold-summed error.
+
+    Every combination of ``vs`` x ``es`` x ``ps`` is scored on every fold (only when there is more
+    than one) and appended to ``table`` as a stage-1 row (score relative to ``base``).  Returns the
+    winner (ties: the earlier in grid order) and the folds' PCAs ``{fold: pca_of(training frames)}``
+    (empty when nothing was scored), which stage 2 reuses.
+    """
     cand = [(v, e, p) for v in vs for e in es for p in ps]
     score = dict.fromkeys(cand, 0.0)
     pcas: dict = {}
     if len(cand) > 1:
         for f, (tr, va) in enumerate(splits):
-            Xtr = {s: x[tr] for s, x in X.items()}
-            Xva = {s: x[va] for s, x in X.items()}
-            seen: dict[tuple, dict] = {}
-            pca = pcas[f] = pca_of(Xtr)
-            for v in vs:
-                m = make_model(variance=v, energy=es[0], prior=ps[0])._fit_resolved(Xtr, symmetric=False, pca=pca)
-                A = m.asymmetric_
-                prep = _prep_val(m, Xva)
-                for e in es:
-                    A._set_rank(A.content_dims if A.content_dims is not None else
-                                choose_dims(A.singular_values_, e, min(A.n_dims, len(A.singular_values_)),
-                                            A.keep_first))
-                    key = (m.n_components_, A.content_dims_)
-                    if key in seen:                                     # same K and J: the same model
-                        for p in ps:
-                            score[(v, e, p)] += seen[key][p]
-                        continue
-                    seen[key] = {}
-                    for p in ps:
-                        m.asymmetric_.prior = p
-                        err = _sse_known(m, Xva, prep=prep)
-                        seen[key][p] = err
-                        score[(v, e, p)] += err
+            pcas[f] = _score_bilinear_fold(make_model, X, tr, va, vs, es, ps, score)
         for c in cand:
-            table.append({"stage": 1, "variance": c[0], "energy": c[1], "prior": c[2], "score": score[c] / base})
-    v, e, p = min(cand, key=lambda c: score[c])
+            table.append({"stage": 1, "variance": c[0], "energy": c[1], "prior": c[2],
+                          "score": score[c] / base})
+    return min(cand, key=lambda c: score[c]), pcas
 
-    # ---- stage 2: the local correction
-    if "local" in fixed:
-        local = fixed["local"]
-    else:
-        H, L = list(g["bandwidth"]), list(g["ridge"])
-        s2: dict = {}
-        fold_fits: dict = {}
 
-        def evaluate(cands):                                          # fold-summed scores of new (h, lam)
-            cands = [c for c in cands if ("kernel", *c) not in s2]
-            if not cands and 0 in s2:
-                return
-            for c in cands:
-                s2[("kernel", *c)] = 0.0
-            first = 0 not in s2
-            if first:
-                s2[0] = 0.0
-            for f, (tr, va) in enumerate(splits):
-                Xva = {s: x[va] for s, x in X.items()}
-                if f not in fold_fits:                                   # the fold's model and residuals, once
-                    Xtr = {s: x[tr] for s, x in X.items()}
-                    m = make_model(variance=v, energy=e, prior=p)._fit_resolved(Xtr, symmetric=False,
-                                                                                  pca=pcas.get(f))
-                    pv = _prep_val(m, Xva)
-                    A = m.asymmetric_
-                    res = {}
-                    for s in styles:
-                        Ys = m.encode(Xtr[s])
-                        b = A.content(Ys, s)
-                        R = np.concatenate([m.encode(Xtr[t]) - A.render(b, t) for t in styles], axis=1)
-                        res[s] = (Ys, R, nn_scale(Ys))
-                    fold_fits[f] = (m, pv, res)
-                m, pv, res = fold_fits[f]
-                if first:
-                    s2[0] += _sse_known(m, Xva, prep=pv)
-                prep = {s: (Ys, R, _sqdist(Ys, Ys), _sqdist(pv["Y"][s], Ys), sc) for s, (Ys, R, sc) in res.items()}
-                Kd = prep[styles[0]][0].shape[1]
-                for h in dict.fromkeys(c[0] for c in cands):
-                    kern = {}
-                    for s in styles:                                    # the kernels, once per bandwidth
-                        _, _, D2, Dq, sc = prep[s]
-                        hh = h * sc
-                        kern[s] = (np.exp(-D2 / (2 * hh * hh)), np.exp(-Dq / (2 * hh * hh)))
-                    for lam in [c[1] for c in cands if c[0] == h]:
-                        preds = {}
-                        for s in styles:
-                            K0, Kq = kern[s]
-                            K = K0.copy()
-                            K[np.diag_indices_from(K)] += lam
-                            P = Kq @ cho_solve(cho_factor(K, lower=True, overwrite_a=True, check_finite=False),
-                                               prep[s][1], check_finite=False)
-                            preds[s] = {t: P[:, i * Kd:(i + 1) * Kd] for i, t in enumerate(styles)}
-                        s2[("kernel", h, lam)] += _sse_known(m, Xva, lambda s, _y, preds=preds: preds[s], prep=pv)
+def _score_bilinear_fold(make_model, X: dict[str, np.ndarray], tr: np.ndarray, va: np.ndarray, vs: list,
+                         es: list, ps: list, score: dict) -> tuple:
+    """Add one fold's known-expression error of every ``(v, e, p)`` candidate to ``score``.
 
-        if search == "full":
-            evaluate([(h, lam) for h in H for lam in L])
-        else:                                                           # coordinate search from the middle
-            h, lam = H[(len(H) - 1) // 2], L[(len(L) - 1) // 2]
-            axis = 0
-            while True:
-                evaluate([(x, lam) for x in H] if axis == 0 else [(h, x) for x in L])
-                best = min(((c[1], c[2]) for c in s2 if c != 0), key=lambda c: s2[("kernel", *c)])
-                if best == (h, lam) and axis == 1:
-                    break
-                moved = best != (h, lam)
-                h, lam = best
-                if not moved and axis == 0:
-                    axis = 1
-                    continue
-                if not moved:
-                    break
-                axis = 1 - axis
-        specs = [0] + [("kernel", h, lam) for h in H for lam in L if ("kernel", h, lam) in s2]
-        for c in specs:
-            table.append({"stage": 2, "variance": v, "energy": e, "prior": p,
-                          "local": list(c) if c else 0, "score": s2[c] / base})
-        local = min(specs, key=lambda c: s2[c])
-        if points_rest is not None:                                     # ---- stage 3: point-local translation
-            s3 = score_point_local(X, splits, points_rest)
-            for c, sc in s3.items():
-                table.append({"stage": 3, "variance": v, "energy": e, "prior": p, "local": list(c),
-                              "score": sc / base})
-            best3 = min(s3, key=s3.get)
-            if s3[best3] < s2[local]:
-                local = best3
-    return Selection(v, e, p, local, folds, gap, table)
+    One asymmetric model per variance is fitted on the training frames ``tr``; the energies only
+    change its rank and the priors only its content solve, so candidates giving the same ``K`` and
+    ``J`` share their errors.  Validated on the frames ``va``.  Returns the fold's
+    :func:`pca_of` of the training frames.
+    """
+    Xtr = {s: x[tr] for s, x in X.items()}
+    Xva = {s: x[va] for s, x in X.items()}
+    seen: dict[tuple, dict] = {}
+    pca = pca_of(Xtr)
+    for v in vs:
+        m = make_model(variance=v, energy=es[0], prior=ps[0])._fit_resolved(Xtr, symmetric=False, pca=pca)
+        A = m.asymmetric_
+        prep = _prep_val(m, Xva)
+        for e in es:
+            A._set_rank(A.content_dims if A.content_dims is not None else
+                        choose_dims(A.singular_values_, e, min(A.n_dims, len(A.singular_values_)),
+                                    A.keep_first))
+            key = (m.n_components_, A.content_dims_)
+            if key in seen:                                     # same K and J: the same model
+                for p in ps:
+                    score[(v, e, p)] += seen[key][p]
+                continue
+            seen[key] = {}
+            for p in ps:
+                m.asymmetric_.prior = p
+                err = _sse_known(m, Xva, prep=prep)
+                seen[key][p] = err
+                score[(v, e, p)] += err
+    return pca
+
+
+# ------------------------------------------------------------------------------------------ stage 2: kernel
+def _select_local(make_model, X: dict[str, np.ndarray], splits: list, pcas: dict, vep: tuple, g: dict,
+                  search: str, points_rest: np.ndarray | None, base: float, table: list):
+    """Stages 2 and 3: the local correction for the bilinear settings ``vep = (v, e, p)``.
+
+    Scores no correction and kernel corrections over the bandwidth x ridge grid of ``g`` (all of it
+    for ``search="full"``, else :func:`_coordinate_search`), appends them to ``table`` as stage-2
+    rows in grid order, and with ``points_rest`` the point-local candidates as stage-3 rows
+    (:func:`_select_point_local`).  Returns the winner: ``0``, ``("kernel", h, lam)`` or
+    ``("points", m, k)``.
+    """
+    v, e, p = vep
+    H, L = list(g["bandwidth"]), list(g["ridge"])
+    s2: dict = {}
+    fold_fits: dict = {}
+
+    def evaluate(cands):
+        """Add the fold-summed scores of ``cands``' new ``(h, lam)`` to ``s2`` (:func:`_score_kernels`)."""
+        _score_kernels(make_model, X, splits, pcas, vep, cands, s2, fold_fits)
+
+    if search == "full":
+        evaluate([(h, lam) for h in H for lam in L])
+    else:                                                           # coordinate search from the middle
+        _coordinate_search(evaluate, H, L, s2)
+    specs = [0] + [("kernel", h, lam) for h in H for lam in L if ("kernel", h, lam) in s2]
+    for c in specs:
+        table.append({"stage": 2, "variance": v, "energy": e, "prior": p,
+                      "local": list(c) if c else 0, "score": s2[c] / base})
+    local = min(specs, key=lambda c: s2[c])
+    if points_rest is not None:                                     # ---- stage 3: point-local translation
+        local = _select_point_local(X, splits, points_rest, vep, local, s2[local], base, table)
+    return local
+
+
+def _coordinate_search(evaluate, H: list, L: list, s2: dict) -> None:
+    """Coordinate search over bandwidths ``H`` x ridges ``L``, filling the scores ``s2``.
+
+    Starts in the grid's middle and alternately has ``evaluate`` score a whole row (every bandwidth
+    at the current ridge) and a whole column (every ridge at the current bandwidth), moving to the
+    best candidate scored so far, until a row and a column in turn leave it in place.
+    """
+    h, lam = H[(len(H) - 1) // 2], L[(len(L) - 1) // 2]
+    axis = 0
+    while True:
+        evaluate([(x, lam) for x in H] if axis == 0 else [(h, x) for x in L])
+        best = min(((c[1], c[2]) for c in s2 if c != 0), key=lambda c: s2[("kernel", *c)])
+        if best == (h, lam) and axis == 1:
+            break
+        moved = best != (h, lam)
+        h, lam = best
+        if not moved and axis == 0:
+            axis = 1
+            continue
+        if not moved:
+            break
+        axis = 1 - axis
+
+
+def _score_kernels(make_model, X: dict[str, np.ndarray], splits: list, pcas: dict, vep: tuple, cands: list,
+                   s2: dict, fold_fits: dict) -> None:
+    """Fold-summed errors of the kernel candidates ``cands`` ``[(h, lam), ...]`` not yet in ``s2``.
+
+    ``s2`` maps ``("kernel", h, lam)`` (and ``0``, no correction, scored on the first call) to the
+    summed known-expression error over the folds; new keys are inserted in the order of ``cands``.
+    ``fold_fits`` caches every fold's model and residuals (:func:`_kernel_fold_fit`) across calls.
+    """
+    cands = [c for c in cands if ("kernel", *c) not in s2]
+    if not cands and 0 in s2:
+        return
+    for c in cands:
+        s2[("kernel", *c)] = 0.0
+    first = 0 not in s2
+    if first:
+        s2[0] = 0.0
+    for f, (tr, va) in enumerate(splits):
+        Xva = {s: x[va] for s, x in X.items()}
+        if f not in fold_fits:                                   # the fold's model and residuals, once
+            fold_fits[f] = _kernel_fold_fit(make_model, X, tr, Xva, vep, pcas.get(f))
+        m, pv, res = fold_fits[f]
+        if first:
+            s2[0] += _sse_known(m, Xva, prep=pv)
+        _score_kernel_fold(m, Xva, pv, res, cands, s2)
+
+
+def _kernel_fold_fit(make_model, X: dict[str, np.ndarray], tr: np.ndarray, Xva: dict[str, np.ndarray],
+                     vep: tuple, pca) -> tuple:
+    """One fold's bilinear model with settings ``vep = (v, e, p)`` and its training residuals.
+
+    Returns ``(m, pv, res)``: the asymmetric model fitted on the frames ``tr`` (``pca``: the fold's
+    :func:`pca_of`, or None), :func:`_prep_val` of the validation frames ``Xva``, and per source
+    style ``s`` the tuple ``(Ys, R, scale)``: its training observations ``(n, K)``, the residuals
+    ``Y_t - render(content(Ys))`` of every target style ``t`` side by side ``(n, S K)``, and
+    :func:`nn_scale` of ``Ys``.
+    """
+    v, e, p = vep
+    styles = list(X)
+    Xtr = {s: x[tr] for s, x in X.items()}
+    m = make_model(variance=v, energy=e, prior=p)._fit_resolved(Xtr, symmetric=False, pca=pca)
+    pv = _prep_val(m, Xva)
+    A = m.asymmetric_
+    res = {}
+    for s in styles:
+        Ys = m.encode(Xtr[s])
+        b = A.content(Ys, s)
+        R = np.concatenate([m.encode(Xtr[t]) - A.render(b, t) for t in styles], axis=1)
+        res[s] = (Ys, R, nn_scale(Ys))
+    return m, pv, res
+
+
+def _score_kernel_fold(m, Xva: dict[str, np.ndarray], pv: dict, res: dict, cands: list, s2: dict) -> None:
+    """Add one fold's known-expression error of every kernel candidate ``(h, lam)`` of ``cands`` to ``s2``.
+
+    ``m``, ``pv``, ``res``: the fold's model, validation prep and residuals
+    (:func:`_kernel_fold_fit`).  The squared distances are computed once, the kernels once per
+    bandwidth ``h`` (in units of each source style's :func:`nn_scale`).
+    """
+    styles = list(res)
+    prep = {s: (Ys, R, _sqdist(Ys, Ys), _sqdist(pv["Y"][s], Ys), sc) for s, (Ys, R, sc) in res.items()}
+    Kd = prep[styles[0]][0].shape[1]
+    for h in dict.fromkeys(c[0] for c in cands):
+        kern = {}
+        for s in styles:                                    # the kernels, once per bandwidth
+            _, _, D2, Dq, sc = prep[s]
+            hh = h * sc
+            kern[s] = (np.exp(-D2 / (2 * hh * hh)), np.exp(-Dq / (2 * hh * hh)))
+        for lam in [c[1] for c in cands if c[0] == h]:
+            preds = _kernel_predictions(kern, prep, lam, Kd)
+            s2[("kernel", h, lam)] += _sse_known(m, Xva, lambda s, _y, preds=preds: preds[s], prep=pv)
+
+
+def _kernel_predictions(kern: dict, prep: dict, lam: float, Kd: int) -> dict:
+    """The kernel correction with ridge ``lam`` at the validation observations, per source style.
+
+    ``kern[s]``: the training kernel ``(n, n)`` and the validation-by-training kernel ``(T, n)`` of
+    source style ``s``; ``prep[s][1]``: its residuals ``(n, S Kd)``.  Returns
+    ``{s: {t: (T, Kd) float}}``, the regressed residual of translating ``s`` to every style ``t``.
+    """
+    styles = list(kern)
+    preds = {}
+    for s in styles:
+        K0, Kq = kern[s]
+        K = K0.copy()
+        K[np.diag_indices_from(K)] += lam
+        P = Kq @ cho_solve(cho_factor(K, lower=True, overwrite_a=True, check_finite=False),
+                           prep[s][1], check_finite=False)
+        preds[s] = {t: P[:, i * Kd:(i + 1) * Kd] for i, t in enumerate(styles)}
+    return preds
+
+
+# ------------------------------------------------------------------------------------------ stage 3: points
+def _select_point_local(X: dict[str, np.ndarray], splits: list, points_rest: np.ndarray, vep: tuple, local,
+                        local_score: float, base: float, table: list):
+    """Stage 3: the best point-local translation, if it beats the stage-2 winner.
+
+    Scores every ``("points", m, k)`` candidate (:func:`~._pointlocal.score_point_local`) on
+    ``splits``, appends them to ``table`` as stage-3 rows, and returns the best one when its error
+    is below ``local_score`` (the error of ``local``, the stage-2 winner), else ``local``.
+    """
+    v, e, p = vep
+    s3 = score_point_local(X, splits, points_rest)
+    for c, sc in s3.items():
+        table.append({"stage": 3, "variance": v, "energy": e, "prior": p, "local": list(c),
+                      "score": sc / base})
+    best3 = min(s3, key=s3.get)
+    if s3[best3] < local_score:
+        local = best3
+    return local
 
 
 # ------------------------------------------------------------------------------------------ untrained styles
