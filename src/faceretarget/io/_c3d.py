@@ -111,7 +111,7 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
 
     Warns
     -----
-    UserWarning
+    DataWarning
         Markers that are missing in every frame (naming them), repeated labels, or a file holding
         fewer frames than its header declares (a truncated file).
     """

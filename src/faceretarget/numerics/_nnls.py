@@ -77,6 +77,7 @@ eigenvalue) then picks one solution.  A frame with no observed row gets zero wei
 from __future__ import annotations
 
 import warnings
+from functools import partial
 
 import numpy as np
 from scipy.fft import dct, idct
@@ -96,6 +97,155 @@ _COMPILED_MAX_NONZERO = 16
 
 
 # ----------------------------------------------------------------------------- batched dense solves
+def _solve_sets(P: np.ndarray, inverse: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The form each row of :func:`_solve_fixed` is solved in, and the set it is solved on.
+
+    Parameters
+    ----------
+    P : (n, N) bool
+        Free variables.
+    inverse : bool
+        Whether ``G^-1`` is available (otherwise every row uses the free-set form).
+
+    Returns
+    -------
+    free_form : (n,) bool
+        Row solved on its free set (else through ``G^-1`` on its fixed set).
+    ks : (n,) int
+        Size of the set each row is solved on.
+    cols : (sum(ks),) int
+        The rows' sets one after another, each ascending.
+    start : (n,) int
+        Where each row's set starts in ``cols``.
+    """
+    n, N = P.shape
+    k = P.sum(axis=1)
+    free_form = 2 * k <= N if inverse else np.ones(n, dtype=bool)
+    S = P ^ ~free_form[:, None]                                 # the set each row is solved on
+    ks = np.where(free_form, k, N - k)
+    cols = np.nonzero(S)[1]                                     # each row's set, ascending
+    start = np.concatenate([[0], np.cumsum(ks)[:-1]])
+    return free_form, ks, cols, start
+
+
+def _buckets(free_form: np.ndarray, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Group the rows of :func:`_solve_fixed` into one stacked solve per form and (padded) size.
+
+    Parameters
+    ----------
+    free_form : (n,) bool
+    ks : (n,) int
+        Set sizes (see :func:`_solve_sets`).
+
+    Returns
+    -------
+    kp : (n,) int
+        Size each row's system is padded to.
+    perm : (n,) int
+        Rows ordered by bucket.
+    bounds : (b - 1,) int
+        Where each bucket after the first starts in ``perm``.
+    """
+    n = len(ks)
+    # one LAPACK call per form and size; a small batch (where the call overhead dominates) is padded
+    # with identity rows to one call per form
+    if n <= _SMALL_BATCH:
+        kp = np.zeros_like(ks)
+        for form in (True, False):
+            sel = free_form == form
+            if sel.any():
+                kp[sel] = ks[sel].max()
+    else:
+        kp = ks
+    key = 2 * kp + free_form
+    perm = np.argsort(key, kind="stable")
+    bounds = np.flatnonzero(np.diff(key[perm])) + 1
+    return kp, perm, bounds
+
+
+def _fixed_rhs(G: np.ndarray, H: np.ndarray | None, C: np.ndarray, P: np.ndarray, A0: np.ndarray | None,
+               free_form: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Starting point and right-hand sides of the systems :func:`_solve_fixed` solves.
+
+    Parameters
+    ----------
+    G, H : (N, N) float
+    C : (n, N) float
+    P : (n, N) bool
+    A0 : (n, N) float or None
+    free_form : (n,) bool
+
+    Returns
+    -------
+    X : (n, N) float
+        The fixed variables at their values, the free ones at 0.
+    R : (n, N) float
+        Right-hand sides: ``c - G x`` (free-set form) or ``a - H c`` (fixed-set form).
+    Z : (n, N) float or None
+        ``H c`` (``None`` when every row uses the free-set form).
+    lam : (n, N) float or None
+        Zeros, for the multipliers of the fixed-set form rows (``None`` as ``Z``).
+    """
+    n, N = P.shape
+    if A0 is None:
+        X = np.zeros((n, N))
+        R = C.copy()
+    else:
+        X = np.where(P, 0.0, A0)
+        R = C - X @ G
+    Z = lam = None
+    if not free_form.all():
+        Z = C @ H
+        a = ~free_form
+        R[a] = -Z[a] if A0 is None else (A0 - Z)[a]
+        lam = np.zeros((n, N))
+    return X, R, Z, lam
+
+
+def _stacked_solves(G: np.ndarray, H: np.ndarray | None, R: np.ndarray, X: np.ndarray, lam: np.ndarray | None,
+                    free_form: np.ndarray, ks: np.ndarray, cols: np.ndarray, start: np.ndarray) -> None:
+    """Solve every row's system of :func:`_solve_fixed`, one stacked LAPACK call per bucket.
+
+    Parameters
+    ----------
+    G, H : (N, N) float
+    R : (n, N) float
+        Right-hand sides (see :func:`_fixed_rhs`).
+    X : (n, N) float
+        Receives the solutions on the free sets of the free-set form rows (in place).
+    lam : (n, N) float or None
+        Receives the multipliers on the fixed sets of the fixed-set form rows (in place).
+    free_form, ks, cols, start
+        The rows' forms and sets (see :func:`_solve_sets`).
+    """
+    N = G.shape[0]
+    kp, perm, bounds = _buckets(free_form, ks)
+    Gf, Rf, Xf = G.ravel(), R.ravel(), X.reshape(-1)
+    Hf = None if H is None else H.ravel()
+    cols = np.append(cols, 0)                                   # padding reads a harmless entry
+    for rows in np.split(perm, bounds):
+        kk, ff = int(kp[rows[0]]), bool(free_form[rows[0]])
+        if kk == 0:
+            continue
+        j = np.arange(kk)
+        real = j < ks[rows][:, None]                            # (m, kk): not padding
+        idx = np.where(real, cols[np.minimum(start[rows][:, None] + j, len(cols) - 1)], 0)
+        A = (Gf if ff else Hf)[idx[:, :, None] * N + idx[:, None, :]]
+        flat = rows[:, None] * N + idx
+        rhs = Rf[flat]
+        if not real.all():
+            pair = real[:, :, None] & real[:, None, :]
+            A = np.where(pair, A, np.eye(kk))
+            rhs = np.where(real, rhs, 0.0)
+        x = np.linalg.solve(A, rhs[..., None])[..., 0]
+        if not real.all():
+            flat, x = flat[real], x[real]
+        if ff:
+            Xf[flat] = x
+        else:
+            lam.reshape(-1)[flat] = x
+
+
 def _solve_fixed(G: np.ndarray, H: np.ndarray | None, C: np.ndarray, P: np.ndarray,
                  A0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Minimise ``1/2 x'Gx - c_t'x`` over the free variables ``P[t]`` with the others fixed at ``A0[t]``.
@@ -122,69 +272,116 @@ def _solve_fixed(G: np.ndarray, H: np.ndarray | None, C: np.ndarray, P: np.ndarr
     Y : (n, N) float
         Gradient ``G x_t - c_t`` (zero on the free variables up to rounding).
     """
-    n, N = P.shape
-    k = P.sum(axis=1)
-    free_form = 2 * k <= N if H is not None else np.ones(n, dtype=bool)
-    S = P ^ ~free_form[:, None]                                 # the set each row is solved on
-    ks = np.where(free_form, k, N - k)
-    # one LAPACK call per form and size; a small batch (where the call overhead dominates) is padded
-    # with identity rows to one call per form
-    if n <= _SMALL_BATCH:
-        kp = np.zeros_like(ks)
-        for form in (True, False):
-            sel = free_form == form
-            if sel.any():
-                kp[sel] = ks[sel].max()
-    else:
-        kp = ks
-    key = 2 * kp + free_form
-    perm = np.argsort(key, kind="stable")
-    bounds = np.flatnonzero(np.diff(key[perm])) + 1
-    cols = np.nonzero(S)[1]                                     # each row's set, ascending
-    start = np.concatenate([[0], np.cumsum(ks)[:-1]])
-    if A0 is None:
-        X = np.zeros((n, N))
-        R = C.copy()
-    else:
-        X = np.where(P, 0.0, A0)
-        R = C - X @ G
-    Z = None
-    if not free_form.all():
-        Z = C @ H
-        a = ~free_form
-        R[a] = -Z[a] if A0 is None else (A0 - Z)[a]
-        lam = np.zeros((n, N))
-    Gf, Rf, Xf = G.ravel(), R.ravel(), X.reshape(-1)
-    Hf = None if H is None else H.ravel()
-    cols = np.append(cols, 0)                                   # padding reads a harmless entry
-    for rows in np.split(perm, bounds):
-        kk, ff = int(kp[rows[0]]), bool(free_form[rows[0]])
-        if kk == 0:
-            continue
-        j = np.arange(kk)
-        real = j < ks[rows][:, None]                            # (m, kk): not padding
-        idx = np.where(real, cols[np.minimum(start[rows][:, None] + j, len(cols) - 1)], 0)
-        A = (Gf if ff else Hf)[idx[:, :, None] * N + idx[:, None, :]]
-        flat = rows[:, None] * N + idx
-        rhs = Rf[flat]
-        if not real.all():
-            pair = real[:, :, None] & real[:, None, :]
-            A = np.where(pair, A, np.eye(kk))
-            rhs = np.where(real, rhs, 0.0)
-        x = np.linalg.solve(A, rhs[..., None])[..., 0]
-        if not real.all():
-            flat, x = flat[real], x[real]
-        if ff:
-            Xf[flat] = x
-        else:
-            lam.reshape(-1)[flat] = x
+    free_form, ks, cols, start = _solve_sets(P, H is not None)
+    X, R, Z, lam = _fixed_rhs(G, H, C, P, A0, free_form)
+    _stacked_solves(G, H, R, X, lam, free_form, ks, cols, start)
     if Z is None:
         return X, X @ G - C
-    ai = np.flatnonzero(a)
+    ai = np.flatnonzero(~free_form)
     X[ai] = np.where(P[ai], Z[ai] + lam[ai] @ H, X[ai])
     fi = np.flatnonzero(free_form)
     lam[fi] = X[fi] @ G - C[fi]                                 # gradient; on fixed-set rows it is lambda
     return X, lam
+
+
+def _bpp_start(G: np.ndarray, H: np.ndarray | None, B: np.ndarray,
+               ub: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Initial sets of :func:`_bpp`: the signs of the unconstrained solutions (and where they exceed ``ub``).
+
+    Parameters
+    ----------
+    G, H : (N, N) float
+        Matrix and its inverse (``None``: solve with ``G``).
+    B : (n, N) float
+    ub : (N,) float or None
+
+    Returns
+    -------
+    P, U : (n, N) bool
+        Free variables and variables at their upper bound.
+    fin, ubf : (N,) bool and (N,) float, or None without ``ub``
+        Which bounds are finite, and the bounds with 0 for the infinite ones.
+    """
+    fin = None if ub is None else np.isfinite(ub)
+    ubf = None if ub is None else np.where(fin, ub, 0.0)
+    X0 = B @ H if H is not None else np.linalg.solve(G, B.T).T
+    P = X0 > 0
+    U = np.zeros_like(P)
+    if ub is not None:
+        U = fin & (X0 >= ub)
+        P &= ~U
+    return P, U, fin, ubf
+
+
+def _bpp_violations(Pt: np.ndarray, Ut: np.ndarray, Xt: np.ndarray, Yt: np.ndarray, bscale: np.ndarray,
+                    tol: float, fin: np.ndarray | None,
+                    ubf: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The variables of :func:`_bpp`'s rows that break the KKT conditions, by kind.
+
+    Parameters
+    ----------
+    Pt, Ut : (m, N) bool
+        Free variables and variables at their upper bound.
+    Xt, Yt : (m, N) float
+        Solutions on the free sets and their gradients.
+    bscale : (m,) float
+        Scale of each row's right-hand side (gradient tolerance ``tol * bscale``).
+    tol : float
+    fin, ubf : (N,) bool and (N,) float, or None without upper bounds
+
+    Returns
+    -------
+    v_neg, v_in, v_over, v_out : (m, N) bool
+        Free but negative; at 0 with a gradient pointing inside; free but above the bound; at the
+        bound with a gradient pointing inside.
+    """
+    xs = tol * np.maximum(np.abs(Xt).max(axis=1), 1.0)[:, None]
+    ys = tol * bscale[:, None]
+    v_neg = Pt & (Xt < -xs)
+    v_in = ~Pt & ~Ut & (Yt < -ys)
+    if fin is not None:
+        v_over = Pt & fin & (Xt > ubf + xs)
+        v_out = Ut & (Yt > ys)
+    else:
+        v_over = v_out = np.zeros_like(Pt)
+    return v_neg, v_in, v_over, v_out
+
+
+def _exchange_rule(V: np.ndarray, nv: np.ndarray, todo: np.ndarray, ninf: np.ndarray, backup: np.ndarray,
+                   viol: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """The violators :func:`_bpp` exchanges: all of them, or only the last one (Murty's rule) in rows
+    whose count of violators has not fallen for three iterations.
+
+    Parameters
+    ----------
+    V : (m, N) bool
+        All violators of the unfinished rows ``todo``.
+    nv : (m,) int
+        Their counts.
+    todo : (m,) int
+    ninf, backup : (n,) int
+        Every row's smallest count so far and remaining tries before Murty's rule (updated in place).
+    viol : four (m, N) bool
+        The violators by kind (see :func:`_bpp_violations`).
+
+    Returns
+    -------
+    four (m, N) bool
+        The violators to exchange, by kind.
+    """
+    N = V.shape[1]
+    better = nv < ninf[todo]
+    ninf[todo[better]] = nv[better]
+    backup[todo[better]] = 3
+    use_backup = ~better & (backup[todo] <= 0)
+    backup[todo[~better & ~use_backup]] -= 1
+    if use_backup.any():                                        # Murty: only the last violator
+        last = N - 1 - np.argmax(V[:, ::-1], axis=1)
+        single = np.zeros_like(V)
+        single[np.arange(len(V)), last] = True
+        sel = np.where(use_backup[:, None], single, True)
+        viol = tuple(v & sel for v in viol)
+    return viol
 
 
 def _bpp(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | None, tol: float,
@@ -205,14 +402,7 @@ def _bpp(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | No
     """
     n, N = B.shape
     X = np.zeros((n, N))
-    fin = None if ub is None else np.isfinite(ub)
-    ubf = None if ub is None else np.where(fin, ub, 0.0)
-    X0 = B @ H if H is not None else np.linalg.solve(G, B.T).T
-    P = X0 > 0
-    U = np.zeros_like(P)
-    if ub is not None:
-        U = fin & (X0 >= ub)
-        P &= ~U
+    P, U, fin, ubf = _bpp_start(G, H, B, ub)
     bscale = np.maximum(np.abs(B).max(axis=1), 1e-300)
     ninf = np.full(n, N + 1)
     backup = np.full(n, 3)
@@ -225,16 +415,8 @@ def _bpp(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | No
         Xt, Yt = _solve_fixed(G, H if it < 8 else None, B[todo], Pt, A0)
         if stats is not None:
             stats["solves"] = stats.get("solves", 0) + len(todo)
-        xs = tol * np.maximum(np.abs(Xt).max(axis=1), 1.0)[:, None]
-        ys = tol * bscale[todo][:, None]
-        v_neg = Pt & (Xt < -xs)
-        v_in = ~Pt & ~Ut & (Yt < -ys)
-        if ub is not None:
-            v_over = Pt & fin & (Xt > ubf + xs)
-            v_out = Ut & (Yt > ys)
-        else:
-            v_over = v_out = np.zeros_like(Pt)
-        V = v_neg | v_in | v_over | v_out
+        viol = _bpp_violations(Pt, Ut, Xt, Yt, bscale[todo], tol, fin, ubf)
+        V = viol[0] | viol[1] | viol[2] | viol[3]
         nv = V.sum(axis=1)
         done = nv == 0
         rows = todo[done]
@@ -244,22 +426,110 @@ def _bpp(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | No
         if todo.size == 0:
             break
         V, nv = V[keep], nv[keep]
-        v_neg, v_in, v_over, v_out = v_neg[keep], v_in[keep], v_over[keep], v_out[keep]
-        better = nv < ninf[todo]
-        ninf[todo[better]] = nv[better]
-        backup[todo[better]] = 3
-        use_backup = ~better & (backup[todo] <= 0)
-        backup[todo[~better & ~use_backup]] -= 1
-        if use_backup.any():                                    # Murty: only the last violator
-            last = N - 1 - np.argmax(V[:, ::-1], axis=1)
-            single = np.zeros_like(V)
-            single[np.arange(len(V)), last] = True
-            sel = np.where(use_backup[:, None], single, True)
-            v_neg, v_in, v_over, v_out = v_neg & sel, v_in & sel, v_over & sel, v_out & sel
+        v_neg, v_in, v_over, v_out = _exchange_rule(V, nv, todo, ninf, backup, tuple(v[keep] for v in viol))
         Pn, Un = P[todo], U[todo]
         P[todo] = (Pn & ~v_neg & ~v_over) | v_in | v_out
         U[todo] = (Un & ~v_out) | v_over
     return X, Pfin, todo
+
+
+def _lh_step(Z: np.ndarray, Y: np.ndarray, Xa: np.ndarray, Fa: np.ndarray, Ua: np.ndarray,
+             ub: np.ndarray | None, fin: np.ndarray, ubf: np.ndarray, bscale: np.ndarray,
+             tol: float) -> np.ndarray:
+    """One Lawson-Hanson step of :func:`_lh`'s active rows, given their solutions on the free sets.
+
+    A row whose solution leaves the box steps back to the box boundary (the variables it hits are
+    fixed there); a feasible row moves to its solution and frees the variable that violates the KKT
+    conditions most, if any.
+
+    Parameters
+    ----------
+    Z, Y : (m, N) float
+        Solutions on the free sets and their gradients.
+    Xa : (m, N) float
+        Current feasible points (updated in place).
+    Fa, Ua : (m, N) bool
+        Free variables and variables at their upper bound (updated in place).
+    ub : (N,) float or None
+    fin, ubf : (N,) bool, (N,) float
+        Which bounds are finite, and the bounds with 0 for the infinite ones.
+    bscale : (m,) float
+        Scale of each row's right-hand side (gradient tolerance ``tol * bscale``).
+    tol : float
+
+    Returns
+    -------
+    (k,) int
+        Rows that are optimal (no violator left).
+    """
+    lo = Fa & (Z < 0.0)
+    hi = (Fa & fin & (Z > ubf)) if ub is not None else np.zeros_like(lo)
+    bad = (lo | hi).any(axis=1)
+    b = np.flatnonzero(bad)
+    if b.size:                                                  # step back to the box boundary
+        xb, zb, lb, hb = Xa[b], Z[b], lo[b], hi[b]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(lb, xb / (xb - zb), np.where(hb, (ubf - xb) / (zb - xb), np.inf))
+        r = np.maximum(r, 0.0)
+        alpha = np.minimum(r.min(axis=1), 1.0)
+        hit = (lb | hb) & (r <= alpha[:, None])
+        up = hit & hb
+        Xa[b] = np.where(hit, np.where(up, ubf, 0.0), xb + alpha[:, None] * (zb - xb))
+        Fa[b] &= ~hit
+        Ua[b] |= up
+    g = np.flatnonzero(~bad)
+    done = np.zeros(0, dtype=np.int64)
+    if g.size:                                                  # optimal on the free set: KKT check
+        yg, Fg, Ug = Y[g], Fa[g], Ua[g]
+        s = tol * bscale[g][:, None]
+        v = np.where(~Fg & ~Ug & (yg < -s), -yg, 0.0) + np.where(Ug & (yg > s), yg, 0.0)
+        j = np.argmax(v, axis=1)
+        more = v[np.arange(len(g)), j] > 0
+        m = np.flatnonzero(more)
+        Fg[m, j[m]] = True
+        Ug[m, j[m]] = False
+        Xa[g], Fa[g], Ua[g] = Z[g], Fg, Ug
+        done = g[~more]
+    return done
+
+
+def _lh_retire(f: np.ndarray, done: np.ndarray, over: np.ndarray, Z: np.ndarray, Xa: np.ndarray,
+               Fa: np.ndarray, Ua: np.ndarray, ubf: np.ndarray, W: np.ndarray, Wfree: np.ndarray,
+               stuck: np.ndarray) -> np.ndarray:
+    """Store the results of :func:`_lh`'s finished rows and set up their chunks' next rows.
+
+    Parameters
+    ----------
+    f : (m,) int
+        The active rows.
+    done : (k,) int
+        Optimal rows (indices into ``f``).
+    over : (m,) bool
+        Rows stopped by the step limit.
+    Z : (m, N) float
+        Solutions on the free sets (the optimal rows' results).
+    Xa : (m, N) float
+        Feasible points (the stopped rows' results; reset in place to the next row's start).
+    Fa, Ua : (m, N) bool
+        Free variables and variables at their upper bound.
+    ubf : (N,) float
+    W, Wfree, stuck : (n, N) float, (n, N) bool, (n,) bool
+        Results of all rows (written in place).
+
+    Returns
+    -------
+    (k',) int
+        All finished rows (indices into ``f``).
+    """
+    if done.size:
+        W[f[done]], Wfree[f[done]] = Z[done], Fa[done]
+    if over.any():
+        o = np.flatnonzero(over)
+        W[f[o]], Wfree[f[o]], stuck[f[o]] = Xa[o], Fa[o], True
+        done = np.concatenate([done, o])
+    if done.size:
+        Xa[done] = np.where(Ua[done], ubf, 0.0)                 # next row: same sets, feasible start
+    return done
 
 
 def _lh(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | None, tol: float,
@@ -302,44 +572,10 @@ def _lh(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | Non
         Z, Y = _solve_fixed(G, H, B[f], Fa, Ua * ubf if ub is not None else None)
         if stats is not None:
             stats["solves"] = stats.get("solves", 0) + len(act)
-        lo = Fa & (Z < 0.0)
-        hi = (Fa & fin & (Z > ubf)) if ub is not None else np.zeros_like(lo)
-        bad = (lo | hi).any(axis=1)
-        b = np.flatnonzero(bad)
-        if b.size:                                              # step back to the box boundary
-            xb, zb, lb, hb = Xa[b], Z[b], lo[b], hi[b]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                r = np.where(lb, xb / (xb - zb), np.where(hb, (ubf - xb) / (zb - xb), np.inf))
-            r = np.maximum(r, 0.0)
-            alpha = np.minimum(r.min(axis=1), 1.0)
-            hit = (lb | hb) & (r <= alpha[:, None])
-            up = hit & hb
-            Xa[b] = np.where(hit, np.where(up, ubf, 0.0), xb + alpha[:, None] * (zb - xb))
-            Fa[b] &= ~hit
-            Ua[b] |= up
-        g = np.flatnonzero(~bad)
-        done = np.zeros(0, dtype=np.int64)
-        if g.size:                                              # optimal on the free set: KKT check
-            yg, Fg, Ug = Y[g], Fa[g], Ua[g]
-            s = tol * bs[f[g]][:, None]
-            v = np.where(~Fg & ~Ug & (yg < -s), -yg, 0.0) + np.where(Ug & (yg > s), yg, 0.0)
-            j = np.argmax(v, axis=1)
-            more = v[np.arange(len(g)), j] > 0
-            m = np.flatnonzero(more)
-            Fg[m, j[m]] = True
-            Ug[m, j[m]] = False
-            Xa[g], Fa[g], Ua[g] = Z[g], Fg, Ug
-            done = g[~more]
+        done = _lh_step(Z, Y, Xa, Fa, Ua, ub, fin, ubf, bs[f], tol)
         nst[act] += 1
         over = (nst[act] >= max_steps) & ~np.isin(np.arange(len(act)), done)
-        if done.size:
-            W[f[done]], Wfree[f[done]] = Z[done], Fa[done]
-        if over.any():
-            o = np.flatnonzero(over)
-            W[f[o]], Wfree[f[o]], stuck[f[o]] = Xa[o], Fa[o], True
-            done = np.concatenate([done, o])
-        if done.size:
-            Xa[done] = np.where(Ua[done], ubf, 0.0)             # next row: same sets, feasible start
+        done = _lh_retire(f, done, over, Z, Xa, Fa, Ua, ubf, W, Wfree, stuck)
         X[act], Fm[act], Um[act] = Xa, Fa, Ua
         if done.size:
             rows = act[done]
@@ -377,7 +613,8 @@ def _compiled_box_qp(G: np.ndarray, B: np.ndarray, tol: float, max_iter: int, re
         g = refine(X)                                       # exact b - G x
         dX = free_set_solve(G, g, free)
         X += dX
-        g -= dX @ G                                         # the correction is small: Gram form is exact enough
+        # the correction is small: Gram form is exact enough
+        g -= dX @ G
         xs = tol * np.maximum(np.abs(X).max(axis=1), 1.0)[:, None]
         ys = tol * np.maximum(np.abs(B).max(axis=1), 1e-300)[:, None]
         bad |= (free & (X < -xs)).any(axis=1) | (~free & (g > ys)).any(axis=1)
@@ -390,8 +627,95 @@ def _compiled_box_qp(G: np.ndarray, B: np.ndarray, tol: float, max_iter: int, re
     np.maximum(X, 0.0, out=X)
     return X, stuck
 
-def _box_qp(G: np.ndarray, B: np.ndarray, ub
-: np.ndarray | None, tol: float, max_iter: int,
+
+def _compiled_wins(G: np.ndarray, B: np.ndarray, tol: float, max_iter: int) -> bool:
+    """Whether the compiled Lawson-Hanson kernel beats block pivoting on ``B``, by a probe of 32 rows.
+
+    Parameters
+    ----------
+    G : (N, N) float
+    B : (n, N) float
+    tol : float
+    max_iter : int
+    """
+    n = len(B)
+    # the compiled Lawson-Hanson enters one key per step, so its cost grows steeply with the
+    # number of non-zero weights; block pivoting (NumPy) wins on dense solutions.  A probe of
+    # 32 frames (microseconds in compiled code) decides.
+    use = n <= 64
+    if not use:
+        from ._nnls_numba import lawson_hanson_frames
+
+        probe = np.unique(np.linspace(0, n - 1, 32).astype(np.int64))
+        Xp = lawson_hanson_frames(G, B[probe], tol, max_iter, warm=False)[0]
+        use = (Xp > 0).sum(axis=1).mean() <= _COMPILED_MAX_NONZERO
+    return use
+
+
+def _pivoting_wins(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | None, tol: float,
+                   max_iter: int) -> bool:
+    """Whether block pivoting (else Lawson-Hanson in chunks of 8 rows) solves ``B``, by probing both.
+
+    Pivoting, unless on a probe of 32 rows it needs more than 8 solves per row, or more than 5 and
+    more than Lawson-Hanson needs on 4 runs of 8 consecutive rows.
+
+    Parameters
+    ----------
+    G, H : (N, N) float
+        Matrix and its inverse (``None``: free-set form only).
+    B : (n, N) float
+    ub : (N,) float or None
+    tol : float
+    max_iter : int
+    """
+    n = len(B)
+    use_bpp = True
+    if n > 64:                                                  # probe: which method needs fewer solves?
+        probe = np.unique(np.linspace(0, n - 1, 32).astype(np.int64))
+        sb: dict = {}
+        _, _, slow = _bpp(G, H, B[probe], ub, tol, min(12, max_iter), sb)
+        per_bpp = sb["solves"] / len(probe) + 4 * slow.size / len(probe)
+        if per_bpp > 8:
+            use_bpp = False
+        elif per_bpp > 5:
+            runs = np.linspace(0, n - 8, 4).astype(np.int64)[:, None] + np.arange(8)
+            sl: dict = {}
+            _lh(G, H, B[runs.ravel()], ub, tol, max_iter, 8, sl)
+            use_bpp = per_bpp <= sl["solves"] / runs.size
+    return use_bpp
+
+
+def _active_set_solve(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | None, tol: float,
+                      max_iter: int, use_bpp: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Block pivoting finished by Lawson-Hanson, or Lawson-Hanson in chunks of 8 rows throughout.
+
+    Parameters
+    ----------
+    G, H : (N, N) float
+    B : (n, N) float
+    ub : (N,) float or None
+    tol : float
+    max_iter : int
+    use_bpp : bool
+
+    Returns
+    -------
+    X : (n, N) float
+    free : (n, N) bool
+    unconverged : (k,) int
+    """
+    if use_bpp:
+        X, free, todo = _bpp(G, H, B, ub, tol, min(20, max_iter))
+        stuck = np.zeros(0, dtype=np.int64)
+        if todo.size:
+            X[todo], free[todo], st = _lh(G, H, B[todo], ub, tol, max_iter)
+            stuck = todo[st]
+    else:
+        X, free, stuck = _lh(G, H, B, ub, tol, max_iter, chunk=8)
+    return X, free, stuck
+
+
+def _box_qp(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, tol: float, max_iter: int,
             refine=None, inverse: bool = True, backend: str = "auto") -> tuple[np.ndarray, np.ndarray]:
     """Solve ``min 1/2 x'Gx - b_t'x, 0 <= x <= ub`` exactly for every row ``b_t`` of ``B``.
 
@@ -426,44 +750,14 @@ def _box_qp(G: np.ndarray, B: np.ndarray, ub
     n, N = B.shape
     if n == 0:
         return np.zeros((0, N)), np.zeros(0, dtype=np.int64)
-    if _use_compiled(backend, ub):
-        # the compiled Lawson-Hanson enters one key per step, so its cost grows steeply with the
-        # number of non-zero weights; block pivoting (below) wins on dense solutions.  A probe of
-        # 32 frames (microseconds in compiled code) decides.
-        use = n <= 64
-        if not use:
-            from ._nnls_numba import lawson_hanson_frames
-
-            probe = np.unique(np.linspace(0, n - 1, 32).astype(np.int64))
-            Xp = lawson_hanson_frames(G, B[probe], tol, max_iter, warm=False)[0]
-            use = (Xp > 0).sum(axis=1).mean() <= _COMPILED_MAX_NONZERO
-        if use:
-            return _compiled_box_qp(G, B, tol, max_iter, refine, inverse)
+    if _use_compiled(backend, ub) and _compiled_wins(G, B, tol, max_iter):
+        return _compiled_box_qp(G, B, tol, max_iter, refine, inverse)
     H = None
     if inverse:
         H = np.linalg.inv(G)
         H = 0.5 * (H + H.T)
-    use_bpp = True
-    if n > 64:                                                  # probe: which method needs fewer solves?
-        probe = np.unique(np.linspace(0, n - 1, 32).astype(np.int64))
-        sb: dict = {}
-        _, _, slow = _bpp(G, H, B[probe], ub, tol, min(12, max_iter), sb)
-        per_bpp = sb["solves"] / len(probe) + 4 * slow.size / len(probe)
-        if per_bpp > 8:
-            use_bpp = False
-        elif per_bpp > 5:
-            runs = np.linspace(0, n - 8, 4).astype(np.int64)[:, None] + np.arange(8)
-            sl: dict = {}
-            _lh(G, H, B[runs.ravel()], ub, tol, max_iter, 8, sl)
-            use_bpp = per_bpp <= sl["solves"] / runs.size
-    if use_bpp:
-        X, free, todo = _bpp(G, H, B, ub, tol, min(20, max_iter))
-        stuck = np.zeros(0, dtype=np.int64)
-        if todo.size:
-            X[todo], free[todo], st = _lh(G, H, B[todo], ub, tol, max_iter)
-            stuck = todo[st]
-    else:
-        X, free, stuck = _lh(G, H, B, ub, tol, max_iter, chunk=8)
+    use_bpp = _pivoting_wins(G, H, B, ub, tol, max_iter)
+    X, free, stuck = _active_set_solve(G, H, B, ub, tol, max_iter, use_bpp)
     if refine is not None:                                      # one step of iterative refinement
         R = np.where(free, refine(X), 0.0)
         X += _solve_fixed(G, H, R, free)[0]
@@ -504,6 +798,257 @@ def _admm_start(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, s: float, X
     return z
 
 
+def _banded_hessian(Gs: list[np.ndarray], pat: np.ndarray, s: float) -> np.ndarray:
+    """The Hessian ``M = blockdiag(G_pat[t]) + s (L (x) I)`` of the temporally coupled QP, banded.
+
+    Parameters
+    ----------
+    Gs : list of (N, N) float
+        Gram matrices, one per mask pattern.
+    pat : (T,) int
+        Pattern of every frame.
+    s : float
+        Temporal coupling.
+
+    Returns
+    -------
+    (N + 1, T N) float
+        Lower band storage (``cholesky_banded(..., lower=True)``) in frame-major order:
+        ``ab[d, i] = M[i + d, i]``.
+    """
+    T, N = len(pat), Gs[0].shape[0]
+    n = T * N
+    Gst = np.stack(Gs)
+    Gl = np.zeros((len(Gs), N, N))                              # Gl[p, d, j] = G_p[j + d, j]
+    for d in range(N):
+        Gl[:, d, : N - d] = np.diagonal(Gst, offset=-d, axis1=1, axis2=2)
+    base = np.zeros((N + 1, n))
+    base[:N] = Gl[pat].transpose(1, 0, 2).reshape(N, n)
+    deg = np.full(T, 2.0)
+    deg[[0, -1]] = 1.0
+    if T == 1:
+        deg[:] = 0.0
+    base[0] += s * np.repeat(deg, N)
+    base[N, : n - N] = -s
+    return base
+
+
+def _hessian_product(Gs: list[np.ndarray], groups: list[tuple[int, np.ndarray]], s: float,
+                     X: np.ndarray) -> np.ndarray:
+    """``M x`` for the temporally coupled QP's Hessian ``M = blockdiag(G_pat[t]) + s (L (x) I)``.
+
+    Parameters
+    ----------
+    Gs : list of (N, N) float
+    groups : list of (int, (k,) int)
+        Every pattern with its frames.
+    s : float
+    X : (T, N) float
+
+    Returns
+    -------
+    (T, N) float
+    """
+    Y = np.empty_like(X)
+    for p, rows in groups:
+        Y[rows] = X[rows] @ Gs[p]
+    dX = np.diff(X, axis=0)
+    Y[:-1] -= s * dX
+    Y[1:] += s * dX
+    return Y
+
+
+def _banded_solve_fixed(base: np.ndarray, fixed: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve ``M y = rhs`` on the free variables, ``y = rhs`` on the ``fixed`` ones.
+
+    Parameters
+    ----------
+    base : (N + 1, T N) float
+        ``M`` in lower band storage (see :func:`_banded_hessian`).
+    fixed : (T, N) bool
+    rhs : (T, N) float
+
+    Returns
+    -------
+    (T, N) float
+    """
+    T, N = fixed.shape
+    n = T * N
+    ff = fixed.ravel()
+    ab = base.copy()
+    for d in range(1, N + 1):
+        ab[d, : n - d][ff[: n - d] | ff[d:]] = 0.0
+    ab[0, ff] = 1.0
+    cb = cholesky_banded(ab, lower=True, check_finite=False)
+    return cho_solve_banded((cb, True), rhs.ravel(), check_finite=False).reshape(T, N)
+
+
+def _objective(X: np.ndarray, HX: np.ndarray, B: np.ndarray) -> float:
+    """``1/2 x'Mx - b'x`` from ``X``, ``HX = M x`` and ``B``, all (T, N) float."""
+    return float(np.sum(X * (0.5 * HX - B)))
+
+
+def _kkt_error(X: np.ndarray, g: np.ndarray, hi, gs: float) -> float:
+    """Largest violation of the KKT conditions of ``0 <= X <= hi`` with gradient ``g``, relative to ``gs``.
+
+    Parameters
+    ----------
+    X, g : (T, N) float
+    hi : float or (N,) float
+        Upper bounds (``inf`` for none).
+    gs : float
+        Gradient scale.
+    """
+    v = np.where(X <= 0.0, np.maximum(-g, 0.0), np.where(X >= hi, np.maximum(g, 0.0), np.abs(g)))
+    return float(v.max()) / gs
+
+
+def _take_active_set(hess, solve, B: np.ndarray, X0: np.ndarray, hi, fin: np.ndarray, ubf: np.ndarray,
+                     gs: float, tol: float, max_iter: int) -> tuple[bool, np.ndarray | None, int]:
+    """Primal-dual active-set iteration (block principal pivoting) on the whole temporally coupled take.
+
+    Exchanges every KKT violator at once; gives up when the count of violators has not fallen for
+    three iterations.
+
+    Parameters
+    ----------
+    hess : callable
+        ``hess(X)``: the Hessian product ``M x``, (T, N) float.
+    solve : callable
+        ``solve(fixed, rhs)``: ``M y = rhs`` on the free variables, ``y = rhs`` on the fixed ones.
+    B : (T, N) float
+    X0 : (T, N) float
+        Starting point (its signs and bounds give the first sets).
+    hi : float or (N,) float
+    fin, ubf : (N,) bool, (N,) float
+        Which bounds are finite, and the bounds with 0 for the infinite ones.
+    gs : float
+        Gradient scale.
+    tol : float
+    max_iter : int
+
+    Returns
+    -------
+    converged : bool
+    X : (T, N) float or None
+        The solution if converged, else the iterate with the fewest violators (``None``: no iteration).
+    iterations : int
+    """
+    lo = X0 <= 0.0
+    up = (X0 >= hi) & ~lo
+    best = (np.inf, None)
+    stall = 0
+    it = 0
+    while it < max_iter:
+        it += 1
+        Xfix = np.where(up, ubf, 0.0)
+        fixed = lo | up
+        rhs = np.where(fixed, Xfix, B - hess(Xfix))
+        X = solve(fixed, rhs)
+        X[fixed] = Xfix[fixed]
+        g = hess(X) - B
+        tl = tol * gs
+        v_neg = ~fixed & (X < 0.0)
+        v_over = ~fixed & fin & (X > ubf)
+        v_in = lo & (g < -tl)
+        v_out = up & (g > tl)
+        nv = int(v_neg.sum() + v_over.sum() + v_in.sum() + v_out.sum())
+        if nv == 0:
+            return True, np.clip(X, 0.0, hi), it
+        if nv < best[0]:
+            best, stall = (nv, X), 0
+        else:
+            stall += 1
+            if stall >= 3:
+                break
+        lo = (lo & ~v_in) | v_neg
+        up = (up & ~v_out) | v_over
+    return False, best[1], it
+
+
+def _armijo_arc(hess, B: np.ndarray, X: np.ndarray, fx: float, g: np.ndarray, step: np.ndarray,
+                bind: np.ndarray, slope: float, hi) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """Armijo search along the projection arc ``clip(X + alpha step)``, ``alpha = 1, 1/2, ...`` (40 tries).
+
+    Parameters
+    ----------
+    hess : callable
+        ``hess(X)``: the Hessian product ``M x``, (T, N) float.
+    B, X, g, step : (T, N) float
+        Linear term, current point, its gradient and the Newton step.
+    fx : float
+        Objective at ``X``.
+    bind : (T, N) bool
+        Variables held at their bound.
+    slope : float
+        ``-g'step`` over the other variables.
+    hi : float or (N,) float
+
+    Returns
+    -------
+    (X, M x, objective) at the accepted point, or None when no step is accepted.
+    """
+    alpha = 1.0
+    for _ls in range(40):
+        Xa = np.clip(X + alpha * step, 0.0, hi)
+        HXa = hess(Xa)
+        fa = _objective(Xa, HXa, B)
+        need = 1e-4 * (alpha * slope + float(np.sum(g[bind] * (X[bind] - Xa[bind]))))
+        if fx - fa >= need - 1e-15 * abs(fx):
+            return Xa, HXa, fa
+        alpha *= 0.5
+    return None
+
+
+def _projected_newton(hess, solve, B: np.ndarray, X: np.ndarray, hi, diag: np.ndarray, ub: np.ndarray | None,
+                      fin: np.ndarray, gs: float, tol: float, max_iter: int,
+                      it: int) -> tuple[np.ndarray, bool]:
+    """Bertsekas' projected Newton method (1982) on the temporally coupled take, globally convergent.
+
+    Parameters
+    ----------
+    hess, solve : callable
+        As for :func:`_take_active_set`.
+    B : (T, N) float
+    X : (T, N) float
+        Feasible starting point.
+    hi : float or (N,) float
+    diag : (T, N) float
+        Diagonal of the Hessian.
+    ub : (N,) float or None
+    fin : (N,) bool
+    gs : float
+        Gradient scale.
+    tol : float
+    max_iter : int
+        Iterations in all, of which ``it`` are used already.
+
+    Returns
+    -------
+    X : (T, N) float
+    converged : bool
+    """
+    HX = hess(X)
+    fx = _objective(X, HX, B)
+    eps0 = 1e-3 * (1.0 if ub is None else float(np.min(np.where(fin, ub, 1.0))))
+    while it < max_iter:
+        it += 1
+        g = HX - B
+        if _kkt_error(X, g, hi, gs) <= tol:
+            return X, True
+        w = float(np.abs(X - np.clip(X - g / diag, 0.0, hi)).max())
+        eps = min(eps0, w)
+        bind = ((X <= eps) & (g > 0)) | ((X >= hi - eps) & (g < 0))
+        step = solve(bind, np.where(bind, -g / diag, -g))
+        free = ~bind
+        slope = float(np.sum(-g[free] * step[free]))
+        accepted = _armijo_arc(hess, B, X, fx, g, step, bind, slope, hi)
+        if accepted is None:
+            return X, False
+        X, HX, fx = accepted
+    return X, _kkt_error(X, HX - B, hi, gs) <= tol
+
+
 def _smooth_qp(Gs: list[np.ndarray], pat: np.ndarray, B: np.ndarray, ub: np.ndarray | None, s: float,
                X0: np.ndarray, tol: float, max_iter: int, pdas: bool = True) -> tuple[np.ndarray, bool]:
     """Exact solution of the take-wide QP with temporal coupling ``s``.
@@ -534,115 +1079,26 @@ def _smooth_qp(Gs: list[np.ndarray], pat: np.ndarray, B: np.ndarray, ub: np.ndar
     converged : bool
     """
     T, N = B.shape
-    n = T * N
-    Gst = np.stack(Gs)
-    Gl = np.zeros((len(Gs), N, N))                              # Gl[p, d, j] = G_p[j + d, j]
-    for d in range(N):
-        Gl[:, d, : N - d] = np.diagonal(Gst, offset=-d, axis1=1, axis2=2)
-    base = np.zeros((N + 1, n))
-    base[:N] = Gl[pat].transpose(1, 0, 2).reshape(N, n)
-    deg = np.full(T, 2.0)
-    deg[[0, -1]] = 1.0
-    if T == 1:
-        deg[:] = 0.0
-    base[0] += s * np.repeat(deg, N)
-    base[N, : n - N] = -s
+    base = _banded_hessian(Gs, pat, s)
     diag = base[0].reshape(T, N)
     hi = np.inf if ub is None else ub
     groups = [(p, np.flatnonzero(pat == p)) for p in range(len(Gs))]
-
-    def hess(X: np.ndarray) -> np.ndarray:
-        Y = np.empty_like(X)
-        for p, rows in groups:
-            Y[rows] = X[rows] @ Gs[p]
-        dX = np.diff(X, axis=0)
-        Y[:-1] -= s * dX
-        Y[1:] += s * dX
-        return Y
-
-    def fval(X: np.ndarray, HX: np.ndarray) -> float:
-        return float(np.sum(X * (0.5 * HX - B)))
-
-    gs = max(float(np.abs(B).max()), float(np.abs(Gst).max()) * 1e-12, 1e-300)
+    hess = partial(_hessian_product, Gs, groups, s)
+    solve = partial(_banded_solve_fixed, base)
+    gs = max(float(np.abs(B).max()), float(np.abs(np.stack(Gs)).max()) * 1e-12, 1e-300)
     fin = np.zeros(N, dtype=bool) if ub is None else np.isfinite(ub)
     ubf = np.zeros(N) if ub is None else np.where(fin, ub, 0.0)
-
-    def solve_fixed(fixed: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        """Solve ``M y = rhs`` on the free variables, ``y = rhs`` on the ``fixed`` ones."""
-        ff = fixed.ravel()
-        ab = base.copy()
-        for d in range(1, N + 1):
-            ab[d, : n - d][ff[: n - d] | ff[d:]] = 0.0
-        ab[0, ff] = 1.0
-        cb = cholesky_banded(ab, lower=True, check_finite=False)
-        return cho_solve_banded((cb, True), rhs.ravel(), check_finite=False).reshape(T, N)
-
-    def kkt(X: np.ndarray, g: np.ndarray) -> float:
-        v = np.where(X <= 0.0, np.maximum(-g, 0.0), np.where(X >= hi, np.maximum(g, 0.0), np.abs(g)))
-        return float(v.max()) / gs
-
     if pdas and len(Gs) == 1 and T > 1:
         X0 = _admm_start(Gs[0], B, ub, s, X0)
     # primal-dual active set (block principal pivoting on the whole take)
-    lo = X0 <= 0.0
-    up = (X0 >= hi) & ~lo
-    best = (np.inf, None)
-    stall = 0
-    it = 0
-    while pdas and it < max_iter:
-        it += 1
-        Xfix = np.where(up, ubf, 0.0)
-        fixed = lo | up
-        rhs = np.where(fixed, Xfix, B - hess(Xfix))
-        X = solve_fixed(fixed, rhs)
-        X[fixed] = Xfix[fixed]
-        g = hess(X) - B
-        tl = tol * gs
-        v_neg = ~fixed & (X < 0.0)
-        v_over = ~fixed & fin & (X > ubf)
-        v_in = lo & (g < -tl)
-        v_out = up & (g > tl)
-        nv = int(v_neg.sum() + v_over.sum() + v_in.sum() + v_out.sum())
-        if nv == 0:
-            return np.clip(X, 0.0, hi), True
-        if nv < best[0]:
-            best, stall = (nv, X), 0
-        else:
-            stall += 1
-            if stall >= 3:
-                break
-        lo = (lo & ~v_in) | v_neg
-        up = (up & ~v_out) | v_over
-
+    Xbest, it = None, 0
+    if pdas:
+        converged, Xbest, it = _take_active_set(hess, solve, B, X0, hi, fin, ubf, gs, tol, max_iter)
+        if converged:
+            return Xbest, True
     # fallback: projected Newton (Bertsekas 1982) with an Armijo search, globally convergent
-    X = np.clip(best[1] if best[1] is not None else X0, 0.0, hi)
-    HX = hess(X)
-    fx = fval(X, HX)
-    eps0 = 1e-3 * (1.0 if ub is None else float(np.min(np.where(fin, ub, 1.0))))
-    while it < max_iter:
-        it += 1
-        g = HX - B
-        if kkt(X, g) <= tol:
-            return X, True
-        w = float(np.abs(X - np.clip(X - g / diag, 0.0, hi)).max())
-        eps = min(eps0, w)
-        bind = ((X <= eps) & (g > 0)) | ((X >= hi - eps) & (g < 0))
-        step = solve_fixed(bind, np.where(bind, -g / diag, -g))
-        free = ~bind
-        slope = float(np.sum(-g[free] * step[free]))
-        alpha = 1.0
-        for _ls in range(40):
-            Xa = np.clip(X + alpha * step, 0.0, hi)
-            HXa = hess(Xa)
-            fa = fval(Xa, HXa)
-            need = 1e-4 * (alpha * slope + float(np.sum(g[bind] * (X[bind] - Xa[bind]))))
-            if fx - fa >= need - 1e-15 * abs(fx):
-                break
-            alpha *= 0.5
-        else:
-            return X, False
-        X, HX, fx = Xa, HXa, fa
-    return X, kkt(X, HX - B) <= tol
+    X = np.clip(Xbest if Xbest is not None else X0, 0.0, hi)
+    return _projected_newton(hess, solve, B, X, hi, diag, ub, fin, gs, tol, max_iter, it)
 
 
 # ----------------------------------------------------------------------------- public API
@@ -699,6 +1155,213 @@ def _check_inputs(K, F, upper, mask):
         if np.isinf(ub).all():
             ub = None
     return K, F, single, rows, ub
+
+
+def _check_options(l2, l1, smooth, tol, backend) -> tuple[float, float, float, float]:
+    """Validated weights of the terms ``l2``, ``l1``, ``smooth`` and tolerance ``tol`` of :func:`solve_nnls`.
+
+    Raises
+    ------
+    faceretarget.errors.InvalidDataError
+        A negative or non-finite weight, a non-positive tolerance or an unknown backend.
+    """
+    l2, l1, smooth = _as_float("l2", l2), _as_float("l1", l1), _as_float("smooth", smooth)
+    tol = float(tol)
+    if backend not in ("auto", "numpy", "numba"):
+        raise InvalidDataError(f"unknown backend '{backend}', use auto, numpy or numba")
+    if not tol > 0:
+        raise InvalidDataError(f"tol must be > 0, got {tol}")
+    return l2, l1, smooth, tol
+
+
+def _mask_patterns(F: np.ndarray,
+                   rows: np.ndarray | None) -> tuple[list | np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct masks of a take and the frames' missing values set to 0.
+
+    Parameters
+    ----------
+    F : (T, D) float
+    rows : (T, D) bool or None
+        Present feature coordinates (``None``: all).
+
+    Returns
+    -------
+    pats : (p, D) bool, or ``[None]`` without a mask
+        The distinct masks.
+    pat : (T,) int
+        Every frame's mask.
+    F : (T, D) float
+    """
+    T = len(F)
+    if rows is None:
+        pats, pat = [None], np.zeros(T, dtype=np.int64)
+    else:
+        pats, pat = np.unique(rows, axis=0, return_inverse=True)
+        pat = pat.ravel()
+        F = np.where(rows, F, 0.0)
+    return pats, pat, F
+
+
+def _pattern_system(K: np.ndarray, F: np.ndarray, G_all: np.ndarray, pat: np.ndarray, p: int,
+                    r: np.ndarray | None, l2: float,
+                    l1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The least-squares data and normal equations of the frames with mask pattern ``p``.
+
+    Parameters
+    ----------
+    K : (D, N) float
+    F : (T, D) float
+    G_all : (N, N) float
+        ``K'K``.
+    pat : (T,) int
+    p : int
+    r : (D,) bool or None
+        The pattern's present rows (``None``: all).
+    l2, l1 : float
+
+    Returns
+    -------
+    frames : (t,) int
+    Kp : (d, N) float
+    Fp : (t, d) float
+        Keyshapes and frames on the present rows.
+    G : (N, N) float
+        ``Kp'Kp + l2 I``.
+    Bp : (t, N) float
+        ``Fp Kp - l1``.
+    """
+    N = K.shape[1]
+    if r is None:
+        frames, Kp, Fp, G = np.arange(len(F)), K, F, G_all.copy()
+    else:
+        frames = np.flatnonzero(pat == p)
+        Kp, Fp = K[r], F[frames][:, r]
+        G = Kp.T @ Kp
+    G[np.diag_indices(N)] += l2
+    Bp = Fp @ Kp - l1
+    return frames, Kp, Fp, G, Bp
+
+
+def _live_keys(G: np.ndarray, floor: float, l2: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The keys that move an observed row, their Gram matrix (with a rank ridge if needed) and its spectrum.
+
+    Parameters
+    ----------
+    G : (N, N) float
+    floor : float
+        Rank ridge: ``1e-13`` of ``K'K``'s largest eigenvalue.
+    l2 : float
+
+    Returns
+    -------
+    live : (k,) int
+    Gl : (k, k) float
+    ev : (k,) float
+        Eigenvalues of ``Gl`` (``[1]`` without live keys).
+    ridge : float
+        Ridge in ``Gl``: ``l2``, plus ``floor`` when the keys cannot be told apart.
+    """
+    # keys that do not move any observed row: weight 0 (any value fits equally; 0 is the smallest)
+    live = np.flatnonzero(np.diag(G) > floor)
+    Gl = G[np.ix_(live, live)]
+    ev = np.linalg.eigvalsh(Gl) if live.size else np.ones(1)
+    ridge = l2
+    if ev[0] < floor:                                           # keys the observed rows cannot tell apart
+        Gl[np.diag_indices(len(live))] += floor
+        ridge += floor
+        ev = ev + floor
+    return live, Gl, ev, ridge
+
+
+def _refiner(Fp: np.ndarray, Kl: np.ndarray, ridge: float, l1: float):
+    """``refine(X, rows=None)``: the exact negative gradient ``b_t - G x_t`` computed from the
+    least-squares data ``Fp`` (t, d) and ``Kl`` (d, k), for :func:`_box_qp`."""
+    def refine(X, rows=None):
+        Fr = Fp if rows is None else Fp[rows]
+        return (Fr - X @ Kl.T) @ Kl - ridge * X - l1
+    return refine
+
+
+def _solve_frames(K: np.ndarray, F: np.ndarray, rows: np.ndarray | None, ub: np.ndarray | None, l2: float,
+                  l1: float, tol: float, max_iter: int, backend: str
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray], list[np.ndarray],
+                             list[np.ndarray]]:
+    """Every frame's weights on its own (no temporal term), frames grouped by mask pattern.
+
+    Parameters
+    ----------
+    K : (D, N) float
+    F : (T, D) float
+    rows : (T, D) bool or None
+    ub : (N,) float or None
+    l2, l1, tol : float
+    max_iter : int
+    backend : str
+
+    Returns
+    -------
+    W : (T, N) float
+    pat : (T,) int
+        Every frame's mask pattern.
+    B : (T, N) float
+        Linear terms ``K_p'f_t - l1``.
+    Gs, Graw : list of (N, N) float
+        Gram matrices per pattern, with and without the rank ridge.
+    stuck : list of (k,) int
+        Frames that did not converge.
+    """
+    T, N = len(F), K.shape[1]
+    G_all = K.T @ K
+    floor = _RIDGE * max(float(np.linalg.eigvalsh(G_all)[-1]), 1e-300)
+    pats, pat, F = _mask_patterns(F, rows)
+    Gs: list[np.ndarray] = []
+    Graw: list[np.ndarray] = []                                 # without the rank ridge
+    B = np.empty((T, N))
+    W = np.empty((T, N))
+    stuck: list[np.ndarray] = []
+    for p, r in enumerate(pats):
+        frames, Kp, Fp, G, Bp = _pattern_system(K, F, G_all, pat, p, r, l2, l1)
+        B[frames] = Bp
+        live, Gl, ev, ridge = _live_keys(G, floor, l2)
+        Graw.append(G)
+        Gs.append(G + floor * np.eye(N) if (ridge != l2 or live.size < N) else G)
+        W[frames] = 0.0
+        if live.size == 0:
+            continue
+        Kl, ubl = Kp[:, live], (None if ub is None else ub[live])
+        refine = None
+        if ev[-1] > 1e10 * ev[0]:                               # normal equations lose digits: refine
+            refine = _refiner(Fp, Kl, ridge, l1)
+        Wp, bad = _box_qp(Gl, Bp[:, live], ubl, tol, max_iter, refine, inverse=ev[-1] < _INVERSE_COND * ev[0],
+                          backend=backend)
+        W[np.ix_(frames, live)] = Wp
+        stuck.append(frames[bad])
+    return W, pat, B, Gs, Graw, stuck
+
+
+def _smooth_take(Gs: list[np.ndarray], Graw: list[np.ndarray], pat: np.ndarray, B: np.ndarray,
+                 ub: np.ndarray | None, smooth: float, W: np.ndarray, tol: float,
+                 max_iter: int) -> tuple[np.ndarray, bool]:
+    """:func:`_smooth_qp` from the per-frame solution ``W`` (T, N), without the rank ridge if possible.
+
+    Returns
+    -------
+    W : (T, N) float
+    converged : bool
+    """
+    try:                                                        # smoothing may resolve rank deficiency
+        return _smooth_qp(Graw, pat, B, ub, smooth, W, tol, max_iter)
+    except np.linalg.LinAlgError:
+        return _smooth_qp(Gs, pat, B, ub, smooth, W, tol, max_iter)
+
+
+def _unconverged_frames_message(stuck: list[np.ndarray], max_iter: int) -> str | None:
+    """The warning about the frames ``stuck`` (lists of frame numbers) that did not converge, or None."""
+    bad = np.sort(np.concatenate(stuck))
+    if bad.size:
+        return (f"solve_nnls: {bad.size} frame(s) did not converge in {max_iter} iterations "
+                f"(first: frame {bad[0]}); their weights are approximate")
+    return None
 
 
 def solve_nnls(K: np.ndarray, F: np.ndarray, *, upper=None, l2: float = 0.0, l1: float = 0.0,
@@ -760,80 +1423,22 @@ def solve_nnls(K: np.ndarray, F: np.ndarray, *, upper=None, l2: float = 0.0, l1:
     array([[1.5, 0. ]])
     """
     K, F, single, rows, ub = _check_inputs(K, F, upper, mask)
-    l2, l1, smooth = _as_float("l2", l2), _as_float("l1", l1), _as_float("smooth", smooth)
-    tol = float(tol)
-    if backend not in ("auto", "numpy", "numba"):
-        raise InvalidDataError(f"unknown backend '{backend}', use auto, numpy or numba")
-    if not tol > 0:
-        raise InvalidDataError(f"tol must be > 0, got {tol}")
-    D, N = K.shape
+    l2, l1, smooth, tol = _check_options(l2, l1, smooth, tol, backend)
+    N = K.shape[1]
     T = len(F)
     if T == 0:
         return np.zeros((0, N))
     if max_iter is None:
         max_iter = 100 if smooth > 0 else 50 + 10 * N
-    G_all = K.T @ K
-    floor = _RIDGE * max(float(np.linalg.eigvalsh(G_all)[-1]), 1e-300)
-    if rows is None:
-        pats, pat = [None], np.zeros(T, dtype=np.int64)
-    else:
-        pats, pat = np.unique(rows, axis=0, return_inverse=True)
-        pat = pat.ravel()
-        F = np.where(rows, F, 0.0)
-    Gs: list[np.ndarray] = []
-    Graw: list[np.ndarray] = []                                 # without the rank ridge
-    B = np.empty((T, N))
-    W = np.empty((T, N))
-    stuck: list[np.ndarray] = []
-    for p, r in enumerate(pats):
-        if r is None:
-            frames, Kp, Fp, G = np.arange(T), K, F, G_all.copy()
-        else:
-            frames = np.flatnonzero(pat == p)
-            Kp, Fp = K[r], F[frames][:, r]
-            G = Kp.T @ Kp
-        G[np.diag_indices(N)] += l2
-        Bp = Fp @ Kp - l1
-        B[frames] = Bp
-        # keys that do not move any observed row: weight 0 (any value fits equally; 0 is the smallest)
-        live = np.flatnonzero(np.diag(G) > floor)
-        Gl = G[np.ix_(live, live)]
-        ev = np.linalg.eigvalsh(Gl) if live.size else np.ones(1)
-        ridge = l2
-        if ev[0] < floor:                                       # keys the observed rows cannot tell apart
-            Gl[np.diag_indices(len(live))] += floor
-            ridge += floor
-            ev = ev + floor
-        Graw.append(G)
-        Gs.append(G + floor * np.eye(N) if (ridge != l2 or live.size < N) else G)
-        W[frames] = 0.0
-        if live.size == 0:
-            continue
-        Kl, ubl = Kp[:, live], (None if ub is None else ub[live])
-        refine = None
-        if ev[-1] > 1e10 * ev[0]:                               # normal equations lose digits: refine
-            def refine(X, rows=None, Fp=Fp, Kl=Kl, ridge=ridge):
-                Fr = Fp if rows is None else Fp[rows]
-                return (Fr - X @ Kl.T) @ Kl - ridge * X - l1
-        Wp, bad = _box_qp(Gl, Bp[:, live], ubl, tol, max_iter, refine, inverse=ev[-1] < _INVERSE_COND * ev[0],
-                          backend=backend)
-        W[np.ix_(frames, live)] = Wp
-        stuck.append(frames[bad])
+    W, pat, B, Gs, Graw, stuck = _solve_frames(K, F, rows, ub, l2, l1, tol, max_iter, backend)
     if smooth > 0:
-        try:                                                    # smoothing may resolve rank deficiency
-            W, ok = _smooth_qp(Graw, pat, B, ub, smooth, W, tol, max_iter)
-        except np.linalg.LinAlgError:
-            W, ok = _smooth_qp(Gs, pat, B, ub, smooth, W, tol, max_iter)
-        if not ok:
-            warnings.warn(f"solve_nnls: the temporally smoothed solution did not converge in {max_iter} "
-                          "iterations; the weights are approximate", FitWarning,
-                          stacklevel=2)
+        W, ok = _smooth_take(Gs, Graw, pat, B, ub, smooth, W, tol, max_iter)
+        msg = None if ok else (f"solve_nnls: the temporally smoothed solution did not converge in {max_iter} "
+                               "iterations; the weights are approximate")
     else:
-        bad = np.sort(np.concatenate(stuck))
-        if bad.size:
-            warnings.warn(f"solve_nnls: {bad.size} frame(s) did not converge in {max_iter} iterations "
-                          f"(first: frame {bad[0]}); their weights are approximate", FitWarning,
-                          stacklevel=2)
+        msg = _unconverged_frames_message(stuck, max_iter)
+    if msg is not None:
+        warnings.warn(msg, FitWarning, stacklevel=2)
     return W[0] if single else W
 
 
