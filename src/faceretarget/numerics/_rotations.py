@@ -32,12 +32,17 @@ def nearest_rotation(matrices: np.ndarray | None = None, *, svd: tuple[np.ndarra
     >>> np.round(R[0], 6).tolist(), round(float(np.linalg.det(R[0])), 6)
     ([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], 1.0)
     """
-    if svd is None:
-        U, _, Vt = np.linalg.svd(np.asarray(matrices, dtype=np.float64))
-    else:
+    if svd is not None:
+        # the rigid fit's (Kabsch) evaluation, U diag(1, 1, d) Vt in one einsum: the same rotation
+        # as below, kept in this order so that aligned takes stay bit-identical to earlier releases
+        # (a last-bit change flips near-tied pivots of pivoted-QR key selection downstream)
         U, Vt = svd
+        d = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
+        D = np.ones(U.shape[:-1])
+        D[..., 2] = np.where(d == 0, 1.0, d)
+        return np.einsum("...ij,...j,...jk->...ik", U, D, Vt)
+    U, _, Vt = np.linalg.svd(np.asarray(matrices, dtype=np.float64))
     d = np.sign(np.linalg.det(U @ Vt))
     d = np.where(d == 0, 1.0, d)
-    U = U.copy()
     U[..., :, 2] *= d[..., None]
     return U @ Vt
