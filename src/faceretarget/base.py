@@ -40,10 +40,12 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
-from .errors import InputFileError, NotFittedError
+from .errors import InputFileError, InvalidDataError, NotFittedError
 from .headpose import HeadPose
+from .performance import Performance
+from .timebase import infer_fps
 
-__all__ = ["Model", "FORMAT", "VERSION", "model_state", "states_equal"]
+__all__ = ["Model", "WeightsResult", "FORMAT", "VERSION", "model_state", "states_equal"]
 
 FORMAT = "faceretarget.model"
 VERSION = 1
@@ -271,3 +273,23 @@ class Model:
             return kls._from_parts(params, state)
         except (KeyError, TypeError, ValueError) as e:
             raise InputFileError(f"{path}: malformed {kls.__name__} file ({e})") from e
+
+
+class WeightsResult:
+    """Mixin of the results that hold key weights for a take (``CloneResult``, ``RetargetResult``).
+
+    The dataclass using it has ``weights`` ``(T, N)``, ``names``, ``times`` ``(T,)`` (or None),
+    ``head``, ``audio``, ``audio_rate`` and ``source``; ``default_fps`` is the rate assumed when the
+    times do not show one.
+    """
+
+    default_fps = 30.0
+
+    @property
+    def take(self) -> Performance:
+        """The weights as a take on the target keys, with the input's head motion and audio."""
+        if self.times is None:
+            raise InvalidDataError(f"{self.source}: frames were given without times; pass times= to transform")
+        return Performance(self.times, infer_fps(self.times, default=self.default_fps), weights=self.weights,
+                           names=list(self.names), head=self.head, audio=self.audio, audio_rate=self.audio_rate,
+                           source=self.source)

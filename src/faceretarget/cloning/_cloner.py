@@ -37,13 +37,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..base import Model
+from ..base import Model, WeightsResult
 from ..errors import FitWarning, InvalidDataError, MissingShapeError, SingularKeysError, TopologyError
 from ..headpose import HeadPose
 from ..numerics import denoise_take, estimate_noise_sigma
 from ..performance import Performance
 from ..rig import Rig, resolve_features
-from ..timebase import infer_fps
 from ._cardinal import CardinalBasis
 from ._features import FeaturePCA, feature_vectors
 
@@ -53,7 +52,7 @@ METHODS = ("temporal", "linear", "pyun")
 
 
 @dataclass(eq=False)
-class CloneResult:
+class CloneResult(WeightsResult):
     """What :meth:`ExpressionCloner.transform` gives for one take.
 
     Attributes
@@ -82,15 +81,6 @@ class CloneResult:
     audio: np.ndarray | None = None
     audio_rate: float | None = None
     source: str = "clone"
-
-    @property
-    def take(self) -> Performance:
-        """The weights as a take on the target key-models, with the input's head motion and audio."""
-        if self.times is None:
-            raise InvalidDataError(f"{self.source}: frames were given without times; pass times= to transform")
-        return Performance(self.times, infer_fps(self.times, default=30.0), weights=self.weights,
-                           names=list(self.names), head=self.head, audio=self.audio, audio_rate=self.audio_rate,
-                           source=self.source)
 
 
 class ExpressionCloner(Model):

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..base import Model
+from ..base import Model, WeightsResult
 from ..errors import InvalidDataError, MissingShapeError, SingularKeysError, TopologyError
 from ..headpose import HeadPose
 from ..numerics import (
@@ -70,7 +70,7 @@ SOLVERS = ("signed", "nnls")
 
 
 @dataclass(eq=False)
-class RetargetResult:
+class RetargetResult(WeightsResult):
     """What :meth:`BlendshapeRetargeter.transform` gives for one take.
 
     Attributes
@@ -101,13 +101,7 @@ class RetargetResult:
     audio: np.ndarray | None = None
     audio_rate: float | None = None
     source: str = "retarget"
-
-    @property
-    def take(self) -> Performance:
-        """The weights as a take on the target keys, with the input's head motion and audio."""
-        return Performance(self.times, infer_fps(self.times, default=60.0), weights=self.weights,
-                           names=list(self.names), head=self.head, audio=self.audio, audio_rate=self.audio_rate,
-                           source=self.source)
+    default_fps = 60.0
 
 
 class BlendshapeRetargeter(Model):
