@@ -48,10 +48,10 @@ target are the same mesh with the same landmarks, the warp is the identity (a de
 the data exactly, so the RBF part vanishes), every vertex corresponds to itself, ``M_i = I``, and
 cloning reproduces the source animation to rounding.
 
-Example
--------
->>> cloner = NohNeumannCloner().fit(ict.neutral, arkit.neutral, ict.landmarks, arkit.landmarks)  # doctest: +SKIP
->>> arkit_frames = cloner.transform(ict_frames)  # (T, 9409, 3) cm -> (T, 1220, 3) m  # doctest: +SKIP
+Example (``ict`` and ``arkit`` are :class:`~faceretarget.Rig` objects, ``ict_frames`` a vertex take)::
+
+    cloner = NohNeumannCloner().fit(ict.neutral, arkit.neutral, ict.landmarks, arkit.landmarks)
+    arkit_frames = cloner.transform(ict_frames)   # (T, 9409, 3) cm -> (T, 1220, 3) m
 """
 
 from __future__ import annotations
