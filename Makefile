@@ -5,8 +5,11 @@ PY     := $(VENV)/bin/python
 PIP    := $(VENV)/bin/pip
 TOOLS  ?= .tools
 GLTF_VALIDATOR_VERSION ?= 2.0.0-dev.3.10
+# three.js + puppeteer-core for tests/test_browser.py (puppeteer-core 25 needs Node >= 22.12)
+THREE_VERSION ?= 0.187.0
+PUPPETEER_CORE_VERSION ?= 24.43.1
 
-.PHONY: venv install capture fast extras demo test lint bench tools clean
+.PHONY: venv install capture fast extras demo test lint bench tools browser clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,12 +35,30 @@ $(TOOLS)/node_modules/gltf-validator/package.json:
 		mkdir -p $(TOOLS) && npm install --silent --no-audit --no-fund --prefix $(TOOLS) gltf-validator@$(GLTF_VALIDATOR_VERSION) ; \
 	else echo "npm not found: glTF validation tests will be skipped"; fi
 
-tools: $(TOOLS)/node_modules/gltf-validator/package.json
+# three.js and puppeteer-core (never downloads a browser) for the headless-Chromium playback check.
+BROWSER_JS := $(TOOLS)/node_modules/.faceretarget-three-$(THREE_VERSION)-puppeteer-core-$(PUPPETEER_CORE_VERSION)
+$(BROWSER_JS):
+	@if command -v npm >/dev/null 2>&1; then \
+		mkdir -p $(TOOLS) && PUPPETEER_SKIP_DOWNLOAD=1 npm install --silent --no-audit --no-fund --save-exact \
+			--prefix $(TOOLS) three@$(THREE_VERSION) puppeteer-core@$(PUPPETEER_CORE_VERSION) && touch $@ ; \
+	else echo "npm not found: browser (three.js) tests will be skipped"; fi
+
+tools: $(TOOLS)/node_modules/gltf-validator/package.json $(BROWSER_JS)
+
+# Debian's chromium for tests/test_browser.py: installed when missing and we are root with apt-get;
+# otherwise one line says why the browser tests will be skipped.  Never fails.
+browser:
+	@if [ -n "$$CHROMIUM" ] && [ -x "$$CHROMIUM" ]; then :; \
+	elif command -v chromium >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" != 0 ]; then echo "chromium not found and not root: browser tests will be skipped"; \
+	elif ! command -v apt-get >/dev/null 2>&1; then echo "chromium not found and no apt-get: browser tests will be skipped"; \
+	else (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+			chromium >/dev/null) || echo "apt-get could not install chromium: browser tests will be skipped"; fi
 
 demo: install
 	$(VENV)/bin/faceretarget demo --out out/demo
 
-test: install extras tools
+test: install extras tools browser
 	$(VENV)/bin/ruff check src tests bench
 	$(PY) -m pytest -q
 
