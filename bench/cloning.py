@@ -4,8 +4,16 @@ Protocol P1 of ../shared/EVALUATION.md on ICT-FaceKit <-> ARKit face:
 
 * self cloning A -> A (Pyun Table 2), round trip A -> B -> A (Table 3), cross A -> B;
 * key-model sets ``arkit`` (correctness: must be exact), ``combined84``, ``emotions6`` and ``rom-10/20/40``
-  (PCA extrema on the range-of-motion take ``alex_rom_3.csv``), all out of sample: errors are measured
-  on the other takes (``S07-001``, ``apfel``, ``MySlate_3``, a different performer);
+  (the default selection, pivoted QR, on the range-of-motion take ``alex_rom_3.csv``), all out of
+  sample: errors are measured on the other takes (``S07-001``, ``apfel``, ``MySlate_3``, a different
+  performer);
+* every method keeps its weights in the default range (``"auto"``: [0, 1] for ``arkit``, the
+  example-based range otherwise); each experiment reports ``w_min``, ``w_max``,
+  ``w_outside_01_pct`` (share of weights outside [0, 1], %) and ``oracle_bounded_rel_motion_pct``
+  (the best blend inside the same range) beside the unconstrained ``oracle_rel_motion_pct``;
+* ranges: the rom-40 cross experiments (landmarks, default method) at no range, [0, 1],
+  [-0.25, 1.25], [-0.5, 1.5] and [-1, 2] side by side (``ranges`` in the JSON), each with its
+  bounded oracle;
 * features ``all`` source vertices or the 68 ``landmarks``; capture noise 0 and 0.5 mm on the
   source feature points;
 * methods: ``pyun`` (the paper), ``linear`` (its linear cardinal part in the full feature space),
@@ -72,14 +80,28 @@ def _noisy(rig, pts, noise_mm, seed):
     return add_capture_noise(pts, noise_mm, rig.unit, seed=seed) if noise_mm else pts
 
 
-def _clone(method, features, sk, tk, src_rig, tgt_rig, inp, times):
+def _clone(method, features, sk, tk, src_rig, tgt_rig, inp, times, weight_range="auto"):
+    """(target frames, weights or None, the range in force)."""
     if method == "noh":
         c = NohNeumannCloner().fit(src_rig.neutral, tgt_rig.neutral, src_rig.landmarks, tgt_rig.landmarks)
-        return c.transform(inp)
+        return c.transform(inp), None, None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")   # rank / outside-the-keys warnings: the metrics say it
-        c = ExpressionCloner(method, features=features).fit(sk, tk)
-        return c.blend(c.transform(inp, times).weights)
+        c = ExpressionCloner(method, features=features, weight_range=weight_range).fit(sk, tk)
+        W = c.transform(inp, times).weights
+        return c.blend(W), W, c.weight_range_
+
+
+def _weight_stats(W, rng) -> dict:
+    if W is None:
+        return {"w_min": float("nan"), "w_max": float("nan"), "w_outside_01_pct": float("nan"),
+                "weight_range": None}
+    return {"w_min": float(W.min()), "w_max": float(W.max()),
+            "w_outside_01_pct": float(((W < 0) | (W > 1)).mean() * 100),
+            "weight_range": None if rng is None else [float(rng[0]), float(rng[1])]}
+
+
+RANGES = {"none": None, "0,1": (0.0, 1.0), "-0.25,1.25": (-0.25, 1.25), "-0.5,1.5": (-0.5, 1.5), "-1,2": (-1.0, 2.0)}
 
 
 def run(data: Path, quick: bool = False, log=print) -> dict:
@@ -130,18 +152,19 @@ def run(data: Path, quick: bool = False, log=print) -> dict:
                                     times = takes[take].times
                                     if kind == "self":
                                         sk, tk, _ = kp(A, A)
-                                        pred = _clone(method, features, sk, tk, A, A, inp, times)
+                                        pred, W, rng = _clone(method, features, sk, tk, A, A, inp, times)
                                         tgt_rig, truth = A, src_v
                                     elif kind == "cross":
                                         sk, tk, _ = kp(A, B)
-                                        pred = _clone(method, features, sk, tk, A, B, inp, times)
+                                        pred, W, rng = _clone(method, features, sk, tk, A, B, inp, times)
                                         tgt_rig, truth = B, gt(b_name, take)
                                     else:
                                         sk, tk, _ = kp(A, B)
-                                        mid = _clone(method, features, sk, tk, A, B, inp, times)
+                                        mid, W1, _ = _clone(method, features, sk, tk, A, B, inp, times)
                                         sk2, tk2, _ = kp(B, A)
-                                        pred = _clone(method, features, sk2, tk2, B, A,
-                                                      _features_input(B, mid, features), times)
+                                        pred, W, rng = _clone(method, features, sk2, tk2, B, A,
+                                                              _features_input(B, mid, features), times)
+                                        W = W if W1 is None else np.hstack([W1, W])
                                         tgt_rig, truth = A, src_v
                                     tkeys = (kp(A, A)[1] if kind != "cross" else kp(A, B)[1])
                                     m = metrics(pred, truth, tgt_rig.neutral.vertices, tgt_rig)
@@ -150,14 +173,47 @@ def run(data: Path, quick: bool = False, log=print) -> dict:
                                         oracle_cache[okey] = oracle_rel_motion_pct(
                                             truth, tkeys.deltas + tgt_rig.neutral.vertices, tgt_rig.neutral.vertices)
                                     m["oracle_rel_motion_pct"] = oracle_cache[okey]
+                                    bkey = (tgt_rig.name, keys, take, None if rng is None else tuple(rng))
+                                    if bkey not in oracle_cache:
+                                        oracle_cache[bkey] = oracle_rel_motion_pct(
+                                            truth, tkeys.deltas + tgt_rig.neutral.vertices, tgt_rig.neutral.vertices,
+                                            weight_range=rng)
+                                    m["oracle_bounded_rel_motion_pct"] = oracle_cache[bkey]
                                     row.update({k: float(v) for k, v in m.items()})
+                                    row.update(_weight_stats(W, rng))
                                     row["seconds"] = time.perf_counter() - t0
                                 except FaceRetargetError as e:
                                     row["error"] = str(e)
                                 out.append(row)
                                 _log_row(row, log)
+    ranges = run_ranges(rigs, rom, takes, gt, log)
     timing = measure_timing(rigs, takes)
-    return {"experiments": out, "timing": timing, "paper": PAPER}
+    return {"experiments": out, "ranges": ranges, "timing": timing, "paper": PAPER}
+
+
+def run_ranges(rigs, rom, takes, gt, log=print) -> list[dict]:
+    """The rom-40 cross experiments (landmarks, default method) at every range of :data:`RANGES`."""
+    rows = []
+    for a_name, b_name in (("ict-face", "arkit-face"), ("arkit-face", "ict-face")):
+        A, B = rigs[a_name], rigs[b_name]
+        sk, tk, _ = keymodel_pair(A, B, "rom-40", rom=rom)
+        for ti, take in enumerate(TAKES):
+            truth = gt(b_name, take)
+            for noise in (0.0, 0.5):
+                inp = _noisy(A, _features_input(A, gt(a_name, take), "landmarks"), noise, seed=ti)
+                for rname, rng in RANGES.items():
+                    pred, W, used = _clone("temporal", "landmarks", sk, tk, A, B, inp, takes[take].times,
+                                           weight_range=rng)
+                    row = {"source": a_name, "target": b_name, "take": take, "noise_mm": noise, "range": rname,
+                           "rel_motion_pct": float(metrics(pred, truth, B.neutral.vertices, B)["rel_motion_pct"]),
+                           "oracle_bounded_rel_motion_pct": float(oracle_rel_motion_pct(
+                               truth, tk.deltas + B.neutral.vertices, B.neutral.vertices, weight_range=rng)),
+                           **_weight_stats(W, used)}
+                    rows.append(row)
+                log(f"ranges {a_name[:5]}->{b_name[:5]} {take[:8]:8s} {noise:.1f}: " + "  ".join(
+                    f"{r['range']} {r['rel_motion_pct']:.2f} ({r['oracle_bounded_rel_motion_pct']:.2f})"
+                    for r in rows[-len(RANGES):]))
+    return rows
 
 
 def _log_row(r, log):
@@ -167,7 +223,8 @@ def _log_row(r, log):
         return
     log(f"{r['kind']:9s} {r['source'][:5]}->{r['target'][:5]} {r['keys']:10s} {r['features']:9s} "
         f"{r['method']:8s} {r['noise_mm']:.1f} {r['take'][:8]:8s} rel {r['rel_motion_pct']:8.3f} "
-        f"oracle {r['oracle_rel_motion_pct']:6.2f} err {r['err_pct']:9.5f} "
+        f"oracle {r['oracle_rel_motion_pct']:6.2f} in range {r['oracle_bounded_rel_motion_pct']:6.2f} "
+        f"w {r['w_min']:.2f}..{r['w_max']:.2f} err {r['err_pct']:9.5f} "
         f"xyz {r['err_pct_x']:.4f}/{r['err_pct_y']:.4f}/{r['err_pct_z']:.4f} mve {r['mve_mm']:.3f}mm "
         f"lve {r['lve_mm']:.2f}mm")
 
@@ -222,8 +279,10 @@ def summarize(result, log=print) -> bool:
         ok_all &= ok
         log(f"\n[{'ok' if ok else 'MISS'}] arkit keys reproduce every take: worst err_pct {worst:.2e} (<= 1e-4)")
     cross = [e for e in ex if e["kind"] == "cross" and e["keys"] == "rom-40"]
-    log("\nrom-40 cross, out of sample (rel_motion_pct %; default = temporal, landmark features):")
-    log(f"{'pair':12s} {'take':10s} {'noise':>5s} {'default':>8s} {'pyun':>8s} {'linear':>8s} {'noh(all)':>9s} {'oracle':>7s}")
+    log("\nrom-40 cross, out of sample (rel_motion_pct %; default = temporal, landmark features; target <= 10 % "
+        "with every weight in the default range):")
+    log(f"{'pair':12s} {'take':10s} {'noise':>5s} {'default':>8s} {'pyun':>8s} {'linear':>8s} {'noh(all)':>9s} "
+        f"{'oracle':>7s} {'in range':>8s} {'weights':>13s}")
     for e in [e for e in cross if e["method"] == "temporal" and e["features"] == "landmarks"]:
         def get(method, features="landmarks", e=e):
             for x in cross:
@@ -232,10 +291,23 @@ def summarize(result, log=print) -> bool:
                     return x["rel_motion_pct"]
             return float("nan")
         d, p, li, n = e["rel_motion_pct"], get("pyun"), get("linear"), get("noh", "all")
-        ok = d <= 10 and d < p and d < n
+        lo, hi = e["weight_range"]
+        inside = lo <= e["w_min"] and e["w_max"] <= hi
+        ok = d <= 10 and d < n and inside
         ok_all &= ok
         log(f"{e['source'][:5]}->{e['target'][:5]} {e['take'][:10]:10s} {e['noise_mm']:5.1f} {d:8.2f} {p:8.2f} {li:8.2f} "
-            f"{n:9.2f} {e['oracle_rel_motion_pct']:7.2f}  {'ok' if ok else 'MISS'}")
+            f"{n:9.2f} {e['oracle_rel_motion_pct']:7.2f} {e['oracle_bounded_rel_motion_pct']:8.2f} "
+            f"{e['w_min']:6.2f}..{e['w_max']:5.2f}  {'ok' if ok else 'MISS'}")
+    rows = result.get("ranges", [])
+    if rows:
+        log("\nweight ranges, rom-40 cross (default method, landmarks): worst / mean rel_motion_pct over the 12 "
+            "experiments, bounded oracle in brackets:")
+        for rname in dict.fromkeys(r["range"] for r in rows):
+            rr = [r for r in rows if r["range"] == rname]
+            rel = [r["rel_motion_pct"] for r in rr]
+            orc = [r["oracle_bounded_rel_motion_pct"] for r in rr]
+            log(f"  {rname:>11s}: worst {max(rel):6.2f}  mean {np.mean(rel):6.2f}   ({max(orc):.2f} / {np.mean(orc):.2f})"
+                f"   weights {min(r['w_min'] for r in rr):.2f}..{max(r['w_max'] for r in rr):.2f}")
     t = result["timing"]
     for name, val, goal, le in (("fit_s", t["fit_s"], 0.05, True), ("stream_frame_ms", t["stream_frame_ms"], 0.1, True),
                                 ("blend_vs_gemm", t["blend_vs_gemm"], 0.5, False)):
@@ -261,8 +333,9 @@ def markdown(result) -> str:
              "MySlate_3_Jason_Millers_iPhone": "MySlate_3"}
     out = ["**rom-40 keys, cross-character, out of sample, 68 landmark features** "
            "(`rel_motion_pct`, %; noh sees all source vertices):", "",
-           "| source -> target | take | noise | **default** (temporal) | pyun (paper) | linear | noh (2001) | oracle floor |",
-           "|---|---|---|---|---|---|---|---|"]
+           "| source -> target | take | noise | **default** (temporal) | pyun (paper) | linear | noh (2001) | "
+           "oracle floor | oracle in range | default's weights | outside [0, 1] |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
     for e in pick(kind="cross", keys="rom-40", features="landmarks", method="temporal"):
         def g(method, features="landmarks", e=e):
             r = pick(kind="cross", keys="rom-40", features=features, method=method, source=e["source"],
@@ -270,7 +343,20 @@ def markdown(result) -> str:
             return r[0]["rel_motion_pct"] if r else float("nan")
         out.append(f"| {short[e['source']]} -> {short[e['target']]} | {short[e['take']]} | {e['noise_mm']:g} mm | "
                    f"**{e['rel_motion_pct']:.2f}** | {g('pyun'):.2f} | {g('linear'):.2f} | {g('noh', 'all'):.2f} | "
-                   f"{e['oracle_rel_motion_pct']:.2f} |")
+                   f"{e['oracle_rel_motion_pct']:.2f} | {e['oracle_bounded_rel_motion_pct']:.2f} | "
+                   f"{e['w_min']:.2f} .. {e['w_max']:.2f} | {e['w_outside_01_pct']:.1f} % |")
+    rows = result.get("ranges", [])
+    if rows:
+        out += ["", "**Weight ranges** (rom-40 cross, default method, landmarks; `rel_motion_pct` %, worst / mean "
+                "of the 12 experiments; bounded oracle = best blend inside the range):", "",
+                "| range | worst | mean | oracle worst | oracle mean | weights |", "|---|---|---|---|---|---|"]
+        for rname in dict.fromkeys(r["range"] for r in rows):
+            rr = [r for r in rows if r["range"] == rname]
+            rel = [r["rel_motion_pct"] for r in rr]
+            orc = [r["oracle_bounded_rel_motion_pct"] for r in rr]
+            out.append(f"| {rname if rname != 'none' else 'none (unconstrained)'} | {max(rel):.2f} | {np.mean(rel):.2f} | "
+                       f"{max(orc):.2f} | {np.mean(orc):.2f} | {min(r['w_min'] for r in rr):.2f} .. "
+                       f"{max(r['w_max'] for r in rr):.2f} |")
     out += ["", "**Every key set, cross-character** (`rel_motion_pct`, %, mean of the three takes and both directions; "
             "landmark features except `arkit`, which uses all vertices):", "",
             "| keys | noise | default | pyun | linear | oracle floor |", "|---|---|---|---|---|---|"]

@@ -95,8 +95,8 @@ def test_errors_are_one_line_and_nonzero(files, capsys, tmp_path):
     assert rc == 2 and "no target key-model" in capsys.readouterr().err
     # unknown output format
     rc = main(["clone", "--source-rig", str(d / "ada"), "--target-rig", str(d / "bo"), "--keys", "arkit",
-               "--performance", str(d / "take.csv"), "--out", str(tmp_path / "x.fbx")])
-    assert rc == 2 and ".fbx" in capsys.readouterr().err
+               "--performance", str(d / "take.csv"), "--out", str(tmp_path / "x.xyz")])
+    assert rc == 2 and ".xyz" in capsys.readouterr().err
     assert not list(tmp_path.glob("*.part")) and not list(tmp_path.glob(".*.part"))
 
 

@@ -152,8 +152,8 @@ def test_write_animation_every_format(tmp_path):
 def test_write_animation_errors_leave_nothing(tmp_path):
     rig = _rig()
     w = np.zeros((2, 2))
-    with pytest.raises(OutputError, match=r"out\.fbx: unknown output format '\.fbx'"):
-        write_animation(tmp_path / "out.fbx", rig=rig, weights=w, times=[0, 1])
+    with pytest.raises(OutputError, match=r"out\.xyz: unknown output format '\.xyz'"):
+        write_animation(tmp_path / "out.xyz", rig=rig, weights=w, times=[0, 1])
     with pytest.raises(OutputError, match=r"missing_dir"):
         write_animation(tmp_path / "missing_dir" / "x.npz", rig=rig, weights=w, times=[0, 1])
     (tmp_path / "file").write_text("")

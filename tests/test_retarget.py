@@ -172,7 +172,7 @@ def test_consistency_flags_a_bad_key(data_dir, ict_rig):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rom = read_livelinkface(data_dir / "livelinkface" / "alex_rom_3.csv")
-    labels, U, names = keyset_weights("rom-20", ict_rig, rom=rom)
+    labels, U, names = keyset_weights("rom-20", ict_rig, rom=rom, selection="pca-extrema")  # has near twins
     sk, tk = keymodel_rig(ict_rig, labels, U, names), keymodel_rig(ark, labels, U, names)
     rep = check_consistency(sk, tk)
     assert not rep.flagged.any()                                # a perfectly consistent artist
@@ -252,15 +252,17 @@ def test_cli_retarget_rigs_to_livelinkface_csv(data_dir, tmp_path, capsys):
         a = got.weights[:, got.names.index(n)]
         b = take.weights[:, take.names.index(n)]
         assert np.abs(a - b).max() < 0.02, n
-    # keyshape folders with non-ARKit names cannot become a Live Link Face CSV
+    # keyshape folders with non-ARKit names and no ARKit definition (key_weights.csv, which `keys select`
+    # writes for a weight take; removed here) cannot become a Live Link Face CSV
     rc = main(["-q", "keys", "select", "--performance", str(short), "--source-rig", str(data_dir / "ict-face"),
                "--k", "5", "--method", "pca-extrema", "--out", str(tmp_path / "k")])
     assert rc == 0
+    (tmp_path / "k" / "key_weights.csv").unlink()
     bad = tmp_path / "bad.csv"
     rc = main(["-q", "retarget", "--performance", str(short), "--source-rig", str(data_dir / "ict-face"),
                "--source-keys", str(tmp_path / "k"), "--target-keys", str(tmp_path / "k"), "--out", str(bad)])
     assert rc == 2 and not bad.exists()
-    assert "ARKit-named" in capsys.readouterr().err
+    assert "neither ARKit shapes nor defined by ARKit weight vectors" in capsys.readouterr().err
 
 
 def test_weight_take_without_rig_is_refused():
@@ -287,10 +289,12 @@ def test_2d_landmark_tracks_retarget_through_flat_keyshapes(tmp_path):
     flat0 = np.c_[pts[0], np.zeros(P)]
     write_keyshapes(perf, frames, keys, neutral=flat0)
     sk = read_keyshapes(keys)
-    rt = BlendshapeRetargeter(denoise=False).fit(sk, sk)
+    rt = BlendshapeRetargeter(denoise=False, weight_range=None).fit(sk, sk)
     out = rt.blend(rt.transform(perf).weights)
     assert out.shape == (T, P, 3) and np.abs(out[..., 2]).max() == 0
     assert np.abs(out[..., :2] - pts).max() < 1e-8             # the take lies in the keys' span: exact
+    W = BlendshapeRetargeter(denoise=False).fit(sk, sk).transform(perf).weights   # default example range
+    assert W.min() >= -1.0 and W.max() <= 2.0
 
 
 def test_cli_retarget_with_regions_writes_a_valid_glb(data_dir, tmp_path):

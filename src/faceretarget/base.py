@@ -280,16 +280,29 @@ class WeightsResult:
 
     The dataclass using it has ``weights`` ``(T, N)``, ``names``, ``times`` ``(T,)`` (or None),
     ``head``, ``audio``, ``audio_rate`` and ``source``; ``default_fps`` is the rate assumed when the
-    times do not show one.
+    times do not show one.  ``timecode``, ``timecode_rate``, ``curves`` and ``curve_names`` (the
+    input take's clock and extra curves such as Live Link Face's eye angles,
+    :class:`~faceretarget.performance.Performance`) are None / empty unless :meth:`carry` set them.
     """
 
     default_fps = 30.0
+    timecode: float | None = None
+    timecode_rate: float | None = None
+    curves: np.ndarray | None = None
+    curve_names: tuple[str, ...] | list[str] = ()
+
+    def carry(self, take: Performance) -> None:
+        """Take over what ``take`` holds besides its face: head, audio, source, timecode and curves."""
+        self.head, self.audio, self.audio_rate, self.source = take.head, take.audio, take.audio_rate, take.source
+        self.timecode, self.timecode_rate = take.timecode, take.timecode_rate
+        self.curves, self.curve_names = take.curves, list(take.curve_names)
 
     @property
     def take(self) -> Performance:
-        """The weights as a take on the target keys, with the input's head motion and audio."""
+        """The weights as a take on the target keys, with the input's head motion, audio, timecode and curves."""
         if self.times is None:
             raise InvalidDataError(f"{self.source}: frames were given without times; pass times= to transform")
         return Performance(self.times, infer_fps(self.times, default=self.default_fps), weights=self.weights,
                            names=list(self.names), head=self.head, audio=self.audio, audio_rate=self.audio_rate,
-                           source=self.source)
+                           source=self.source, timecode=self.timecode, timecode_rate=self.timecode_rate,
+                           curves=self.curves, curve_names=list(self.curve_names))

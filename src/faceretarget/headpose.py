@@ -195,6 +195,54 @@ class HeadPose:
         tr = None if self.translation is None else self.translation[index]
         return HeadPose(q, tr, source=self.source)
 
+    def resample(self, times, new_times) -> HeadPose:
+        """The pose at other times: rotations by slerp, translation linearly, between the frames that
+        have a pose.
+
+        Parameters
+        ----------
+        times : (T,) float
+            Seconds of this pose's frames, strictly increasing.
+        new_times : (N,) float
+            Seconds to sample, inside ``[times[0], times[-1]]`` of the frames with a pose (1 us of
+            slack at either end).
+
+        Returns
+        -------
+        HeadPose
+            ``N`` frames, every one with a pose.
+
+        Raises
+        ------
+        InvalidDataError
+            Times of the wrong length, fewer than two frames with a pose, or ``new_times`` outside
+            the span they cover (naming both spans).
+        """
+        from scipy.spatial.transform import Slerp
+
+        t = np.asarray(times, dtype=np.float64).reshape(-1)
+        nt = np.asarray(new_times, dtype=np.float64).reshape(-1)
+        if t.size != self.n_frames:
+            raise InvalidDataError(f"{self.source}: {t.size} times for {self.n_frames} head poses")
+        ok = self.valid
+        if ok.sum() < 2:
+            raise InvalidDataError(f"{self.source}: fewer than two frames have a head pose; cannot resample")
+        tv = t[ok]
+        if not np.all(np.diff(tv) > 0):
+            raise InvalidDataError(f"{self.source}: head pose times must increase")
+        lo, hi, eps = tv[0], tv[-1], 1e-6
+        if nt.size and (nt.min() < lo - eps or nt.max() > hi + eps):
+            raise InvalidDataError(f"{self.source}: head motion covers {lo:.3f}-{hi:.3f} s, asked for "
+                                   f"{nt.min():.3f}-{nt.max():.3f} s")
+        nt = np.clip(nt, lo, hi)
+        q = Slerp(tv, Rotation.from_quat(self.quaternions[ok]))(nt).as_quat()
+        tr = None
+        if self.translation is not None:
+            okt = ok & np.isfinite(self.translation).all(axis=1)
+            tr = np.stack([np.interp(nt, t[okt], self.translation[okt, k]) for k in range(3)], axis=1) \
+                if okt.any() else np.full((nt.size, 3), np.nan)
+        return HeadPose(q.reshape(-1, 4), tr, source=self.source)
+
     def with_translation(self, translation) -> HeadPose:
         """The same rotations with another translation (metres, or None)."""
         return HeadPose(self.quaternions, translation, source=self.source)

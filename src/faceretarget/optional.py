@@ -20,6 +20,8 @@ EXTRAS: dict[str, str] = {
     "av": "capture",
     "cv2": "capture",
     "numba": "fast",
+    "pxr": "usd",
+    "bpy": "blender",
 }
 
 

@@ -12,10 +12,15 @@ vertices      ``(T, V, 3)`` + ``mesh``                OBJ sequences, ``.npz``
 head          :class:`~faceretarget.headpose.HeadPose` Live Link Face head columns, video capture,
                                                       BVH / SMPL-X, rigid markers, synthesis
 audio         ``(N,)`` float32 in [-1, 1] + rate      WAV, the video's sound
+curves        ``(T, C)`` + ``curve_names``            Live Link Face eye angles (``LeftEyeYaw``...)
 ============= ======================================= ===========================================
 
 Each channel is validated once, here: shapes against the frame count, finite weights and
 vertices, strictly increasing finite times.  ``unit`` is the length unit of points and vertices.
+``timecode`` + ``timecode_rate`` place the take on a clock (Live Link Face's ``Timecode``
+column): frame ``i`` happened at ``timecode + times[i]`` seconds since midnight.  Curves and the
+timecode ride along with the face channel: results of a clone or retarget, and every writer that
+can hold them (Live Link Face CSV), carry them from the input take.
 """
 
 from __future__ import annotations
@@ -67,6 +72,16 @@ class Performance:
         Unit of points / vertices.
     source : str
         Where the take came from (file name), used in messages.
+    timecode : float, optional
+        Seconds since midnight at ``times == 0`` (so frame ``i`` is at ``timecode + times[i]``), in
+        ``[0, 86400)``; given with ``timecode_rate``.
+    timecode_rate : float, optional
+        Frames per second of the timecode's frame field (``HH:MM:SS:FF``; Live Link Face: 60).
+    curves : (T, C) float, optional
+        Other per-frame values that are not key-shape weights, named by ``curve_names`` (Live Link
+        Face's eye angles in radians: ``LeftEyeYaw, LeftEyePitch, LeftEyeRoll, RightEyeYaw, ...``).
+    curve_names : list of str
+        Curve names (unique).
     """
 
     times: np.ndarray
@@ -82,6 +97,10 @@ class Performance:
     audio_rate: float | None = None
     unit: str | None = None
     source: str = "performance"
+    timecode: float | None = None
+    timecode_rate: float | None = None
+    curves: np.ndarray | None = None
+    curve_names: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.times = check_times(self.times, self.source)
@@ -104,6 +123,37 @@ class Performance:
                 raise InvalidDataError(f"{self.source}: the head pose has {self.head.n_frames} frames, the take {T}")
         if self.audio is not None:
             self._check_audio()
+        self._check_timecode()
+        if self.curves is not None:
+            self._check_curves(T)
+        elif self.curve_names:
+            raise InvalidDataError(f"{self.source}: curve_names given without curves")
+
+    def _check_timecode(self) -> None:
+        if (self.timecode is None) != (self.timecode_rate is None):
+            raise InvalidDataError(f"{self.source}: give timecode and timecode_rate together")
+        if self.timecode is None:
+            return
+        tc, rate = float(self.timecode), float(self.timecode_rate)
+        if not (np.isfinite(tc) and 0.0 <= tc < 86400.0):
+            raise InvalidDataError(f"{self.source}: timecode must be seconds since midnight in [0, 86400), got {tc}")
+        if not (np.isfinite(rate) and rate > 0):
+            raise InvalidDataError(f"{self.source}: timecode_rate must be positive, got {rate}")
+        self.timecode, self.timecode_rate = tc, rate
+
+    def _check_curves(self, T: int) -> None:
+        c = np.asarray(self.curves, dtype=np.float64)
+        names = [str(n) for n in self.curve_names]
+        if c.ndim != 2 or c.shape != (T, len(names)):
+            raise InvalidDataError(f"{self.source}: curves must be ({T}, {len(names)}) for {len(names)} curve "
+                                   f"names, got {c.shape}")
+        if not np.isfinite(c).all():
+            f, k = (int(x[0]) for x in np.nonzero(~np.isfinite(c)))
+            raise InvalidDataError(f"{self.source}: frame {f} curve '{names[k]}' is {c[f, k]}")
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise InvalidDataError(f"{self.source}: curve '{dup[0]}' is named twice")
+        self.curves, self.curve_names = c, names
 
     def _check_weights(self, T: int) -> None:
         w = np.asarray(self.weights, dtype=np.float64)
@@ -193,10 +243,13 @@ class Performance:
     # ------------------------------------------------------------------ properties
     @property
     def channels(self) -> tuple[str, ...]:
-        """The channels present, of ``"weights"``, ``"points"``, ``"vertices"``, ``"head"``, ``"audio"``."""
+        """The channels present, of ``"weights"``, ``"points"``, ``"vertices"``, ``"head"``, ``"audio"``,
+        ``"curves"``."""
         have = [c for c in ("weights", "points", "vertices", "head") if getattr(self, c) is not None]
         if self.audio is not None:
             have.append("audio")
+        if self.curves is not None:
+            have.append("curves")
         return tuple(have)
 
     @property
@@ -228,8 +281,9 @@ class Performance:
         return replace(self, **changes)
 
     def select(self, *channels: str) -> Performance:
-        """A take with only ``channels`` (names of :attr:`channels`; ``"audio"`` included)."""
-        unknown = set(channels) - {"weights", "points", "vertices", "head", "audio"}
+        """A take with only ``channels`` (names of :attr:`channels`; ``"audio"`` and ``"curves"`` included;
+        the timecode is kept)."""
+        unknown = set(channels) - {"weights", "points", "vertices", "head", "audio", "curves"}
         if unknown:
             raise InvalidDataError(f"unknown channel(s) {', '.join(sorted(unknown))}")
         drop: dict = {}
@@ -243,27 +297,32 @@ class Performance:
             drop["head"] = None
         if "audio" not in channels:
             drop.update(audio=None, audio_rate=None)
+        if "curves" not in channels:
+            drop.update(curves=None, curve_names=[])
         return replace(self, **drop)
 
     def slice(self, start: int, stop: int | None = None) -> Performance:
-        """Frames ``start:stop`` as a new performance (audio is dropped)."""
+        """Frames ``start:stop`` as a new performance (audio is dropped; curves and timecode kept)."""
         s = slice(start, stop)
-        kw = {c: getattr(self, c)[s] for c in CHANNELS if getattr(self, c) is not None}
+        kw = {c: getattr(self, c)[s] for c in CHANNELS + ("curves",) if getattr(self, c) is not None}
         head = None if self.head is None else self.head[s]
         return replace(self, times=self.times[s], audio=None, audio_rate=None, head=head, **kw)
 
+    def _carried(self) -> dict:
+        """What a new face channel keeps of this take besides times: head, audio, timecode, curves."""
+        return dict(head=self.head, audio=self.audio, audio_rate=self.audio_rate, source=self.source,
+                    timecode=self.timecode, timecode_rate=self.timecode_rate, curves=self.curves,
+                    curve_names=list(self.curve_names))
+
     def with_weights(self, weights: np.ndarray, names: list[str]) -> Performance:
-        """This take's times, head and audio with new weights as its only face channel."""
-        return Performance(self.times, self.fps, weights=weights, names=list(names), head=self.head,
-                           audio=self.audio, audio_rate=self.audio_rate, source=self.source)
+        """This take's times, head, audio, timecode and curves with new weights as its only face channel."""
+        return Performance(self.times, self.fps, weights=weights, names=list(names), **self._carried())
 
     def with_points(self, points: np.ndarray, labels: list[str] | None = None, unit: str | None = None) -> Performance:
-        """This take's times, head and audio with new points as its only face channel."""
+        """This take's times, head, audio, timecode and curves with new points as its only face channel."""
         return Performance(self.times, self.fps, points=points, labels=list(self.labels if labels is None else labels),
-                           head=self.head, audio=self.audio, audio_rate=self.audio_rate,
-                           unit=self.unit if unit is None else unit, source=self.source)
+                           unit=self.unit if unit is None else unit, **self._carried())
 
     def with_vertices(self, vertices: np.ndarray, mesh: Mesh | None = None, unit: str | None = None) -> Performance:
-        """This take's times, head and audio with new vertices as its only face channel."""
-        return Performance(self.times, self.fps, vertices=vertices, mesh=mesh, unit=unit, head=self.head,
-                           audio=self.audio, audio_rate=self.audio_rate, source=self.source)
+        """This take's times, head, audio, timecode and curves with new vertices as its only face channel."""
+        return Performance(self.times, self.fps, vertices=vertices, mesh=mesh, unit=unit, **self._carried())

@@ -37,6 +37,14 @@ class Rig:
         The names as found in the files, for messages and round trips.
     name : str
         A label (usually the folder it came from).
+    basis : (K, M) float, optional
+        What each key shape is, when it is known: key shape ``k`` is the base rig at the weights
+        ``basis[k]`` of the base shapes ``basis_names`` (a key-model set of an ARKit-style rig:
+        ARKit weight vectors, :func:`~faceretarget.cloning.keymodel_rig`).  Key weights ``W``
+        ``(T, K)`` then convert to base weights as ``W @ basis`` (:meth:`to_basis`).  Kept by
+        :meth:`subset` and by the rig files (``.npz``, ``key_weights.csv`` in OBJ folders).
+    basis_names : list of str, optional
+        The ``M`` base shape names (normalised to ARKit camelCase); given with ``basis``.
     """
 
     neutral: Mesh
@@ -46,6 +54,8 @@ class Rig:
     landmarks: np.ndarray | None = None
     source_names: list[str] | None = None
     name: str = "rig"
+    basis: np.ndarray | None = None
+    basis_names: list[str] | None = None
     _index: dict[str, int] = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -75,6 +85,25 @@ class Rig:
             if lm.size and (lm.min() < 0 or lm.max() >= V):
                 raise InvalidDataError(f"{self.name}: a landmark index is outside 0..{V - 1}")
             self.landmarks = lm
+        self._check_basis()
+
+    def _check_basis(self) -> None:
+        if (self.basis is None) != (self.basis_names is None):
+            raise InvalidDataError(f"{self.name}: give basis and basis_names together")
+        if self.basis is None:
+            return
+        bn = [normalize_name(n) for n in self.basis_names]
+        b = np.asarray(self.basis, dtype=np.float64)
+        if b.ndim != 2 or b.shape != (self.n_shapes, len(bn)):
+            raise InvalidDataError(f"{self.name}: basis must be ({self.n_shapes}, {len(bn)}) for {self.n_shapes} "
+                                   f"key shapes and {len(bn)} base names, got {b.shape}")
+        if not np.isfinite(b).all():
+            k = int(np.flatnonzero(~np.isfinite(b).all(axis=1))[0])
+            raise InvalidDataError(f"{self.name}: the basis weights of key shape '{self.names[k]}' are not finite")
+        dup = sorted({n for n in bn if bn.count(n) > 1})
+        if dup:
+            raise InvalidDataError(f"{self.name}: base shape '{dup[0]}' is named twice in basis_names")
+        self.basis, self.basis_names = b, bn
 
     # ------------------------------------------------------------------ basics
     @property
@@ -193,10 +222,40 @@ class Rig:
         return out
 
     def subset(self, names: list[str]) -> Rig:
-        """A rig with only the named shapes, in that order."""
+        """A rig with only the named shapes, in that order (their :attr:`basis` rows kept)."""
         idx = [self.index(n) for n in names]
         return Rig(self.neutral, [self.names[i] for i in idx], self.deltas[idx], self.unit,
-                   self.landmarks, None, self.name)
+                   self.landmarks, None, self.name, None if self.basis is None else self.basis[idx],
+                   self.basis_names)
+
+    def to_basis(self, weights: np.ndarray, names: list[str] | None = None) -> np.ndarray:
+        """Key weights as weights of the base shapes (:attr:`basis`): ``W @ basis``.
+
+        Parameters
+        ----------
+        weights : (K,) or (T, K) float
+            In this rig's shape order, or with columns named by ``names``.
+        names : list of str, optional
+            Key shape names of the columns (any spelling; each must be a shape of this rig).
+
+        Returns
+        -------
+        (M,) or (T, M) float
+            Weights of :attr:`basis_names`.
+
+        Raises
+        ------
+        InvalidDataError
+            The rig has no basis, or the columns do not match its shapes.
+        """
+        if self.basis is None:
+            raise InvalidDataError(f"{self.name}: the key shapes have no basis (they are not defined as "
+                                   "combinations of named base shapes)")
+        w = np.asarray(weights, dtype=np.float64)
+        B = self.basis if names is None else self.basis[[self.index(n) for n in names]]
+        if w.shape[-1] != len(B):
+            raise InvalidDataError(f"{self.name}: weights have {w.shape[-1]} columns for {len(B)} key shapes")
+        return w @ B
 
 
 def resolve_features(spec, n_vertices: int, landmarks: np.ndarray | None = None, *, who: str = "rig") -> np.ndarray:

@@ -34,6 +34,26 @@ def cmd_clone(args, log) -> int:
         return _clone(args, log)
 
 
+def _head_choice(value: str, out: Path):
+    """``--head auto|off|FILE`` checked before any work: the file exists and ``out`` can hold a head."""
+    from ..errors import InputFileError, OutputError
+    from ..io import HEAD_READ_FORMATS, holds_head
+    from ..pipelines import face_and_head_formats
+
+    if value in ("auto", "off"):
+        return value
+    head = Path(value)
+    if not head.is_file():
+        raise InputFileError(f"{head}: head-motion file not found (--head takes auto, off or a file)")
+    if head.suffix.lower() not in HEAD_READ_FORMATS:
+        raise InputFileError(f"{head}: unknown head-motion format '{head.suffix}' (use {', '.join(HEAD_READ_FORMATS)})")
+    if not holds_head(out):
+        ok = ", ".join(face_and_head_formats())
+        raise OutputError(f"{out}: this format cannot hold head motion from {head}; write one that can ({ok}) "
+                          "or drop --head")
+    return head
+
+
 def _clone_keys(args, perf, source_rig, log):
     """The key-model pair of ``clone``: two folders paired by file name, or a standard set of two rigs."""
     from ..cloning import keymodel_pair
@@ -60,19 +80,34 @@ def _clone_keys(args, perf, source_rig, log):
     return sk, tk
 
 
+_RANGE_HELP = ("range every output weight stays in: LO HI, 'auto' (default: 0 1 for an ARKit-style target "
+               "rig's own shapes, -0.5 1.5 for example-based key-models) or 'none' (unconstrained)")
+
+
+def _weight_range(words: list[str]):
+    """``--weight-range``: 'auto', 'none' or LO HI."""
+    from ..numerics import weight_range
+
+    if len(words) == 1 and words[0].strip().lower() == "auto":
+        return "auto"
+    return weight_range(" ".join(words), what="--weight-range")
+
+
 def _clone(args, log) -> int:
     from ..io import read_performance
     from ..pipelines import clone_take, write_result
 
     out = Path(args.out)
     _protect(out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.target_rig,
-                   args.keys_from])
+                   args.keys_from, None if args.head in ("auto", "off") else args.head])
+    head = _head_choice(args.head, out)
     perf = read_performance(args.performance, fps=args.fps)
     source_rig = _rig(args.source_rig, args.source_neutral,
                       args.source_landmarks if not (args.source_keys or args.target_keys) else None)
     sk, tk = _clone_keys(args, perf, source_rig, log)
-    job = clone_take(perf, sk, tk, source_rig=source_rig, method=args.method, features=args.features, log=log)
-    write_result(out, job, log=log)
+    job = clone_take(perf, sk, tk, source_rig=source_rig, method=args.method, features=args.features,
+                     weight_range=_weight_range(args.weight_range), log=log)
+    write_result(out, job, head=head, log=log)
     return 0
 
 
@@ -109,9 +144,11 @@ def cmd_keys_select(args, log) -> int:
         aligned = Performance.from_points(geo.points, geo.labels, times=perf.times, unit=perf.unit, source=perf.source)
         write_keyshapes(aligned, sel.frames, out, neutral=sel.neutral)
     else:
-        write_keyshapes(geo.points, sel.frames, out, mesh=geo.mesh, neutral=sel.neutral)
-    log(f"wrote {out}: {len(sel.frames)} keyshapes, neutral.obj, keyshapes.txt and contact_sheet.png; model the "
-        "target counterparts under the same file names (frame_*.obj) beside the target's neutral.obj")
+        write_keyshapes(geo.points, sel.frames, out, mesh=geo.mesh, neutral=sel.neutral, basis=sel.basis,
+                        basis_names=sel.basis_names)
+    extra = ", key_weights.csv" if sel.basis is not None else ""
+    log(f"wrote {out}: {len(sel.frames)} keyshapes, neutral.obj, keyshapes.txt{extra} and contact_sheet.png; model "
+        "the target counterparts under the same file names (frame_*.obj) beside the target's neutral.obj")
     return 0
 
 
@@ -127,7 +164,9 @@ def _retarget(args, log) -> int:
     from ..retarget import load_regions
 
     out = Path(args.out)
-    _protect(out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions])
+    _protect(out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions,
+                   None if args.head in ("auto", "off") else args.head])
+    head = _head_choice(args.head, out)
     perf = read_performance(args.performance, fps=args.fps)
     rig = _rig(args.source_rig, args.source_neutral)
     sk, labels = read_keys(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks, rig=rig)
@@ -143,10 +182,11 @@ def _retarget(args, log) -> int:
     if perf.kind == "weights" and rig is None:
         raise InvalidDataError(f"{perf.source}: a weight take needs the rig it drives (--source-rig DIR)")
     job = retarget_take(perf, sk, tk, source_labels=labels, source_rig=rig, check=args.check, log=log,
-                        solver=args.solver, upper=args.upper, l1=args.l1, l2=args.l2, smooth=args.temporal,
+                        solver=args.solver, weight_range=_weight_range(args.weight_range), l1=args.l1, l2=args.l2,
+                        smooth=args.temporal,
                         denoise=not args.no_denoise, filter_level=args.smooth, regions=regions,
                         align=not args.no_align, rigid_subset=_subset(args.rigid_subset))
-    write_result(out, job, log=log)
+    write_result(out, job, head=head, log=log)
     return 0
 
 
@@ -154,6 +194,11 @@ def cmd_demo(args, log) -> int:
     from ..pipelines import run_demo
 
     return run_demo(Path(args.out), log=log)
+
+
+_HEAD_HELP = ("head motion written with the face (.glb head node, .csv head columns): auto (default) = the "
+              "take's own, off = none, or a head-motion file (.bvh, SMPL-X .npz, .c3d, .glb, .csv) resampled "
+              "to the take's times")
 
 
 def _register_clone(sub) -> None:
@@ -164,6 +209,7 @@ def _register_clone(sub) -> None:
                        "ARKit-style rigs and a standard key set (--source-rig/--target-rig --keys).")
     c.add_argument("--performance", required=True, help="take: Live Link Face .csv (weights), .npz, OBJ-sequence folder")
     c.add_argument("--out", required=True, help="output: .glb, .npz, .csv, or a folder (OBJ sequence)")
+    c.add_argument("--head", default="auto", metavar="auto|off|FILE", help=_HEAD_HELP)
     c.add_argument("--source-keys", help="folder of source key-model OBJs (neutral + expressions)")
     c.add_argument("--target-keys", help="folder of target key-model OBJs with the same file names")
     c.add_argument("--source-rig", help="source ARKit-style rig folder (also plays a weight take)")
@@ -174,6 +220,7 @@ def _register_clone(sub) -> None:
     c.add_argument("--features", default="landmarks", help="landmarks (landmarks68.txt), all, or a file of vertex indices")
     c.add_argument("--method", default="temporal", choices=["temporal", "linear", "pyun"],
                    help="weight functions (default temporal: linear cardinal + take-adaptive denoising)")
+    c.add_argument("--weight-range", nargs="+", default=["auto"], metavar="LO HI", help=_RANGE_HELP)
     c.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
     c.add_argument("--source-landmarks", help="landmark index file for the source (default landmarks68.txt)")
     c.add_argument("--target-landmarks", help="landmark index file for the target")
@@ -222,14 +269,15 @@ def _register_retarget(sub) -> None:
     r.add_argument("--performance", required=True, help="take: .c3d, .csv (with --source-rig), .npz, OBJ folder")
     r.add_argument("--source-keys", required=True, help="source keyshape folder")
     r.add_argument("--target-keys", required=True, help="target keyshape folder (same file or shape names)")
-    r.add_argument("--out", required=True, help="output: .glb, .csv (Live Link Face; ARKit-named keys), .npz "
-                   "or a folder (OBJ sequence)")
+    r.add_argument("--out", required=True, help="output: .glb, .csv (Live Link Face; keys ARKit-named or defined "
+                   "by ARKit weights), .npz or a folder (OBJ sequence)")
+    r.add_argument("--head", default="auto", metavar="auto|off|FILE", help=_HEAD_HELP)
     r.add_argument("--source-rig", help="rig a weight take drives")
     r.add_argument("--regions", help="upper-lower, or a regions JSON file (see docs/retargeting.md)")
     r.add_argument("--smooth", type=float, default=0.0, help="low-pass level of the weight curves (0 = none)")
     r.add_argument("--solver", default="signed", choices=["signed", "nnls"],
                    help="signed least squares (default; new takes) or non-negative (the thesis)")
-    r.add_argument("--upper", type=float, help="nnls: upper bound of the weights (e.g. 1)")
+    r.add_argument("--weight-range", nargs="+", default=["auto"], metavar="LO HI", help=_RANGE_HELP)
     r.add_argument("--l1", type=float, default=0.0, help="nnls: sparsity weight")
     r.add_argument("--l2", type=float, default=0.0, help="ridge weight")
     r.add_argument("--temporal", type=float, default=0.0, help="nnls: temporal smoothness weight in the solve")

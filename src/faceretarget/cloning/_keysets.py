@@ -10,7 +10,9 @@ artist).  The neutral is always the rigs' own neutral and is not listed.
 ``combined84``  6 emotions x 13 visemes (weights added, clipped to [0, 1]) + the 6 pure emotions;
                 the pure neutral is the rest face, so 83 key-models besides it
 ``rom-K``       K frames of a range-of-motion take chosen by a keyshape selection method
-                (default PCA extrema) on the source rig's feature points
+                on the source rig's feature points (default pivoted QR: the set that serves a solve
+                inside a weight range best, P1 worst case 9.3 % vs 12.0 % for PCA extrema, 13.2 % for
+                NNLS greedy and k-means at [-1, 2])
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ KEYSETS = ("arkit", "emotions6", "visemes13", "combined84", "rom-K")
 
 
 def keyset_weights(spec: str, source: Rig, *, rom: Performance | None = None, features=None,
-                   selection: str = "pca-extrema") -> tuple[list[str], np.ndarray, list[str]]:
+                   selection: str = "pivoted-qr") -> tuple[list[str], np.ndarray, list[str]]:
     """Weight vectors of a standard key-model set.
 
     Parameters
@@ -92,13 +94,32 @@ def keyset_weights(spec: str, source: Rig, *, rom: Performance | None = None, fe
 
 
 def keymodel_rig(rig: Rig, labels: list[str], U: np.ndarray, names: list[str], name: str | None = None) -> Rig:
-    """The key-models of ``rig`` at weight vectors ``U`` as a Rig (neutral + one shape per label)."""
+    """The key-models of ``rig`` at weight vectors ``U`` as a Rig (neutral + one shape per label).
+
+    Parameters
+    ----------
+    rig : Rig
+    labels : list of str
+        ``N`` key-model names.
+    U : (N, M) float
+        One weight vector per key-model over ``names``.
+    names : list of str
+        ``M`` shape names (ARKit).
+
+    Returns
+    -------
+    Rig
+        ``N`` shapes, ``rig.evaluate(U) - neutral``; :attr:`~faceretarget.rig.Rig.basis` ``U`` over
+        ``names`` (so key weights ``W`` convert back to ``W @ U``).
+    """
     W = rig.map_weights(names, U, warn=False)
     D = rig.evaluate(W) - rig.neutral.vertices
-    return Rig(rig.neutral, list(labels), D, rig.unit, rig.landmarks, None, name or f"{rig.name}:keys")
+    return Rig(rig.neutral, list(labels), D, rig.unit, rig.landmarks, None, name or f"{rig.name}:keys",
+               np.asarray(U, dtype=np.float64), list(names))
 
 
 def keymodel_pair(source: Rig, target: Rig, spec: str, **kw) -> tuple[Rig, Rig, np.ndarray]:
-    """Source and target key-model Rigs for a standard set, and the weight vectors ``U``."""
+    """Source and target key-model Rigs for a standard set, and the weight vectors ``U`` ``(N, 52)``
+    (each Rig's :attr:`~faceretarget.rig.Rig.basis`, over the ARKit names)."""
     labels, U, names = keyset_weights(spec, source, **kw)
     return keymodel_rig(source, labels, U, names), keymodel_rig(target, labels, U, names), U

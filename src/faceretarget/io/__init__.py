@@ -13,6 +13,7 @@ it could not write.
 
 from ..files import atomic_dir, atomic_path, check_output_path, input_file, load_npz_arrays, save_npz_arrays
 from ._audio import read_audio
+from ._blender import blender_timebase, write_blend, write_fbx
 from ._bvh import Bvh, BvhJoint, bvh_chain, make_head_bvh, read_bvh, write_bvh
 from ._c3d import read_c3d, write_c3d
 from ._gltf import glb_vertex_order, read_glb_head, read_glb_rig, read_glb_weights, write_glb, write_glb_head
@@ -42,6 +43,7 @@ from ._registry import (
     WRITE_FORMATS,
     WRITERS,
     Animation,
+    holds_head,
     read_performance,
     register_reader,
     register_writer,
@@ -49,6 +51,7 @@ from ._registry import (
     write_head_motion,
 )
 from ._rig import read_rig, read_rig_npz, write_rig, write_rig_npz
+from ._usd import USD_FORMATS, usd_prim_names, write_usd
 from ._video import VideoInfo, iter_frames, probe_video, read_video_audio, write_video
 
 __all__ = [
@@ -56,9 +59,11 @@ __all__ = [
     "read_rig", "write_rig", "write_rig_npz", "read_rig_npz",
     "read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo",
     "write_glb", "read_glb_weights", "read_glb_rig", "glb_vertex_order", "write_glb_head", "read_glb_head",
+    "write_usd", "usd_prim_names", "USD_FORMATS",
+    "write_blend", "write_fbx", "blender_timebase",
     "write_npz", "read_npz_performance",
     "read_performance", "write_animation", "READ_FORMATS", "WRITE_FORMATS", "READERS", "WRITERS",
-    "register_reader", "register_writer", "Animation",
+    "register_reader", "register_writer", "Animation", "holds_head",
     "read_c3d", "write_c3d",
     "read_audio",
     "Bvh", "BvhJoint", "bvh_chain", "make_head_bvh", "read_bvh", "write_bvh",

@@ -41,7 +41,7 @@ from ._bvh import Bvh, bvh_chain, read_bvh
 __all__ = ["read_bvh_head", "read_smplx_head", "read_marker_head", "read_head_motion", "read_head_take",
            "HEAD_READ_FORMATS"]
 
-HEAD_READ_FORMATS = (".bvh", ".npz", ".c3d")
+HEAD_READ_FORMATS = (".bvh", ".npz", ".c3d", ".glb", ".csv")
 
 
 def read_bvh_head(bvh: Bvh | str | os.PathLike, joints: tuple[str, ...] = ("Neck", "Neck1", "Head"),
@@ -174,7 +174,14 @@ def read_marker_head(perf: Performance, subset=None, n_auto: int = 8) -> Perform
 
 
 def read_head_motion(path: str | os.PathLike, *, neck_length: float = 0.10) -> Performance:
-    """Head motion from ``.bvh`` (Neck/Neck1/Head chain), SMPL-X ``.npz`` or ``.c3d`` markers."""
+    """Head motion from ``.bvh`` (Neck/Neck1/Head chain), SMPL-X ``.npz``, ``.c3d`` markers, a ``.glb``
+    ``head`` node or Live Link Face ``.csv`` head columns (the files ``headmotion synth`` writes).
+
+    Returns
+    -------
+    Performance
+        ``head`` at the file's times (a ``.csv`` keeps its ``timecode``).
+    """
     from ._c3d import read_c3d
 
     path = input_file(path)
@@ -185,6 +192,18 @@ def read_head_motion(path: str | os.PathLike, *, neck_length: float = 0.10) -> P
         return read_smplx_head(path, neck_length=neck_length)
     if ext == ".c3d":
         return read_marker_head(read_c3d(path))
+    if ext == ".glb":
+        from ._gltf import read_glb_head
+
+        times, head = read_glb_head(path)
+        return Performance.from_head(head, times=times, source=str(path))
+    if ext == ".csv":
+        from ._livelinkface import read_livelinkface
+
+        take = read_livelinkface(path)
+        if take.head is None:
+            raise InputFileError(f"{path}: no HeadYaw, HeadPitch, HeadRoll columns; no head motion to read")
+        return take.select("head")
     raise InputFileError(f"{path}: unknown head-motion format '{ext}' (use {', '.join(HEAD_READ_FORMATS)})")
 
 

@@ -7,7 +7,12 @@
   marker labels in comments) or, for a mesh take, the whole mesh;
 * ``contact_sheet.png``: every exported frame seen from the front, labelled with its frame id (a
   scatter of the markers, or a shaded render of the mesh);
-* ``keyshapes.txt``: one line per frame, ``file<TAB>frame<TAB>time_s<TAB>label``.
+* ``keyshapes.txt``: one line per frame, ``file<TAB>frame<TAB>time_s<TAB>label``;
+* ``key_weights.csv`` (frames of a weight take): each frame's weights (``file,<ARKit names>``, one
+  row per ``frame_00123.obj``; the layout of :mod:`faceretarget.io._rig`), so keys read back know
+  what they are as ARKit weights (:attr:`Rig.basis <faceretarget.rig.Rig.basis>`) and a clone or
+  retarget onto them can be written as a Live Link Face CSV.  Copy it beside the target shapes
+  with ``keyshapes.txt``.
 
 The artist models the target character's counterpart of each frame and saves it under the same
 name (``frame_00123.obj``) in a folder, with the target's neutral as ``neutral.obj``;
@@ -23,13 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, InvalidDataError, MissingShapeError, TopologyError
+from ..errors import InputFileError, InvalidDataError, MissingShapeError, OutputError, TopologyError
 from ..files import atomic_dir
 from ..mesh import Mesh
 from ..performance import Performance
 from ..rig import Rig
 from ..units import guess_unit
 from ._obj import read_obj, read_obj_vertices, write_obj
+from ._rig import KEY_WEIGHTS, read_key_weights, write_key_weights
 
 __all__ = ["write_keyshapes", "read_keyshapes", "read_marker_labels", "is_keyshape_folder", "read_keys",
            "keyshape_filename", "MANIFEST", "MARKERS", "CONTACT_SHEET"]
@@ -98,7 +104,8 @@ def _mesh_sheet(vertices: np.ndarray, mesh: Mesh, frames: list[int], labels: lis
 def write_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence[int],
                      out_dir: str | os.PathLike, *, mesh: Mesh | None = None,
                      labels: Sequence[str] | None = None, contact_sheet: bool = True,
-                     cell: int = 240, neutral: np.ndarray | None = None) -> Path:
+                     cell: int = 240, neutral: np.ndarray | None = None,
+                     basis: np.ndarray | None = None, basis_names: Sequence[str] | None = None) -> Path:
     """Write the chosen frames of a take for an artist to model (see the module).
 
     Parameters
@@ -124,6 +131,11 @@ def write_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence
     neutral : (P, 3) float, optional
         The source's rest pose (same points / vertices as the frames), written as ``neutral.obj``
         so the folder is a complete set of source keyshapes for retargeting.
+    basis : (n, M) float, optional
+        What each exported frame is as weights of ``basis_names`` (a weight take's rows at
+        ``frames``), written to ``key_weights.csv``.
+    basis_names : sequence of str, optional
+        The ``M`` base shape (ARKit) names of ``basis``.
 
     Returns
     -------
@@ -145,9 +157,21 @@ def write_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence
     if mesh is not None and mesh.n_vertices != P:
         raise TopologyError(f"{source}: frames have {P} points but the mesh has {mesh.n_vertices} vertices")
     pts = _keyshape_points(data, fr, marker_labels, source)
+    if (basis is None) != (basis_names is None):
+        raise InvalidDataError(f"{source}: give basis and basis_names together")
+    if basis is not None:
+        basis = np.asarray(basis, dtype=np.float64)
+        if basis.shape != (len(fr), len(basis_names)) or not np.isfinite(basis).all():
+            raise InvalidDataError(f"{source}: basis must be ({len(fr)}, {len(basis_names)}) finite weights, "
+                                   f"got {basis.shape}")
     out = Path(out_dir)
+    if basis is None and (out / KEY_WEIGHTS).is_file():
+        raise OutputError(f"{out}: already holds a {KEY_WEIGHTS} of an earlier export that does not describe "
+                          "these frames; export to an empty folder")
     with atomic_dir(out) as tmp:
         _write_frames(tmp, pts, fr, labs, times, unit, mesh, marker_labels, source)
+        if basis is not None:
+            write_key_weights(tmp / KEY_WEIGHTS, [keyshape_filename(f) for f in fr], basis, list(basis_names))
         if neutral is not None:
             _write_source_neutral(tmp, neutral, P, mesh, unit, source)
         if contact_sheet:
@@ -313,7 +337,8 @@ def read_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str] | None
     -------
     Rig
         The neutral and one key shape per frame, named by its label (``keyshapes.txt``) or
-        ``frame_00123``; ``source_names`` holds the file stems.
+        ``frame_00123``; ``source_names`` holds the file stems; ``basis`` from ``key_weights.csv``
+        when the folder has one with a row per frame.
 
     Raises
     ------
@@ -337,7 +362,9 @@ def read_keyshapes(folder: str | os.PathLike, frames: Sequence[int | str] | None
     labels = [label_of.get(f, stems[n]) for n, f in enumerate(ids)]
     labels = [stems[n] if lab == f"frame {f}" else lab
               for n, (f, lab) in enumerate(zip(ids, labels, strict=True))]
-    return Rig(base, labels, deltas, unit or guess_unit(base), None, stems, name or folder.name)
+    basis, basis_names = read_key_weights(folder, [keyshape_filename(f) for f in ids], str(folder))
+    return Rig(base, labels, deltas, unit or guess_unit(base), None, stems, name or folder.name, basis,
+               basis_names)
 
 
 def _keyshape_ids(folder: Path, frames: Sequence[int | str] | str | None,

@@ -114,7 +114,11 @@ def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = No
         ``times`` (T,) seconds relative to the first kept row (so ``times[0] == 0``),
         ``fps = 1 / median(diff(times))``, ``head`` a :class:`~faceretarget.headpose.HeadPose`
         from ``HeadYaw, HeadPitch, HeadRoll`` (radians, Live Link Face's signs; the shared takes
-        hold zeros) when the file has those columns, ``source`` the file path.
+        hold zeros) when the file has those columns, ``source`` the file path; ``timecode`` the
+        first kept row's timecode in seconds since midnight and ``timecode_rate`` the timecode
+        base rate (so :func:`write_livelinkface` writes the same timecodes back); ``curves`` the
+        eye angles ``LeftEyeYaw ... RightEyeRoll`` (radians, as in the file; ``curve_names`` those
+        column names) when the file has the six eye columns.
     LiveLinkFaceInfo
         Only with ``with_info=True``.
 
@@ -149,7 +153,8 @@ def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = No
     times = times_abs - times_abs[0]
     pose = None if head is None else HeadPose.from_livelinkface(head, source=str(path))
     perf = Performance(times=times, fps=infer_fps(times, default=float(rate)), weights=weights, names=names,
-                       head=pose, source=str(path))
+                       head=pose, source=str(path), timecode=float(times_abs[0]) % _DAY, timecode_rate=rate,
+                       curves=eyes, curve_names=list(EYE_COLUMNS) if eyes is not None else [])
     if not with_info:
         return perf
     info = LiveLinkFaceInfo(
@@ -351,8 +356,8 @@ def _to_arkit_columns(names: list[str], weights: np.ndarray, source: str) -> np.
     return out
 
 
-def write_livelinkface(path: str | os.PathLike, perf: Performance, *, rate: int = 60,
-                       start: float | str = 0.0, eye_rotation: np.ndarray | None = None,
+def write_livelinkface(path: str | os.PathLike, perf: Performance, *, rate: int | None = None,
+                       start: float | str | None = None, eye_rotation: np.ndarray | None = None,
                        decimals: int = 3) -> Path:
     """Write a weights performance as a Live Link Face CSV, whole or not at all.
 
@@ -367,13 +372,17 @@ def write_livelinkface(path: str | os.PathLike, perf: Performance, *, rate: int 
         with a warning).  ``head`` fills ``HeadYaw, HeadPitch, HeadRoll`` in Live Link Face's
         convention (:meth:`~faceretarget.headpose.HeadPose.to_livelinkface`; zeros when absent,
         and in frames without a pose).
-    rate : int
-        Timecode base rate (frames per second of the ``FF`` field).
-    start : float or str
+    rate : int, optional
+        Timecode base rate (frames per second of the ``FF`` field); default the take's
+        ``timecode_rate``, else 60.
+    start : float or str, optional
         Timecode of the first frame, seconds since midnight or ``"HH:MM:SS:FF.fff"``; frame ``i``
-        is written at ``start + times[i] - times[0]``.
+        is written at ``start + times[i] - times[0]``.  Default: the take's own timecode
+        (``perf.timecode + times[0]``, so a take read from a Live Link Face CSV keeps its clock),
+        else ``00:00:00:00``.
     eye_rotation : (T, 6) float, optional
-        Eye yaw, pitch, roll left then right (zeros when absent).
+        Eye yaw, pitch, roll left then right; default the take's curves named like the six eye
+        columns (``LeftEyeYaw`` ...), else zeros.
     decimals : int
         Decimals of the sub-frame part of the timecode (Live Link Face writes 3).
 
@@ -386,6 +395,16 @@ def write_livelinkface(path: str | os.PathLike, perf: Performance, *, rate: int 
     if perf.weights is None and perf.head is None:
         raise InvalidDataError(f"{perf.source}: a Live Link Face CSV holds weights and head angles, this take "
                                f"holds {perf.kind}")
+    if rate is None:
+        rate = perf.timecode_rate if perf.timecode_rate is not None else 60
+    if not float(rate).is_integer() or rate <= 0:
+        raise InvalidDataError(f"{perf.source}: a Live Link Face timecode rate is a positive whole number of "
+                               f"frames per second, got {rate}")
+    rate = int(rate)
+    if start is None:
+        start = perf.timecode + float(perf.times[0]) if perf.timecode is not None else 0.0
+    if eye_rotation is None and perf.curves is not None and set(EYE_COLUMNS) <= set(perf.curve_names):
+        eye_rotation = perf.curves[:, [perf.curve_names.index(c) for c in EYE_COLUMNS]]
     if isinstance(start, str):
         tc = _parse_timecode(start)
         if tc is None or tc[3] >= rate:

@@ -16,6 +16,12 @@ path                 :func:`read_performance`                   :func:`write_ani
                                                                 node), or a ``head`` node alone
 ``*.bvh``            head motion (Neck > Neck1 > Head)          head motion (one ``Head`` joint)
 ``*.obj``            one frame                                  --
+``*.usd[a|c]``       --                                         rig + weight animation (UsdSkel blend
+                                                                shapes, or ``bake`` points) (+ ``Head``)
+``*.blend``          --                                         rig + shape-key action (+ ``head`` bone,
+                                                                packed audio), written by Blender (bpy)
+``*.fbx``            --                                         the same scene through Blender's FBX
+                                                                exporter (blend shapes + ``head`` bone)
 folder / no suffix   OBJ sequence                               OBJ sequence (``frame_00000.obj``...)
 ==================== ========================================== ==========================================
 """
@@ -37,7 +43,7 @@ from ..performance import Performance
 from ..rig import Rig, RigFrames
 
 __all__ = ["read_performance", "write_animation", "write_head_motion", "register_reader", "register_writer",
-           "READERS", "WRITERS", "READ_FORMATS", "WRITE_FORMATS", "HEAD_FORMATS", "Animation"]
+           "READERS", "WRITERS", "READ_FORMATS", "WRITE_FORMATS", "HEAD_FORMATS", "Animation", "holds_head"]
 
 #: Formats that hold head motion on its own (:func:`write_head_motion`).
 HEAD_FORMATS = (".bvh", ".glb", ".csv")
@@ -45,10 +51,12 @@ HEAD_FORMATS = (".bvh", ".glb", ".csv")
 
 @dataclass(frozen=True)
 class Format:
-    """A registered reader or writer: the function and what it reads or writes (for messages)."""
+    """A registered reader or writer: the function, what it reads or writes (for messages), and for a
+    writer whether it writes :attr:`Animation.head` (:func:`holds_head`)."""
 
     function: Callable
     what: str
+    head: bool = False
 
 
 READERS: dict[str, Format] = {}
@@ -61,9 +69,29 @@ def register_reader(ext: str, function: Callable[..., Performance], what: str) -
     READERS[ext.lower()] = Format(function, what)
 
 
-def register_writer(ext: str, function: Callable[[Path, Animation], Path], what: str) -> None:
-    """Make :func:`write_animation` write ``ext`` with ``function(path, animation) -> path``."""
-    WRITERS[ext.lower()] = Format(function, what)
+def register_writer(ext: str, function: Callable[[Path, Animation], Path], what: str, *,
+                    head: bool = False) -> None:
+    """Make :func:`write_animation` write ``ext`` with ``function(path, animation) -> path``.
+
+    ``head=True`` declares that the writer puts :attr:`Animation.head` into the file beside the face
+    (``clone/retarget --head`` then hands it the head motion; :func:`holds_head`).
+    """
+    WRITERS[ext.lower()] = Format(function, what, head)
+
+
+def holds_head(path: str | os.PathLike) -> bool:
+    """Whether the writer :func:`write_animation` chooses for ``path`` writes head motion with the face.
+
+    Raises
+    ------
+    OutputError
+        An extension no writer is registered for.
+    """
+    path = Path(path)
+    fmt = WRITERS.get(_ext(path))
+    if fmt is None:
+        raise OutputError(f"{path}: unknown output format '{_ext(path)}'; use {_listing(WRITERS)}")
+    return fmt.head
 
 
 def _ext(path: Path) -> str:
@@ -112,12 +140,22 @@ class Animation:
     vertices: np.ndarray | None = None
     mesh: Mesh | None = None
     head: HeadPose | None = None
+    timecode: float | None = None
+    timecode_rate: float | None = None
+    curves: np.ndarray | None = None
+    curve_names: list[str] | None = None
+    bake: bool = False
+    audio: np.ndarray | None = None
+    audio_rate: float | None = None
 
 
 def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
                     weights: np.ndarray | None = None, names: list[str] | None = None,
                     vertices: np.ndarray | None = None, mesh: Mesh | None = None,
-                    times: np.ndarray, head: HeadPose | None = None) -> Path:
+                    times: np.ndarray, head: HeadPose | None = None, timecode: float | None = None,
+                    timecode_rate: float | None = None, curves: np.ndarray | None = None,
+                    curve_names: list[str] | None = None, bake: bool = False,
+                    audio: np.ndarray | None = None, audio_rate: float | None = None) -> Path:
     """Write an animation in the format the output path asks for (:data:`WRITERS`).
 
     Parameters
@@ -125,7 +163,8 @@ def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
     path : path-like
         ``.glb`` (``rig`` and ``weights``, and/or ``head``), ``.npz`` (``vertices``, or ``rig`` +
         ``weights`` evaluated chunk by chunk), ``.csv`` (``weights`` and/or ``head``; Live Link
-        Face layout), ``.bvh`` (``head``), or a path without extension / an existing folder (OBJ
+        Face layout), ``.bvh`` (``head``), ``.usd`` / ``.usda`` / ``.usdc`` (``rig`` + ``weights``,
+        and ``head``; ``docs/usd.md``), or a path without extension / an existing folder (OBJ
         sequence; ``vertices`` + ``mesh``, or ``rig`` + ``weights``).
     rig : Rig, optional
     weights : (T, K) float, optional
@@ -138,7 +177,21 @@ def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
     times : (T,) float
         Frame times in seconds, strictly increasing.
     head : HeadPose, optional
-        Head motion (:mod:`faceretarget.headpose`).
+        Head motion (:mod:`faceretarget.headpose`); written by the formats registered with
+        ``head=True`` (:func:`holds_head`), ignored by the others.
+    timecode, timecode_rate : float, optional
+        The take's clock (:class:`~faceretarget.performance.Performance`: seconds since midnight at
+        ``times == 0``, timecode frames per second); the Live Link Face CSV writes it.
+    curves : (T, C) float, optional
+        Extra per-frame curves named by ``curve_names`` (Live Link Face eye angles).
+    curve_names : list of str, optional
+    bake : bool
+        USD only: write the evaluated vertices as time-sampled points instead of blend shapes
+        (other writers ignore it).
+    audio : (n,) or (n, channels) float, optional
+        The take's sound, starting at ``times[0]`` (``.blend`` packs it; other writers ignore it).
+    audio_rate : float, optional
+        Sampling rate of ``audio`` in Hz.
 
     Raises
     ------
@@ -152,7 +205,9 @@ def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
     if fmt is None:
         raise OutputError(f"{path}: unknown output format '{ext}'; use {_listing(WRITERS)}")
     check_output_path(path)  # fail before any work when the folder is missing or read-only
-    anim = Animation(np.asarray(times, dtype=np.float64).reshape(-1), rig, weights, names, vertices, mesh, head)
+    anim = Animation(np.asarray(times, dtype=np.float64).reshape(-1), rig, weights, names, vertices, mesh, head,
+                     timecode, timecode_rate, curves, None if curve_names is None else list(curve_names),
+                     bake=bool(bake), audio=audio, audio_rate=audio_rate)
     return fmt.function(path, anim)
 
 
@@ -189,17 +244,44 @@ def _write_glb(path: Path, a: Animation) -> Path:
     return write_glb(path, a.rig, a.weights, a.times, names=a.names, head=a.head)
 
 
+def _write_usd(path: Path, a: Animation) -> Path:
+    from ._usd import write_usd
+
+    if a.rig is None or a.weights is None:
+        raise OutputError(f"{path}: a USD file needs a rig and weights (blend shapes + animation)")
+    return write_usd(path, a.rig, a.weights, a.times, names=a.names, head=a.head, bake=a.bake)
+
+
+def _write_blend(path: Path, a: Animation) -> Path:
+    from ._blender import write_blend
+
+    if a.rig is None or a.weights is None:
+        raise OutputError(f"{path}: a .blend needs a rig and weights (shape keys + action)")
+    return write_blend(path, a.rig, a.weights, a.times, names=a.names, head=a.head, audio=a.audio,
+                       audio_rate=a.audio_rate)
+
+
+def _write_fbx(path: Path, a: Animation) -> Path:
+    from ._blender import write_fbx
+
+    if a.rig is None or a.weights is None:
+        raise OutputError(f"{path}: an .fbx needs a rig and weights (blend shapes + animation)")
+    return write_fbx(path, a.rig, a.weights, a.times, names=a.names, head=a.head)
+
+
 def _write_csv(path: Path, a: Animation) -> Path:
     from ._livelinkface import write_livelinkface
 
     if a.weights is None and a.head is None:
         raise OutputError(f"{path}: a Live Link Face .csv needs weights or a head pose")
+    extra = dict(timecode=a.timecode, timecode_rate=a.timecode_rate, curves=a.curves,
+                 curve_names=list(a.curve_names or []), source=str(path))
     if a.weights is None:
-        return write_livelinkface(path, Performance(a.times, _fps(a.times), head=a.head, source=str(path)))
+        return write_livelinkface(path, Performance(a.times, _fps(a.times), head=a.head, **extra))
     cols = list(a.names) if a.names is not None else (a.rig.names if a.rig is not None else None)
     if cols is None:
         raise OutputError(f"{path}: pass names (or a rig) to name the weight columns")
-    perf = Performance.from_weights(a.weights, cols, times=a.times, head=a.head, source=str(path))
+    perf = Performance.from_weights(a.weights, cols, times=a.times, head=a.head, **extra)
     return write_livelinkface(path, perf)
 
 
@@ -283,10 +365,17 @@ for _ext_, _fn, _what in ((".csv", _read_csv, "Live Link Face"), (".c3d", _read_
                           (".glb", _read_glb, "morph-target weights"), (".bvh", _read_bvh, "head motion"),
                           (".obj", _read_obj, "one mesh"), ("folder", _read_folder, "OBJ frames")):
     register_reader(_ext_, _fn, _what)
-for _ext_, _fn, _what in ((".glb", _write_glb, "glTF morph targets + head node"),
-                          (".npz", _write_npz, "vertices"), (".csv", _write_csv, "Live Link Face"),
-                          (".bvh", _write_bvh, "head motion"), ("folder", _write_folder, "OBJ frames")):
-    register_writer(_ext_, _fn, _what)
+for _ext_, _fn, _what, _head in ((".glb", _write_glb, "glTF morph targets + head node", True),
+                                 (".npz", _write_npz, "vertices", False),
+                                 (".csv", _write_csv, "Live Link Face", True),
+                                 (".bvh", _write_bvh, "head motion", True),
+                                 ("folder", _write_folder, "OBJ frames", False)):
+    register_writer(_ext_, _fn, _what, head=_head)
+
+for _ext_ in (".usd", ".usda", ".usdc"):
+    register_writer(_ext_, _write_usd, "USD blend shapes or baked points + head xform", head=True)
+register_writer(".blend", _write_blend, "Blender scene: shape keys + head bone + audio", head=True)
+register_writer(".fbx", _write_fbx, "FBX blend shapes + head bone (Blender's exporter)", head=True)
 
 #: Extensions :func:`read_performance` / :func:`write_animation` know (``"folder"`` for OBJ frames).
 READ_FORMATS = tuple(READERS)

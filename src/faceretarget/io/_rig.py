@@ -10,6 +10,17 @@ is given explicitly.  Every other OBJ (except those matching ``exclude``) is a k
 Key shapes are ordered by file name (case-insensitively, then exactly).  ``landmarks68.txt`` (or
 ``landmarks.txt``) beside them holds whitespace-separated 0-based vertex indices.
 
+``key_weights.csv`` beside them (optional; written for key-model sets, read into
+:attr:`Rig.basis <faceretarget.rig.Rig.basis>`) says what each key shape is as weights of named
+base shapes (ARKit)::
+
+    file,browDownLeft,browDownRight,...,tongueOut
+    happy_PP.obj,0,0,...,0
+
+one row per key-shape OBJ (``file`` its file name), one column per base shape.  The same file in a
+keyshape folder (:mod:`faceretarget.io._keyshapes`) names the ``frame_00123.obj`` files.  A key
+shape without a row leaves the rig without a basis (one warning); rows of other files are ignored.
+
 ``.npz`` cache layout
 ---------------------
 Written by :func:`write_rig_npz`, read by :func:`read_rig_npz` (``allow_pickle=False``):
@@ -29,6 +40,8 @@ key                shape, dtype           meaning
 ``source_names``   (K,) str               names as found in the files (optional)
 ``deltas``         (K, V, 3) float64      key shape minus neutral
 ``landmarks``      (P,) int64             landmark vertex indices (optional)
+``basis``          (K, M) float64         each key shape as base-shape weights (optional)
+``basis_names``    (M,) str               the base shape names (with ``basis``)
 ================== ====================== ==================================================
 """
 
@@ -36,13 +49,21 @@ from __future__ import annotations
 
 import fnmatch
 import os
+import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, InvalidDataError, MissingShapeError, OutputError, TopologyError
+from ..errors import (
+    DataWarning,
+    InputFileError,
+    InvalidDataError,
+    MissingShapeError,
+    OutputError,
+    TopologyError,
+)
 from ..files import atomic_dir, atomic_path, check_output_path
 from ..mesh import Mesh
 from ..rig import Rig
@@ -50,12 +71,56 @@ from ..units import guess_unit, normalize_unit
 from ._obj import read_obj, read_obj_vertices, write_obj
 
 __all__ = ["read_rig", "write_rig", "write_rig_npz", "read_rig_npz", "NEUTRAL_NAMES",
-           "RIG_NPZ_FORMAT"]
+           "RIG_NPZ_FORMAT", "KEY_WEIGHTS"]
 
 #: File stems (case-insensitive) taken as the neutral; any stem ending in ``_neutral`` also is.
 NEUTRAL_NAMES: tuple[str, ...] = ("neutral", "generic_neutral_mesh")
 RIG_NPZ_FORMAT = "faceretarget.rig/1"
+#: The side file of a rig or keyshape folder giving each key shape as base-shape (ARKit) weights.
+KEY_WEIGHTS = "key_weights.csv"
 _LANDMARK_FILES = ("landmarks68.txt", "landmarks.txt")
+
+
+def write_key_weights(path: Path, files: Sequence[str], basis: np.ndarray, names: Sequence[str]) -> None:
+    """Write ``key_weights.csv`` (module docstring): one row per file, exact (``%.17g``) values."""
+    lines = [",".join(["file", *names])]
+    for f, row in zip(files, np.asarray(basis, dtype=np.float64), strict=True):
+        lines.append(",".join([f, *(f"{v:.17g}" for v in row.tolist())]))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def read_key_weights(folder: Path, files: Sequence[str], who: str) -> tuple[np.ndarray | None, list[str] | None]:
+    """``(basis (K, M), names)`` of ``files`` from ``folder/key_weights.csv``; ``(None, None)`` without
+    the file, or (with a warning) when a file has no row."""
+    path = folder / KEY_WEIGHTS
+    if not path.is_file():
+        return None, None
+    try:
+        lines = [ln for ln in path.read_text(encoding="utf-8-sig").splitlines() if ln.strip()]
+    except OSError as e:
+        raise InputFileError(f"{path}: cannot read ({e.strerror or e})") from e
+    if not lines or lines[0].split(",")[0].strip().lower() != "file":
+        raise InputFileError(f"{path}: line 1 must be 'file,<base shape>,...'")
+    names = [c.strip() for c in lines[0].split(",")[1:]]
+    rows: dict[str, np.ndarray] = {}
+    for n, line in enumerate(lines[1:], 2):
+        cells = line.split(",")
+        if len(cells) != len(names) + 1:
+            raise InputFileError(f"{path}: line {n}: {len(cells)} columns, the header has {len(names) + 1}")
+        try:
+            vals = np.array([float(c) for c in cells[1:]])
+        except ValueError:
+            raise InputFileError(f"{path}: line {n}: a weight is not a number") from None
+        if not np.isfinite(vals).all():
+            raise InputFileError(f"{path}: line {n}: a weight is not finite")
+        rows[cells[0].strip()] = vals
+    missing = [f for f in files if f not in rows]
+    if missing:
+        warnings.warn(f"{path}: no row for {', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}; "
+                      f"the key shapes of {who} are read without their base-shape weights", DataWarning,
+                      stacklevel=3)
+        return None, None
+    return np.stack([rows[f] for f in files]) if files else np.zeros((0, len(names))), names
 
 
 def _is_neutral_name(stem: str) -> bool:
@@ -137,8 +202,9 @@ def read_rig(folder: str | os.PathLike, neutral: str | os.PathLike | None = None
     else:
         unit = normalize_unit(unit, what=str(folder))
     stems = [p.stem for p in keys]
+    basis, basis_names = read_key_weights(folder, [p.name for p in keys], str(folder))
     return Rig(base, stems, deltas, unit=unit, landmarks=lm, source_names=stems,
-               name=folder.resolve().name or str(folder))
+               name=folder.resolve().name or str(folder), basis=basis, basis_names=basis_names)
 
 
 def _neutral_path(folder: Path, objs: list[Path], neutral: str | os.PathLike | None) -> Path:
@@ -211,8 +277,9 @@ def _rig_landmarks(folder: Path, landmarks: str | os.PathLike | np.ndarray | Non
 def write_rig(rig: Rig, folder: str | os.PathLike, *, precision: int | None = None) -> Path:
     """Write a rig as a folder of OBJs that :func:`read_rig` reads back.
 
-    Writes ``neutral.obj``, one ``<name>.obj`` per key shape (normalised ARKit names) and, when the
-    rig has landmarks, ``landmarks68.txt`` (68 landmarks) or ``landmarks.txt``.  The folder appears
+    Writes ``neutral.obj``, one ``<name>.obj`` per key shape (normalised ARKit names), when the
+    rig has landmarks ``landmarks68.txt`` (68 landmarks) or ``landmarks.txt``, and when it has a
+    :attr:`~faceretarget.rig.Rig.basis` ``key_weights.csv`` (module docstring).  The folder appears
     whole or not at all; an existing folder gets these files added or replaced.
 
     Parameters
@@ -238,6 +305,9 @@ def write_rig(rig: Rig, folder: str | os.PathLike, *, precision: int | None = No
             raise OutputError(
                 f"{folder}: already holds other OBJ files ({', '.join(sorted(stale)[:5])}...) that would "
                 "be read as key shapes; write the rig to an empty folder")
+        if rig.basis is None and (folder / KEY_WEIGHTS).is_file():
+            raise OutputError(f"{folder}: already holds a {KEY_WEIGHTS} that would give these key shapes "
+                              "base-shape weights they do not have; write the rig to an empty folder")
     with atomic_dir(folder) as tmp:
         write_obj(tmp / "neutral.obj", rig.neutral, precision=precision)
         for k, n in enumerate(rig.names):
@@ -246,6 +316,8 @@ def write_rig(rig: Rig, folder: str | os.PathLike, *, precision: int | None = No
         if rig.landmarks is not None:
             fn = "landmarks68.txt" if rig.landmarks.size == 68 else "landmarks.txt"
             (tmp / fn).write_text(" ".join(map(str, rig.landmarks.tolist())) + "\n", encoding="utf-8")
+        if rig.basis is not None:
+            write_key_weights(tmp / KEY_WEIGHTS, [f"{n}.obj" for n in rig.names], rig.basis, rig.basis_names)
     return folder
 
 
@@ -270,6 +342,9 @@ def write_rig_npz(rig: Rig, path: str | os.PathLike) -> Path:
         arrays["source_names"] = np.array(rig.source_names, dtype=str).reshape(-1)
     if rig.landmarks is not None:
         arrays["landmarks"] = rig.landmarks
+    if rig.basis is not None:
+        arrays["basis"] = rig.basis
+        arrays["basis_names"] = np.array(rig.basis_names, dtype=str).reshape(-1)
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.savez(f, **arrays)
     return path
@@ -302,9 +377,11 @@ def read_rig_npz(path: str | os.PathLike) -> Rig:
         mesh = Mesh(data["neutral"], data["face_counts"], data["face_indices"], data.get("uvs"),
                     data.get("face_uv_indices"), name=path.name)
         src = data.get("source_names")
+        bn = data.get("basis_names")
         return Rig(mesh, [str(n) for n in data["names"]], data["deltas"], unit=str(data["unit"]),
                    landmarks=data.get("landmarks"),
                    source_names=None if src is None else [str(n) for n in src],
-                   name=str(data.get("name", path.stem)))
+                   name=str(data.get("name", path.stem)), basis=data.get("basis"),
+                   basis_names=None if bn is None else [str(n) for n in bn])
     except (InvalidDataError, TopologyError) as e:
         raise InputFileError(f"{path}: {e}") from e

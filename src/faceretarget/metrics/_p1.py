@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import InvalidDataError
 from ..mesh import Mesh
+from ..numerics import solve_bounded
 from ..rig import Rig
 from ..units import mm_per_unit
 
@@ -171,12 +172,12 @@ def lve_mm(pred, gt, unit, lips=None) -> float:
 
 
 # ---------------------------------------------------------------------------------------- oracle
-def oracle_blend(gt, target_keys, target_neutral, *, return_weights: bool = False):
+def oracle_blend(gt, target_keys, target_neutral, *, return_weights: bool = False, weight_range=None):
     """The least-squares best blend of the target key-models' displacements against the ground truth.
 
-    ``B^(t) = B0 + sum_i w_i(t) (B_i - B0)`` with unconstrained ``w(t)`` minimising
-    ``||B^(t) - B(t)||`` for every frame at once (one least-squares solve with ``T`` right-hand
-    sides).  No method that blends these key-models can do better.
+    ``B^(t) = B0 + sum_i w_i(t) (B_i - B0)`` with ``w(t)`` minimising ``||B^(t) - B(t)||`` for every
+    frame at once (one least-squares solve with ``T`` right-hand sides), unconstrained or inside
+    ``weight_range``.  No method that blends these key-models (inside that range) can do better.
 
     Parameters
     ----------
@@ -187,6 +188,9 @@ def oracle_blend(gt, target_keys, target_neutral, *, return_weights: bool = Fals
     target_neutral : (V, 3) float, Mesh or Rig
     return_weights : bool
         Also return the ``(T, N)`` weights (minimum-norm when keys are linearly dependent).
+    weight_range : (lo, hi), optional
+        Keep every weight inside (box-constrained least squares on the ``N x N`` triangular factor
+        of the key-models, :func:`~faceretarget.numerics.solve_bounded`).
 
     Returns
     -------
@@ -200,15 +204,20 @@ def oracle_blend(gt, target_keys, target_neutral, *, return_weights: bool = Fals
         raise InvalidDataError(f"target key-models must have shape (N, {V}, 3), got {keys.shape}")
     D = (keys - n).reshape(len(keys), -1)  # (N, 3V)
     G = (g - n).reshape(T, -1)  # (T, 3V)
-    w = np.linalg.lstsq(D.T, G.T, rcond=None)[0].T  # (T, N)
+    if weight_range is None:
+        w = np.linalg.lstsq(D.T, G.T, rcond=None)[0].T  # (T, N)
+    else:
+        Q, R = np.linalg.qr(D.T)  # ||D'w - g||^2 = ||R w - Q'g||^2 + what no blend reaches
+        w = solve_bounded(R, G @ Q, *weight_range)
     pred = (w @ D).reshape(T, V, 3) + n
     return (pred, w) if return_weights else pred
 
 
-def oracle_rel_motion_pct(gt, target_keys, target_neutral) -> float:
-    """:func:`rel_motion_pct` of :func:`oracle_blend`: the floor for blending these key-models."""
+def oracle_rel_motion_pct(gt, target_keys, target_neutral, weight_range=None) -> float:
+    """:func:`rel_motion_pct` of :func:`oracle_blend`: the floor for blending these key-models
+    (inside ``weight_range`` when given)."""
     n = _neutral(target_neutral)
-    return rel_motion_pct(oracle_blend(gt, target_keys, n), gt, n)
+    return rel_motion_pct(oracle_blend(gt, target_keys, n, weight_range=weight_range), gt, n)
 
 
 def metrics(pred, gt, neutral, unit=None, lips=None, *, target_keys=None) -> dict[str, float]:

@@ -3,6 +3,7 @@
 =================== ==================================================================================
 :mod:`._nnls`       batched exact NNLS with bounds, L1/L2, temporal and missing-marker terms (Chuang
                     Eq. 3.1/3.2), weight-curve low-pass filter; compiled kernel in :mod:`._nnls_numba`
+:mod:`._bounded`    least squares inside a weight range for whole takes (the shift onto NNLS)
 :mod:`._denoise`    take-adaptive denoising: noise level from the take's spectrum, SURE-chosen
                     Whittaker smoothing in an ensemble of bases
 :mod:`._rigid`      rigid fits (Kabsch/Umeyama), rigid marker selection, :class:`RigidAligner`
@@ -14,6 +15,15 @@
 =================== ==================================================================================
 """
 
+from ._bounded import (
+    EXAMPLE_RANGE,
+    FACS_RANGE,
+    WeightRange,
+    auto_weight_range,
+    range_metric,
+    solve_bounded,
+    weight_range,
+)
 from ._denoise import denoise_take, estimate_noise_sigma, sure_whittaker
 from ._nnls import extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
 from ._rigid import AlignResult, RigidAligner, fit_rigid, select_rigid_markers
@@ -34,7 +44,8 @@ from ._selection import (
 from ._smooth import smoothstep
 
 __all__ = [
-    "solve_nnls", "temporal_filter", "extremes_removed", "filter_cutoff_hz",
+    "solve_nnls", "solve_bounded", "range_metric", "weight_range", "auto_weight_range", "WeightRange", "FACS_RANGE",
+    "EXAMPLE_RANGE", "temporal_filter", "extremes_removed", "filter_cutoff_hz",
     "denoise_take", "estimate_noise_sigma", "sure_whittaker",
     "RigidAligner", "AlignResult", "fit_rigid", "select_rigid_markers", "nearest_rotation", "runs",
     "SELECTION_METHODS", "select_keyshapes", "pca_extrema", "hull_selection", "kmeans_selection", "nnls_greedy",

@@ -2,7 +2,9 @@
 
 ================================ ================================================================
 :mod:`._transfer`                :func:`clone_take`, :func:`retarget_take`, :func:`write_result`:
-                                 a take onto a character, memory bounded by its weights
+                                 a take onto a character, memory bounded by its weights; the head
+                                 written with it (:func:`result_head`), ARKit curves for a Live
+                                 Link Face CSV (:func:`arkit_curves`)
 :mod:`._keys`                    :func:`select_keys` (keyshapes for an artist), :func:`compose_keys`
                                  (emotion x viseme key-models)
 :mod:`._capture`                 :func:`capture_take`, :func:`fit_appearance`, :func:`encode_appearance`
@@ -17,10 +19,22 @@ from ._demo import run_demo
 from ._head import build_head_database
 from ._keys import SELECTION_ALIASES, KeyGeometry, KeySelection, compose_keys, key_geometry, select_keys
 from ._style import fit_style, read_style_take
-from ._transfer import CHUNK_FRAMES, Transfer, clone_take, retarget_take, source_geometry, write_result
+from ._transfer import (
+    CHUNK_FRAMES,
+    HEAD_CHOICES,
+    Transfer,
+    arkit_curves,
+    clone_take,
+    face_and_head_formats,
+    result_head,
+    retarget_take,
+    source_geometry,
+    write_result,
+)
 
 __all__ = [
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
+    "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES",
     "select_keys", "compose_keys", "key_geometry", "KeySelection", "KeyGeometry", "SELECTION_ALIASES",
     "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "fit_style", "read_style_take", "build_head_database", "run_demo",
 ]

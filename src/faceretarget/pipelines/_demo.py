@@ -38,7 +38,7 @@ def run_demo(out: Path, log=print, noise_mm: float = 0.5) -> int:
     take = make_demo_take(seconds=6.0, fps=30.0, seed=7)
     log(f"characters: ada {ada.n_vertices} vertices, bo {bo.n_vertices} vertices, {ada.n_shapes} ARKit shapes each")
     sk, tk, _ = keymodel_pair(ada, bo, "rom-20", rom=rom)
-    log(f"key-models: 20 frames of a {rom.duration:.0f} s range-of-motion take (PCA extrema), on both characters")
+    log(f"key-models: 20 frames of a {rom.duration:.0f} s range-of-motion take (pivoted QR), on both characters")
     src = ada.evaluate(ada.map_weights(take.names, take.weights, warn=False))
     truth = bo.evaluate(bo.map_weights(take.names, take.weights, warn=False))
     captured = add_capture_noise(src[:, ada.landmarks], noise_mm, ada.unit, seed=0)

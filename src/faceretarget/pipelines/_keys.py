@@ -10,9 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..cloning import build_key_models
+from ..cloning import EMOTIONS, VISEMES, build_key_models, weight_vector
 from ..errors import InvalidDataError
 from ..mesh import Mesh
+from ..names import ARKIT_NAMES, normalize_name
 from ..numerics import SELECTION_METHODS, AlignResult, RigidAligner, reconstruction_error, select_keyshapes
 from ..performance import Performance
 from ..rig import Rig, resolve_features
@@ -96,6 +97,11 @@ class KeySelection:
     method : str
     neutral_frame : int or None
         The frame taken as the rest pose (None when the rig's neutral was).
+    basis : (k, M) float or None
+        For a weight take: the chosen frames' weights (what each keyshape is, for
+        ``write_keyshapes(..., basis=)`` and :attr:`Rig.basis <faceretarget.rig.Rig.basis>`).
+    basis_names : list of str or None
+        The ``M`` weight names (normalised ARKit names).
     """
 
     frames: list[int]
@@ -104,6 +110,8 @@ class KeySelection:
     error: float
     method: str
     neutral_frame: int | None = None
+    basis: np.ndarray | None = None
+    basis_names: list[str] | None = None
 
 
 def select_keys(take: Performance, k: int, method: str = "pivoted-qr", *, source_rig: Rig | None = None,
@@ -158,12 +166,22 @@ def select_keys(take: Performance, k: int, method: str = "pivoted-qr", *, source
     err = reconstruction_error(X, np.searchsorted(cand, frames))
     log(f"selected {len(frames)} keyshapes with {method} in {time.perf_counter() - t0:.2f} s; "
         f"non-negative reconstruction error of the take {100 * err:.2f} %")
-    return KeySelection(sorted(frames.tolist()), geo, neutral, float(err), method, nf)
+    chosen = sorted(frames.tolist())
+    basis = basis_names = None
+    if take.kind == "weights":
+        basis, basis_names = take.weights[chosen], [normalize_name(n) for n in take.names]
+    return KeySelection(chosen, geo, neutral, float(err), method, nf, basis, basis_names)
 
 
 def compose_keys(rig: Rig, *, log: Callable[..., None] = _quiet) -> Rig:
     """The 83 composed emotion x viseme key-models (and the pure emotions) of an ARKit-style rig,
-    as a rig whose shapes are ``emotion_viseme`` (Pyun Sec. 2; the pure neutral is the rig's own)."""
+    as a rig whose shapes are ``emotion_viseme`` (Pyun Sec. 2; the pure neutral is the rig's own).
+
+    The rig's :attr:`~faceretarget.rig.Rig.basis` gives each key-model as the ARKit weights it is
+    composed from: emotion + viseme (the pure visemes and emotions exactly; a composed key-model's
+    geometry differs from that sum where the composition keeps the viseme whole, and the log says
+    by how much), so a take cloned onto them can be written as Live Link Face curves.
+    """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         labels, verts = build_key_models(rig)
@@ -171,5 +189,13 @@ def compose_keys(rig: Rig, *, log: Callable[..., None] = _quiet) -> Rig:
         log(f"warning: {c.message}")
     keep = [i for i, lab in enumerate(labels) if lab != "neutral"]
     safe = [labels[i].replace("+", "_") for i in keep]
-    return Rig(rig.neutral, safe, verts[keep] - rig.neutral.vertices, rig.unit, rig.landmarks, None,
-               f"{rig.name}:composed")
+    names = list(ARKIT_NAMES)
+    E = np.stack([weight_vector(EMOTIONS[e], names) for e in EMOTIONS])
+    V = np.stack([weight_vector(VISEMES[v], names) for v in VISEMES])
+    U = np.concatenate([(E[:, None] + V[None]).reshape(-1, len(names)), E])[keep]   # build_key_models' order
+    D = verts[keep] - rig.neutral.vertices
+    S = rig.evaluate(rig.map_weights(names, U, warn=False)) - rig.neutral.vertices
+    off = float(np.linalg.norm(D - S) / max(np.linalg.norm(D), 1e-300))
+    log(f"key_weights: each key-model as its emotion + viseme ARKit weights; the composition moves the "
+        f"key-models {100 * off:.1f} % of their motion away from that plain sum (a Live Link Face CSV plays the sum)")
+    return Rig(rig.neutral, safe, D, rig.unit, rig.landmarks, None, f"{rig.name}:composed", U, names)

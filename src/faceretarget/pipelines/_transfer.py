@@ -19,13 +19,25 @@ import numpy as np
 
 from ..cloning import CloneResult, ExpressionCloner
 from ..errors import InvalidDataError, OutputError, TopologyError
-from ..io import write_animation
-from ..names import ARKIT_NAMES, normalize_name
+from ..headpose import HeadPose
+from ..io import WRITERS, holds_head, read_head_motion, write_animation
+from ..names import ARKIT_NAMES, normalize_name, split_parent
 from ..performance import Performance
 from ..retarget import BlendshapeRetargeter, RetargetResult, check_consistency
 from ..rig import Rig
 
-__all__ = ["CHUNK_FRAMES", "source_geometry", "clone_take", "retarget_take", "write_result", "Transfer"]
+__all__ = ["CHUNK_FRAMES", "source_geometry", "clone_take", "retarget_take", "write_result", "Transfer",
+           "result_head", "arkit_curves", "HEAD_CHOICES", "face_and_head_formats"]
+
+#: The ``head`` choices of :func:`write_result` besides a head-motion file, a take or a pose.
+HEAD_CHOICES = ("auto", "off")
+#: Registered writers that hold a head but no face: not an output of a clone or retarget.
+_HEAD_ONLY = (".bvh",)
+
+
+def face_and_head_formats() -> list[str]:
+    """The output extensions that hold a face and head motion together (for messages)."""
+    return [k for k, f in WRITERS.items() if f.head and k not in _HEAD_ONLY]
 
 #: Frames evaluated at once when a weight take is played on its rig (bounds memory on long takes).
 CHUNK_FRAMES = 4096
@@ -79,17 +91,20 @@ def _apply(model: ExpressionCloner | BlendshapeRetargeter, take: Performance, so
     if isinstance(geo, Performance):
         return model.transform(geo)
     res = model.transform(geo, take.times)
-    res.head, res.audio, res.audio_rate, res.source = take.head, take.audio, take.audio_rate, take.source
+    res.carry(take)                  # head, audio, timecode and curves of the input take
     return res
 
 
 @dataclass(eq=False)
 class Transfer:
-    """A take cloned or retargeted: the fitted model, its result, and the seconds it took."""
+    """A take cloned or retargeted: the fitted model, its result, the seconds it took, and the target
+    keys as given (``keys``: before a retargeter splits them by region; their
+    :attr:`~faceretarget.rig.Rig.basis` turns key weights into ARKit curves, :func:`arkit_curves`)."""
 
     model: ExpressionCloner | BlendshapeRetargeter
     result: CloneResult | RetargetResult
     seconds: float
+    keys: Rig | None = None
 
     @property
     def target_keys(self) -> Rig:
@@ -97,7 +112,8 @@ class Transfer:
 
 
 def clone_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_rig: Rig | None = None,
-               method: str = "temporal", features="landmarks", log: Callable[..., None] = _quiet) -> Transfer:
+               method: str = "temporal", features="landmarks", weight_range="auto",
+               log: Callable[..., None] = _quiet) -> Transfer:
     """Clone a take onto the target key-models (Pyun et al. 2003; :class:`~faceretarget.cloning.ExpressionCloner`).
 
     Parameters
@@ -108,9 +124,12 @@ def clone_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_
         Key-model pairs (by name).
     source_rig : Rig, optional
         The rig a weight take drives (default ``source_keys`` when they share its topology).
+    weight_range : "auto", (lo, hi) or None
+        Range of the weights (:class:`~faceretarget.cloning.ExpressionCloner`).
     """
     t0 = time.perf_counter()
-    cloner = ExpressionCloner(method, features=features).fit(source_keys, target_keys)
+    cloner = ExpressionCloner(method, features=features, weight_range=weight_range).fit(source_keys, target_keys)
+    log(_range_line(cloner.weight_range_))
     rig = source_rig if source_rig is not None else (source_keys if take.kind == "weights" else None)
     res = _apply(cloner, take, rig, log)
     if res.noise_sigma > 0:
@@ -118,7 +137,11 @@ def clone_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_
     dt = time.perf_counter() - t0
     log(f"cloned {take.n_frames} frames with '{method}' in {dt:.2f} s; frames outside the key-models "
         f"(>35% unexplained): {(res.outside > 0.35).mean():.1%}")
-    return Transfer(cloner, res, dt)
+    return Transfer(cloner, res, dt, target_keys)
+
+
+def _range_line(r) -> str:
+    return "weights unconstrained" if r is None else f"weights kept in [{r[0]:g}, {r[1]:g}]"
 
 
 def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_labels: Sequence[str] = (),
@@ -143,6 +166,7 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, sour
     if check:
         log(check_consistency(source_keys, target_keys).table())
     rt = BlendshapeRetargeter(**params).fit(source_keys, target_keys, source_labels=list(source_labels))
+    log(_range_line(rt.weight_range_))
     res = _apply(rt, take, source_rig, log)
     if res.alignment is not None:
         log(res.alignment.report(take.unit))
@@ -152,32 +176,177 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, sour
         log(f"weight filter level {rt.filter_level}: removed {100 * res.extremes_removed:.1f} % of the extremes")
     dt = time.perf_counter() - t0
     log(f"retargeted {take.n_frames} frames with '{rt.solver}' in {dt:.2f} s")
-    return Transfer(rt, res, dt)
+    return Transfer(rt, res, dt, target_keys)
 
 
-def write_result(path: str | os.PathLike, transfer: Transfer, *, head: bool = False,
+def _is_arkit(name: str) -> bool:
+    n = normalize_name(name)
+    return n in ARKIT_NAMES or split_parent(n) in ARKIT_NAMES
+
+
+def arkit_curves(transfer: Transfer, *, path: str | os.PathLike = "result",
+                 log: Callable[..., None] = _quiet) -> tuple[np.ndarray, list[str]]:
+    """The result's weights as ARKit curves, what a Live Link Face CSV holds.
+
+    A retarget's region weights are first folded back per key
+    (:meth:`~faceretarget.retarget.BlendshapeRetargeter.key_weights`).  Target keys named after ARKit
+    shapes give their weights as they are; target keys defined by ARKit weight vectors (a key-model
+    set, :attr:`~faceretarget.rig.Rig.basis`: ``rom-K``, ``combined84``, composed or selected keys)
+    give ``W @ U``, exact because key ``i`` of the target is the target rig at ``U[i]``.
+
+    Parameters
+    ----------
+    transfer : Transfer
+    path : path-like
+        The output, for messages.
+
+    Returns
+    -------
+    W : (T, M) float
+    names : list of str
+        ARKit names (normalised; split halves such as ``browInnerUpLeft`` may occur).
+
+    Raises
+    ------
+    OutputError
+        Target keys that are neither ARKit shapes nor defined by ARKit weights (naming the key set
+        and a key, and the formats that can hold them).
+    """
+    res, model = transfer.result, transfer.model
+    W, names = res.weights, list(res.names)
+    keys = transfer.keys if transfer.keys is not None else model.target_keys_
+    if isinstance(model, BlendshapeRetargeter):
+        W, names = model.key_weights(W), list(model.names_)
+    if all(_is_arkit(n) for n in names):
+        return W, [normalize_name(n) for n in names]
+    if keys.basis is not None and all(_is_arkit(n) for n in keys.basis_names) and all(n in keys for n in names):
+        log(f"converted {len(names)} key weights of '{keys.name}' to {len(keys.basis_names)} ARKit curves "
+            "(weights @ the keys' ARKit weight vectors)")
+        return keys.to_basis(W, names), list(keys.basis_names)
+    bad = next(n for n in names if not _is_arkit(n))
+    raise OutputError(f"{path}: a Live Link Face CSV holds ARKit curves, but the target keys '{keys.name}' "
+                      f"('{bad}', ...) are neither ARKit shapes nor defined by ARKit weight vectors; write "
+                      ".glb, .npz or .blend instead")
+
+
+def _resample_head(motion: Performance, times: np.ndarray, timecode: float | None, what: str) -> HeadPose:
+    """``motion.head`` at ``times``: by timecode when both have one, else from their first frames."""
+    if motion.head is None:
+        raise InvalidDataError(f"{what}: holds no head motion")
+    if motion.n_frames == len(times) and np.allclose(motion.times - motion.times[0], times - times[0], atol=1e-9) \
+            and (timecode is None or motion.timecode is None
+                 or abs(motion.timecode + motion.times[0] - timecode - times[0]) < 1e-6):
+        return motion.head
+    if timecode is not None and motion.timecode is not None:
+        query = (timecode + times) - motion.timecode
+        how = "by timecode"
+    else:
+        query = times - times[0] + motion.times[0]
+        how = "from their first frames"
+    ok = motion.times[motion.head.valid]
+    if ok.size < 2 or query[0] < ok[0] - 1e-6 or query[-1] > ok[-1] + 1e-6:
+        span = f"{ok[0]:.3f}-{ok[-1]:.3f} s" if ok.size else "no frame with a pose"
+        raise InvalidDataError(f"{what}: the head motion covers {span}, the take ({len(times)} frames, "
+                               f"{times[-1] - times[0]:.3f} s, aligned {how}) needs {query[0]:.3f}-{query[-1]:.3f} s; "
+                               "give a head-motion file that covers the whole take")
+    return motion.head.resample(motion.times, query)
+
+
+def result_head(transfer: Transfer, head="auto") -> tuple[HeadPose | None, bool]:
+    """The head motion to write with a result, and whether it was asked for explicitly.
+
+    Parameters
+    ----------
+    transfer : Transfer
+    head : ``"auto"``, ``"off"``, path-like, Performance or HeadPose
+        ``"auto"`` (or True): the take's own head pose when it has one (Live Link Face head
+        columns, video capture, the markers' rigid motion); ``"off"`` (or None / False): none; a
+        head-motion file (:func:`~faceretarget.io.read_head_motion`: ``.bvh``, SMPL-X ``.npz``,
+        ``.c3d``, ``.glb``, ``.csv``) or a take with a head: resampled to the result's times
+        (slerp), aligned by timecode when both have one and otherwise from their first frames; it
+        must cover the whole take (no ends are held or extrapolated); a HeadPose: one pose per frame.
+
+    Returns
+    -------
+    HeadPose or None
+        One pose per frame of the result.
+    bool
+        True for a file, take or pose (``"auto"`` and ``"off"`` are not explicit).
+
+    Raises
+    ------
+    InvalidDataError
+        A head-motion file or take that does not cover the take (naming it), a pose of the wrong
+        length; :class:`~faceretarget.errors.InputFileError` for an unreadable file.
+    """
+    res = transfer.result
+    if head is True or (isinstance(head, str) and head == "auto"):
+        return res.head, False
+    if head is None or head is False or (isinstance(head, str) and head == "off"):
+        return None, False
+    times = np.asarray(res.times, dtype=np.float64)
+    if isinstance(head, HeadPose):
+        if head.n_frames != len(times):
+            raise InvalidDataError(f"{head.source}: {head.n_frames} head poses for a take of {len(times)} frames")
+        return head, True
+    if isinstance(head, Performance):
+        return _resample_head(head, times, res.timecode, head.source), True
+    if isinstance(head, str | os.PathLike):
+        return _resample_head(read_head_motion(head), times, res.timecode, str(head)), True
+    raise InvalidDataError(f"head must be 'auto', 'off', a head-motion file, a take or a HeadPose, got {head!r}")
+
+
+def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto",
                  log: Callable[..., None] = _quiet) -> Path:
     """Write a cloned or retargeted take in the format ``path`` asks for.
 
-    ``.glb`` holds the target keys as morph targets and the weights as their animation; ``.csv``
-    the weights in Live Link Face's layout (the target keys must be ARKit-named; a retarget's region
-    weights are folded back per key; the take's head angles are carried); ``.npz`` / a folder the
-    target meshes, evaluated and written chunk by chunk.  With ``head=True`` a ``.glb`` also holds
-    the take's head motion as a ``head`` node above the face.
+    ``.glb`` holds the target keys as morph targets and the weights as their animation, with the
+    head motion as a ``head`` node above the face; ``.csv`` the 52 ARKit curves in Live Link Face's
+    layout (:func:`arkit_curves`: ARKit-named target keys as they are, key-model sets defined by
+    ARKit weights converted, anything else an :class:`~faceretarget.errors.OutputError`), with the
+    input take's timecode, eye angles and the head angles; ``.npz`` / a folder the target meshes,
+    evaluated and written chunk by chunk.  Every other registered format gets the head motion when
+    its writer holds one (:func:`~faceretarget.io.holds_head`).
+
+    Parameters
+    ----------
+    path : path-like
+    transfer : Transfer
+    head : ``"auto"``, ``"off"``, path-like, Performance or HeadPose
+        Which head motion goes into the file (:func:`result_head`).  A format that cannot hold
+        head motion refuses an explicit one (file, take, pose) and logs that the take's own is
+        left out with ``"auto"``.
+
+    Raises
+    ------
+    OutputError
+        Unknown format, an explicit head for a format without one, a ``.csv`` of keys without an
+        ARKit definition; nothing is written.
     """
     path = Path(path)
     res, model = transfer.result, transfer.model
-    W, names = res.weights, list(res.names)
+    has_head = holds_head(path)                     # also: unknown extension -> OutputError first
+    if path.suffix.lower() in _HEAD_ONLY:
+        raise OutputError(f"{path}: a {path.suffix} holds head motion only, not the face; write "
+                          f"{', '.join(face_and_head_formats())} (or 'headmotion' tools for head motion alone)")
+    pose, explicit = result_head(transfer, head)
+    if pose is not None and not has_head:
+        if explicit:
+            ok = ", ".join(face_and_head_formats())
+            raise OutputError(f"{path}: this format cannot hold head motion; write the head from "
+                              f"{getattr(pose, 'source', 'the head')} into one that can ({ok})")
+        log(f"{path.suffix or 'an OBJ sequence'} holds no head motion: the take's head motion is not written")
+        pose = None
+    clock = dict(timecode=res.timecode, timecode_rate=res.timecode_rate,
+                 curves=res.curves, curve_names=list(res.curve_names) if res.curves is not None else None)
     if path.suffix.lower() == ".csv":
-        if isinstance(model, BlendshapeRetargeter):
-            W, names = model.key_weights(W), list(model.names_)
-        arkit = [normalize_name(n) for n in names]
-        if not all(n in ARKIT_NAMES for n in arkit):
-            raise OutputError(f"{path}: a Live Link Face CSV needs ARKit-named target keys ({names[0]} is not "
-                              "one); write .glb or .npz instead")
-        out = write_animation(path, weights=W, names=arkit, times=res.times, head=res.head)
+        W, names = arkit_curves(transfer, path=path, log=log)
+        out = write_animation(path, weights=W, names=names, times=res.times, head=pose, **clock)
     else:
-        out = write_animation(path, rig=transfer.target_keys, weights=W, names=names, times=res.times,
-                              head=res.head if head and path.suffix.lower() == ".glb" else None)
-    log(f"wrote {path} ({len(res.times)} frames, {len(names)} target {'keyshapes' if isinstance(model, BlendshapeRetargeter) else 'key-models'})")
+        W, names = res.weights, list(res.names)
+        out = write_animation(path, rig=transfer.target_keys, weights=W, names=names, times=res.times, head=pose,
+                              audio=res.audio, audio_rate=res.audio_rate, **clock)
+    what = "keyshapes" if isinstance(model, BlendshapeRetargeter) else "key-models"
+    log(f"wrote {path} ({len(res.times)} frames, {res.weights.shape[1]} target {what}"
+        f"{', head motion' if pose is not None else ''})")
     return out

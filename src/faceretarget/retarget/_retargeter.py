@@ -9,8 +9,8 @@ and the same weights play the target keyshapes::
 Solvers (``solver=``):
 
 ``"nnls"`` (the thesis, Eq. 3.1/3.2)
-    ``w_t >= 0`` by :func:`~faceretarget.numerics.solve_nnls`, with its optional upper
-    bound, L2, L1 and temporal terms and per-frame masks for missing markers.  Exact and
+    ``0 <= w_t <= hi`` by :func:`~faceretarget.numerics.solve_nnls` (``hi`` the weight range's
+    top), with its optional L2, L1 and temporal terms and per-frame masks for missing markers.  Exact and
     interpretable when the keyshapes come from the take being retargeted (the thesis's workflow):
     every frame then lies in the cone of the keys.  A *new* take usually does not (a jaw-open frame
     is not a non-negative sum of ROM frames that each mix jaw and smile), and there it loses
@@ -18,7 +18,16 @@ Solvers (``solver=``):
 ``"signed"`` (default)
     Least squares in the keys' span, weights of either sign, so a new take is expressed by
     differences of keys as well as sums; the minimum-norm solution where keys are dependent.
-    Per-frame masks are honoured (each mask pattern solved on the rows present).
+    Per-frame masks are honoured (each mask pattern solved on the rows present).  The weights then
+    go into the weight range as :class:`~faceretarget.cloning.ExpressionCloner` does: per frame, the
+    in-range weights whose *target* face is nearest to the unconstrained one (box-constrained least
+    squares in the target keyshapes' metric, :func:`~faceretarget.numerics.solve_bounded`).
+
+Weight range (``weight_range=``, default ``"auto"``): [0, 1] when the keyshapes are an
+ARKit/FACS-style rig's own shapes, :data:`~faceretarget.numerics.EXAMPLE_RANGE` for example-based
+keyshapes; ``None`` for unconstrained ``"signed"`` weights (``"nnls"`` then has no upper bound).
+``"nnls"`` needs a range starting at 0.  A weight filter (``filter_level``) is followed by a clip to
+the range, so every output stays inside it.
 
 Denoising (``denoise="auto"``): the capture noise of the take is estimated from its own spectrum
 (:func:`~faceretarget.numerics.estimate_noise_sigma`) and the coordinates of the frames in
@@ -52,10 +61,13 @@ from ..headpose import HeadPose
 from ..numerics import (
     AlignResult,
     RigidAligner,
+    auto_weight_range,
     denoise_take,
     estimate_noise_sigma,
     extremes_removed,
     fit_rigid,
+    range_metric,
+    solve_bounded,
     solve_nnls,
     temporal_filter,
 )
@@ -114,7 +126,9 @@ class BlendshapeRetargeter(Model):
     features : ``"auto"``, ``"landmarks"``, ``"all"`` or (P,) int
         Source points the solve looks at: ``"auto"`` takes the rig's 68 landmarks when the source
         keys have them, else every point (marker sets).
-    upper, l2, l1, smooth : float
+    weight_range : "auto", (lo, hi) or None
+        Range every weight stays in (module docstring); decided at :meth:`fit` for ``"auto"``.
+    l2, l1, smooth : float
         Optional terms of :func:`solve_nnls` (``"nnls"`` only, except ``l2``: ridge for both).
     denoise : ``"auto"``, bool or float
         See the module docstring.
@@ -138,9 +152,13 @@ class BlendshapeRetargeter(Model):
         The target keyshapes in the order of those columns (split by region: ``key@region``).
     regions_ : Regions or None
         The regions, fitted to the keys.
+    weight_range_ : (lo, hi) or None
+        The range in force.
+    range_metric_ : (R x K, R x K) float
+        Upper Cholesky factor of the target keyshapes' Gram matrix (``"signed"``'s in-range metric).
     """
 
-    def __init__(self, solver: str = "signed", *, features="auto", upper: float | None = None,
+    def __init__(self, solver: str = "signed", *, features="auto", weight_range="auto",
                  l2: float = 0.0, l1: float = 0.0, smooth: float = 0.0, denoise="auto",
                  filter_level: float = 0.0, regions: Regions | str | None = None, align: bool = True,
                  rigid_subset=None) -> None:
@@ -148,7 +166,7 @@ class BlendshapeRetargeter(Model):
             raise InvalidDataError(f"unknown solver '{solver}', use one of {', '.join(SOLVERS)}")
         self.solver = solver
         self.features = features
-        self.upper = upper
+        self.weight_range = weight_range
         self.l2 = l2
         self.l1 = l1
         self.smooth = smooth
@@ -184,6 +202,7 @@ class BlendshapeRetargeter(Model):
             spec = "landmarks" if source_keys.landmarks is not None and len(source_keys.landmarks) else "all"
         idx = resolve_features(spec, source_keys.n_vertices, source_keys.landmarks, who=source_keys.name)
         tk = target_keys.subset(names) if list(target_keys.names) != names else target_keys
+        self.weight_range_ = self._range(names)
         self.names_ = names
         self.feature_idx_ = idx
         self.source_labels_ = list(source_labels or [])
@@ -220,7 +239,22 @@ class BlendshapeRetargeter(Model):
             self.target_keys_ = tk
             self.weight_names_ = names
         self._prepare()
+        self.range_metric_ = range_metric(self.target_keys_.deltas.reshape(self.target_keys_.n_shapes, -1).T)
         return self
+
+    def _range(self, names: list[str]) -> tuple[float, float] | None:
+        """The weight range for keyshapes ``names``; ``"nnls"`` keeps 0 as its floor."""
+        wr = auto_weight_range(self.weight_range, names)
+        if self.solver == "nnls":
+            if wr is None:
+                return (0.0, np.inf)
+            if self.weight_range == "auto" or (isinstance(self.weight_range, str)
+                                               and self.weight_range.strip().lower() == "auto"):
+                return (0.0, wr[1])
+            if wr[0] != 0:
+                raise InvalidDataError(f"the 'nnls' solver keeps weights >= 0; weight range {wr[0]:g} "
+                                       f"{wr[1]:g} needs the 'signed' solver")
+        return wr
 
     def _prepare(self) -> None:
         """Per-region span bases of the keys (for the signed solve and the denoiser)."""
@@ -335,16 +369,21 @@ class BlendshapeRetargeter(Model):
                 W = self._nnls(Fr, pr, U, cols, times, sigma)
             out.append(W)
         W = np.hstack(out)
+        if self.solver == "signed" and self.weight_range_ is not None:
+            lo, hi = self.weight_range_
+            W = solve_bounded(self.range_metric_, W @ self.range_metric_.T, lo, hi)
         removed = 0.0
         if self.filter_level and len(W) >= 4:
             Wf = temporal_filter(W, self.filter_level, infer_fps(times, default=60.0))
             removed = extremes_removed(W, Wf)
             W = Wf
+            if self.weight_range_ is not None:
+                W = np.clip(W, *self.weight_range_)
         res = RetargetResult(W, list(self.weight_names_), times, sigma, removed, alignment)
         if isinstance(perf_or_array, Performance):
             p = perf_or_array
+            res.carry(p)                     # head, audio, timecode, curves of the input take
             res.head = alignment.take.head if alignment is not None and p.head is None else p.head
-            res.audio, res.audio_rate, res.source = p.audio, p.audio_rate, p.source
         return res
 
     def _signed(self, Fr, pr, U, S, Vt, cols, times, sigma):
@@ -385,7 +424,8 @@ class BlendshapeRetargeter(Model):
             Fr = Fr + (Cd - C) @ U.T                                          # denoise inside the span only
         mask = None if pr.all() else pr
         Fr = np.where(np.isfinite(Fr), Fr, 0.0) if mask is not None else Fr
-        return solve_nnls(K, Fr, upper=self.upper, l2=self.l2, l1=self.l1, smooth=self.smooth, mask=mask)
+        upper = self.weight_range_[1] if self.weight_range_ is not None else None
+        return solve_nnls(K, Fr, upper=upper, l2=self.l2, l1=self.l1, smooth=self.smooth, mask=mask)
 
     def blend(self, weights: np.ndarray) -> np.ndarray:
         """Target meshes ``(T, Vt, 3)`` for weights ``(T, len(weight_names_))``: one matrix product."""
