@@ -46,6 +46,27 @@ def test_clone_rigs_arkit_keys_to_glb(files, capsys):
     np.testing.assert_allclose(w, truth[:, order], atol=2e-3)
 
 
+def test_weight_range_on_the_command_line(files, capsys):
+    """--weight-range keeps every written weight inside; a .glb whose weights leave [0, 1] says in one
+    line which Blender route keeps them; 'none' lets them run free; a bad range is a one-line error."""
+    d, ada, bo, take = files
+    base = ["clone", "--source-rig", str(d / "ada"), "--target-rig", str(d / "bo"), "--keys", "rom-12",
+            "--features", "all", "--performance", str(d / "take.csv")]
+    spans = {}
+    for rng in (["auto"], ["-0.25", "1.25"], ["none"]):
+        out = d / f"range_{'_'.join(rng)}.glb"
+        assert main(base + ["--weight-range", *rng, "--out", str(out)]) == 0
+        spans[rng[0]] = read_glb_weights(out)[2]
+        log = capsys.readouterr().out
+        outside = spans[rng[0]].min() < 0 or spans[rng[0]].max() > 1
+        assert ("write range_" in log and ".blend" in log) == outside
+    assert spans["auto"].min() >= -0.5 - 1e-6 and spans["auto"].max() <= 1.5 + 1e-6
+    assert spans["-0.25"].min() >= -0.25 - 1e-6 and spans["-0.25"].max() <= 1.25 + 1e-6
+    assert np.abs(spans["none"]).max() > 1.5                      # the free solve cancels large weights
+    assert main(base + ["--weight-range", "1", "0", "--out", str(d / "bad.glb")]) == 2
+    assert "LO < HI" in capsys.readouterr().err and not (d / "bad.glb").exists()
+
+
 def test_clone_key_folders_paired_by_name(files):
     d, ada, bo, take = files
     out = d / "keys_out.npz"

@@ -349,4 +349,23 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto",
     what = "keyshapes" if isinstance(model, BlendshapeRetargeter) else "key-models"
     log(f"wrote {path} ({len(res.times)} frames, {res.weights.shape[1]} target {what}"
         f"{', head motion' if pose is not None else ''})")
+    note = _slider_note(path, res.weights)
+    if note:
+        log(note)
     return out
+
+
+#: Formats whose importers in Blender play shape-key weights only inside [0, 1].
+_CLAMPED_IN_BLENDER = {".glb": "Blender's glTF importer", ".usd": "Blender's USD importer",
+                       ".usda": "Blender's USD importer", ".usdc": "Blender's USD importer"}
+
+
+def _slider_note(path: Path, W: np.ndarray) -> str | None:
+    """One line when a file's weights leave [0, 1] and Blender's importer of that format would clamp them."""
+    who = _CLAMPED_IN_BLENDER.get(path.suffix.lower())
+    if who is None or W.size == 0 or (W.min() >= 0.0 and W.max() <= 1.0):
+        return None
+    share = float(((W < 0) | (W > 1)).mean())
+    return (f"note: weights run {W.min():.2f} .. {W.max():.2f} ({share:.0%} outside [0, 1]): {who} clamps them "
+            f"to its sliders; for Blender write {path.with_suffix('.blend').name} (sliders sized to the weights), "
+            f"or keep [0, 1] with --weight-range 0 1")
