@@ -351,3 +351,51 @@ def test_blend_invalid_faces_warn_and_keep_vertices(B, tmp_path):
     assert len(scene.mesh_object().data.polygons) == 2
     got = scene.vertices(scene.frames_for([0.0, 0.1]))
     np.testing.assert_allclose(got, expected(rig, np.array([[0.5], [1.0]])), atol=1e-7)
+
+
+# ------------------------------------------------------------------------------------ issue 12, done when
+def test_quick_start_plays_in_blender_against_ground_truth(B, data_dir, ict_rig, arkit_rig, tmp_path):
+    """The README's quick start (clone ICT -> ARKit, rom-40 keys from alex_rom_3, S07-001) written for
+    Blender (.blend) and opened in Blender 4.5 plays within 10 % of the ground truth's motion (the ARKit
+    rig driven by the take's own weights) with no keyed value outside its slider; the same command
+    to .glb is what a user got before (clamped sliders); ``--keys arkit`` to .glb plays the truth."""
+    from faceretarget.cli import main
+    from faceretarget.metrics import rel_motion_pct
+
+    csv = data_dir / "livelinkface" / "S07-001.csv"
+    perf = read_performance(csv)
+    truth = arkit_rig.evaluate(arkit_rig.map_weights(perf.names, perf.weights, warn=False))
+    truth = truth * arkit_rig.mm_per_unit / 1000.0
+    neutral = arkit_rig.neutral.vertices * arkit_rig.mm_per_unit / 1000.0
+    sample = np.arange(0, perf.n_frames, 20)                  # 102 of the 2,028 frames
+    rom = ["--keys", "rom-40", "--keys-from", str(data_dir / "livelinkface" / "alex_rom_3.csv")]
+    base = ["--quiet", "clone", "--source-rig", str(data_dir / "ict-face"), "--target-rig",
+            str(data_dir / "arkit-face"), "--performance", str(csv), "--head", "off"]
+    from faceretarget.io import glb_vertex_order
+
+    first_copy = {}                                           # glTF vertex order: our vertex -> its first copy
+    for k, v in enumerate(glb_vertex_order(arkit_rig.neutral)):
+        first_copy.setdefault(int(v), k)
+    glb_order = np.array([first_copy[v] for v in range(arkit_rig.n_vertices)])
+    out = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for name, keys, ext in (("rom40", rom, ".blend"), ("rom40", rom, ".glb"), ("arkit", ["--keys", "arkit"], ".glb")):
+            path = tmp_path / f"{name}{ext}"
+            assert main(base + keys + ["--out", str(path)]) == 0
+            scene = B.load_scene(path, fps=perf.fps if ext == ".glb" else None)
+            frames = scene.frames_for(perf.times)[sample]
+            order = glb_order if ext == ".glb" else np.arange(arkit_rig.n_vertices)
+            got = scene.vertices(frames, order=order)
+            tracks = scene.shape_keys().values()
+            n_keys = sum(len(k.values) for k in tracks)
+            clamped = sum(int(k.outside().sum()) for k in tracks)
+            out[name, ext] = (rel_motion_pct(got, truth[sample], neutral), clamped, n_keys)
+    for (name, ext), (rel, clamped, n) in out.items():
+        print(f"\n{name} keys -> {ext} in Blender: {rel:.2f} % of the motion wrong, {clamped} of {n} keyed "
+              "values outside their sliders")
+    rel, clamped, _ = out["rom40", ".blend"]
+    assert rel <= 10.0 and clamped == 0
+    assert out["rom40", ".glb"][1] > 0                        # the glTF importer's [0, 1] sliders clamp
+    rel, clamped, _ = out["arkit", ".glb"]
+    assert rel < 0.01 and clamped == 0
