@@ -7,9 +7,11 @@ Protocol P1 of ../shared/EVALUATION.md, ICT-FaceKit -> ARKit face, out of sample
   ``arkit`` (exact: a correctness check); errors on the other takes;
 * kinds ``cross`` (ICT -> ARKit) and ``roundtrip`` (ICT -> ARKit -> ICT; ``arkit`` and ``rom-40`` sets);
 * 68 landmark features; capture noise 0 and 0.5 mm on the source landmarks;
-* methods ``retarget`` (the package default: signed solve + take-adaptive denoising),
-  ``retarget-nnls`` (the thesis: non-negative weights) and ``clone`` (the cloning default with the
-  same keys) side by side;
+* methods ``retarget`` (the package default: signed solve + take-adaptive denoising, then the
+  weights kept in the default range), ``retarget-nnls`` (the thesis: weights in [0, the range's top])
+  and ``clone`` (the cloning default with the same keys) side by side; every row reports ``w_min``,
+  ``w_max``, ``w_outside_01_pct`` and ``oracle_bounded_rel_motion_pct`` (the best blend inside the
+  method's range) beside the unconstrained ``oracle_rel_motion_pct``;
 * solver speed: :func:`solve_nnls` on the real P1 problems (every rom-K key set x every take, landmark
   features) against ``scipy.optimize.nnls`` called per frame, in this run, with the largest
   weight difference;
@@ -44,7 +46,7 @@ from faceretarget.cloning import ExpressionCloner, keymodel_rig, keyset_weights
 from faceretarget.datasets import add_capture_noise
 from faceretarget.errors import SingularKeysError
 from faceretarget.io import read_c3d
-from faceretarget.metrics import metrics
+from faceretarget.metrics import metrics, oracle_rel_motion_pct
 from faceretarget.numerics import SELECTION_METHODS, RigidAligner, select_keyshapes, solve_nnls
 from faceretarget.retarget import BlendshapeRetargeter
 from faceretarget.rig import Rig
@@ -67,9 +69,22 @@ def _model(method, sk, tk):
 
 
 def _apply(model, pts, times):
+    """(target frames, weights)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return model.blend(model.transform(pts, times).weights)
+        W = model.transform(pts, times).weights
+        return model.blend(W), W
+
+
+def _weight_columns(model, W, truth, keys_plus_neutral, neutral, cache, ckey) -> dict:
+    """w_min, w_max, w_outside_01_pct and the bounded oracle (best blend inside the model's range)."""
+    rng = model.weight_range_
+    if ckey not in cache:
+        cache[ckey] = oracle_rel_motion_pct(truth, keys_plus_neutral, neutral, weight_range=rng)
+    return {"w_min": float(W.min()), "w_max": float(W.max()),
+            "w_outside_01_pct": float(((W < 0) | (W > 1)).mean() * 100),
+            "weight_range": None if rng is None else [float(rng[0]), float(rng[1])],
+            "oracle_bounded_rel_motion_pct": float(cache[ckey])}
 
 
 def p1(ict: Rig, ark: Rig, rom, takes, quick: bool, log) -> tuple[list[dict], list]:
@@ -79,6 +94,7 @@ def p1(ict: Rig, ark: Rig, rom, takes, quick: bool, log) -> tuple[list[dict], li
     keysets = [("arkit", None)] + [(f"rom-{k}", m) for k in ks for m in SELECTION_METHODS]
     gts = {t: (_animate(ict, takes[t]), _animate(ark, takes[t])) for t in TAKES}
     lm = ict.landmarks
+    oracles: dict = {}
     for keys, sel in keysets:
         t0 = time.perf_counter()
         labels, U, names = keyset_weights(keys, ict, rom=rom, selection=sel or "pca-extrema")
@@ -99,17 +115,24 @@ def p1(ict: Rig, ark: Rig, rom, takes, quick: bool, log) -> tuple[list[dict], li
                 for m in METHODS:
                     if models[m] is None:
                         continue
-                    pred = _apply(models[m], pts, times)
+                    pred, W = _apply(models[m], pts, times)
                     base = dict(method=m, source="ict-face", keys=keys, selection=sel or "", features="landmarks",
                                 take=take, noise_mm=noise)
                     met = metrics(pred, gtb, ark.neutral.vertices, ark.unit, target_keys=tk.deltas + tk.neutral.vertices)
-                    rows.append(dict(base, target="arkit-face", kind="cross", **met))
+                    rng = models[m].weight_range_
+                    wc = _weight_columns(models[m], W, gtb, tk.deltas + tk.neutral.vertices, ark.neutral.vertices,
+                                         oracles, ("cross", keys, sel, take, None if rng is None else tuple(rng)))
+                    rows.append(dict(base, target="arkit-face", kind="cross", **met, **wc))
                     if keys not in ("arkit", "rom-40"):
                         continue                  # round trips for the arkit and rom-40 sets only
                     mid = pred[:, ark.landmarks]
-                    rt = _apply(back[m], mid, times)
+                    rt, W2 = _apply(back[m], mid, times)
                     met = metrics(rt, src, ict.neutral.vertices, ict.unit, target_keys=sk.deltas + sk.neutral.vertices)
-                    rows.append(dict(base, target="ict-face", kind="roundtrip", **met))
+                    rng = back[m].weight_range_
+                    wc = _weight_columns(back[m], np.hstack([W, W2]), src, sk.deltas + sk.neutral.vertices,
+                                         ict.neutral.vertices, oracles,
+                                         ("roundtrip", keys, sel, take, None if rng is None else tuple(rng)))
+                    rows.append(dict(base, target="ict-face", kind="roundtrip", **met, **wc))
         cr = [r for r in rows if r["keys"] == keys and r["selection"] == (sel or "") and r["kind"] == "cross"
               and r["method"] == "retarget"]
         log(f"  {keys:7s} {sel or '':12s} select {t_sel:5.1f} s  retarget cross rel_motion "
@@ -226,7 +249,8 @@ def missing_markers(data: Path, ict, ark, rom, takes, log) -> dict:
 
 
 def _table(rows, log) -> None:
-    log("\nrel_motion_pct %, out of sample, 68 landmarks (retarget / retarget-nnls / clone; oracle)")
+    log("\nrel_motion_pct %, out of sample, 68 landmarks (retarget / retarget-nnls / clone; oracle, the oracle "
+        "inside retarget's weight range, retarget's weights)")
     keyed = {}
     for r in rows:
         keyed[(r["kind"], r["keys"], r["selection"], r["take"], r["noise_mm"], r["method"])] = r
@@ -241,7 +265,8 @@ def _table(rows, log) -> None:
                     continue
                 cells.append(f"{take[:5]}/{noise}: " + "/".join("-" if g is None else f"{g['rel_motion_pct']:.1f}"
                                                                for g in got)
-                             + f" ({got[0]['oracle_rel_motion_pct']:.1f})")
+                             + f" ({got[0]['oracle_rel_motion_pct']:.1f}, in range "
+                             f"{got[0]['oracle_bounded_rel_motion_pct']:.1f}; w {got[0]['w_min']:.2f}..{got[0]['w_max']:.2f})")
         log(f"{kind:9s} {keys:7s} {sel:12s} " + "  ".join(cells))
 
 
