@@ -468,3 +468,39 @@ def test_blender_reads_polygons_and_uvs(B, tmp_path):
     assert [list(p.vertices) for p in me.polygons] == [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 6]]
     uv = np.array([d.uv[:] for d in me.uv_layers[0].data])
     np.testing.assert_allclose(uv, rig.neutral.uvs[rig.neutral.face_uv_indices], atol=1e-7)
+
+
+def test_cli_clone_to_usd_with_and_without_bake(tmp_path, capsys):
+    """``clone --out x.usdc`` writes blend shapes (and the one-line note when weights leave [0, 1]);
+    ``--bake`` writes points per frame that equal the blend; ``--bake`` into a .glb is an error."""
+    import warnings
+
+    from faceretarget.cli import main
+    from faceretarget.datasets import make_demo_character, make_demo_take
+    from faceretarget.io import write_livelinkface, write_rig
+
+    ada, bo = make_demo_character("ada"), make_demo_character("bo")
+    write_rig(ada, tmp_path / "ada")
+    write_rig(bo, tmp_path / "bo")
+    write_livelinkface(tmp_path / "take.csv", make_demo_take(seconds=2.0, fps=30.0, seed=4))
+    args = ["clone", "--source-rig", str(tmp_path / "ada"), "--target-rig", str(tmp_path / "bo"), "--keys", "rom-8",
+            "--features", "all", "--performance", str(tmp_path / "take.csv"), "--out"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(args + [str(tmp_path / "shapes.usdc")]) == 0
+        log = capsys.readouterr().out
+        assert main(args + [str(tmp_path / "baked.usdc"), "--bake"]) == 0
+        baked_log = capsys.readouterr().out
+        assert main(args + [str(tmp_path / "x.glb"), "--bake"]) == 2
+    assert "baking applies to USD" in capsys.readouterr().err and not (tmp_path / "x.glb").exists()
+    shapes, baked = Usd.Stage.Open(str(tmp_path / "shapes.usdc")), Usd.Stage.Open(str(tmp_path / "baked.usdc"))
+    anim = [UsdSkel.Animation(p) for p in shapes.Traverse() if p.IsA(UsdSkel.Animation)][0]
+    W = np.array(anim.GetBlendShapeWeightsAttr().Get(0.0))
+    assert W.size == 8 and not [p for p in baked.Traverse() if p.IsA(UsdSkel.BlendShape)]
+    mesh = [UsdGeom.Mesh(p) for p in baked.Traverse() if p.IsA(UsdGeom.Mesh)][0]
+    times = mesh.GetPointsAttr().GetTimeSamples()
+    assert len(times) == 60
+    attr = anim.GetBlendShapeWeightsAttr()
+    W_all = np.array([attr.Get(t) for t in attr.GetTimeSamples()])
+    assert W_all.shape == (60, 8)
+    assert ("clamps" in log) == bool(((W_all < 0) | (W_all > 1)).any()) and "clamps" not in baked_log

@@ -80,6 +80,7 @@ def _clone_keys(args, perf, source_rig, log):
     return sk, tk
 
 
+_BAKE_HELP = "USD output: time-sampled mesh points instead of blend shapes + weights"
 _RANGE_HELP = ("range every output weight stays in: LO HI, 'auto' (default: 0 1 for an ARKit-style target "
                "rig's own shapes, -0.5 1.5 for example-based key-models) or 'none' (unconstrained)")
 
@@ -107,7 +108,7 @@ def _clone(args, log) -> int:
     sk, tk = _clone_keys(args, perf, source_rig, log)
     job = clone_take(perf, sk, tk, source_rig=source_rig, method=args.method, features=args.features,
                      weight_range=_weight_range(args.weight_range), log=log)
-    write_result(out, job, head=head, log=log)
+    write_result(out, job, head=head, bake=args.bake, log=log)
     return 0
 
 
@@ -186,7 +187,7 @@ def _retarget(args, log) -> int:
                         smooth=args.temporal,
                         denoise=not args.no_denoise, filter_level=args.smooth, regions=regions,
                         align=not args.no_align, rigid_subset=_subset(args.rigid_subset))
-    write_result(out, job, head=head, log=log)
+    write_result(out, job, head=head, bake=args.bake, log=log)
     return 0
 
 
@@ -210,6 +211,7 @@ def _register_clone(sub) -> None:
     c.add_argument("--performance", required=True, help="take: Live Link Face .csv (weights), .npz, OBJ-sequence folder")
     c.add_argument("--out", required=True, help="output: .glb, .npz, .csv, or a folder (OBJ sequence)")
     c.add_argument("--head", default="auto", metavar="auto|off|FILE", help=_HEAD_HELP)
+    c.add_argument("--bake", action="store_true", help=_BAKE_HELP)
     c.add_argument("--source-keys", help="folder of source key-model OBJs (neutral + expressions)")
     c.add_argument("--target-keys", help="folder of target key-model OBJs with the same file names")
     c.add_argument("--source-rig", help="source ARKit-style rig folder (also plays a weight take)")
@@ -272,6 +274,7 @@ def _register_retarget(sub) -> None:
     r.add_argument("--out", required=True, help="output: .glb, .csv (Live Link Face; keys ARKit-named or defined "
                    "by ARKit weights), .npz or a folder (OBJ sequence)")
     r.add_argument("--head", default="auto", metavar="auto|off|FILE", help=_HEAD_HELP)
+    r.add_argument("--bake", action="store_true", help=_BAKE_HELP)
     r.add_argument("--source-rig", help="rig a weight take drives")
     r.add_argument("--regions", help="upper-lower, or a regions JSON file (see docs/retargeting.md)")
     r.add_argument("--smooth", type=float, default=0.0, help="low-pass level of the weight curves (0 = none)")

@@ -296,7 +296,7 @@ def result_head(transfer: Transfer, head="auto") -> tuple[HeadPose | None, bool]
     raise InvalidDataError(f"head must be 'auto', 'off', a head-motion file, a take or a HeadPose, got {head!r}")
 
 
-def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto",
+def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", bake: bool = False,
                  log: Callable[..., None] = _quiet) -> Path:
     """Write a cloned or retargeted take in the format ``path`` asks for.
 
@@ -316,6 +316,8 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto",
         Which head motion goes into the file (:func:`result_head`).  A format that cannot hold
         head motion refuses an explicit one (file, take, pose) and logs that the take's own is
         left out with ``"auto"``.
+    bake : bool
+        USD only: time-sampled mesh points instead of blend shapes and weights.
 
     Raises
     ------
@@ -326,6 +328,9 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto",
     path = Path(path)
     res, model = transfer.result, transfer.model
     has_head = holds_head(path)                     # also: unknown extension -> OutputError first
+    if bake and path.suffix.lower() not in _BAKES:
+        raise OutputError(f"{path}: baking applies to USD output ({', '.join(sorted(_BAKES))}); an OBJ "
+                          "sequence or .npz already holds the meshes")
     if path.suffix.lower() in _HEAD_ONLY:
         raise OutputError(f"{path}: a {path.suffix} holds head motion only, not the face; write "
                           f"{', '.join(face_and_head_formats())} (or 'headmotion' tools for head motion alone)")
@@ -345,15 +350,18 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto",
     else:
         W, names = res.weights, list(res.names)
         out = write_animation(path, rig=transfer.target_keys, weights=W, names=names, times=res.times, head=pose,
-                              audio=res.audio, audio_rate=res.audio_rate, **clock)
+                              audio=res.audio, audio_rate=res.audio_rate, bake=bake, **clock)
     what = "keyshapes" if isinstance(model, BlendshapeRetargeter) else "key-models"
     log(f"wrote {path} ({len(res.times)} frames, {res.weights.shape[1]} target {what}"
         f"{', head motion' if pose is not None else ''})")
-    note = _slider_note(path, res.weights)
+    note = None if bake else _slider_note(path, res.weights)
     if note:
         log(note)
     return out
 
+
+#: Formats with a baked (mesh points per frame) variant.
+_BAKES = (".usd", ".usda", ".usdc")
 
 #: Formats whose importers in Blender play shape-key weights only inside [0, 1].
 _CLAMPED_IN_BLENDER = {".glb": "Blender's glTF importer", ".usd": "Blender's USD importer",
