@@ -12,9 +12,11 @@ Protocol P1 of ../shared/EVALUATION.md, ICT-FaceKit -> ARKit face, out of sample
   and ``clone`` (the cloning default with the same keys) side by side; every row reports ``w_min``,
   ``w_max``, ``w_outside_01_pct`` and ``oracle_bounded_rel_motion_pct`` (the best blend inside the
   method's range) beside the unconstrained ``oracle_rel_motion_pct``;
-* solver speed: :func:`solve_nnls` on the real P1 problems (every rom-K key set x every take, landmark
-  features) against ``scipy.optimize.nnls`` called per frame, in this run, with the largest
-  weight difference;
+* solver speed on the real P1 problems (every rom-K key set x every take, landmark features), in this
+  run: :func:`solve_nnls` against ``scipy.optimize.nnls`` called per frame, and :func:`solve_bounded`
+  with the default example range ``EXAMPLE_RANGE`` against ``scipy.optimize.lsq_linear(K, f,
+  bounds=(lo, hi))`` per frame; best of ``--repeat`` interleaved runs per contender, the worst and
+  median problems, the largest weight difference, the objective difference and our KKT residual;
 * missing markers: the four ``facial-mocap`` takes retargeted onto their own keyshapes (20, chosen by
   ``nnls-greedy``) complete and with 10 % of the marker samples removed at random; error = share of
   the (complete, head-stabilised) marker motion that is wrong, on every marker including the removed
@@ -25,8 +27,13 @@ Usage::
     python bench/retarget.py [--quick] [--json] [--data ../shared/data]
 
 ``--quick``: rom-40 only and fewer speed problems; ``--speed-only``: only the solver speed (all
-54 problems, about 3 min).  With ``--json`` the last stdout line is one JSON
-object in P1's layout plus ``nnls_speedup``, ``nnls_max_abs_diff``, ``missing_markers``.
+54 problems; lsq_linear per frame takes most of it: about 10 min with ``--repeat 3``, 4 min with 1).
+With ``--json`` the last stdout line is one JSON object in P1's layout plus ``nnls_speedup`` and
+``bounded_speedup`` (the worst problem's ratio), ``nnls_speedup_median``, ``bounded_speedup_median``,
+the same for the NumPy backend (``*_speedup_numpy``), the worst problems (``nnls_worst``,
+``bounded_worst``), ``*_max_abs_diff``, ``*_obj_rel_diff`` (ours worse than the reference by at
+most, per frame, relative), ``*_obj_rel_gain``, ``*_kkt``, every problem in ``nnls_cases``, and
+``missing_markers``.
 """
 
 from __future__ import annotations
@@ -39,7 +46,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import nnls
+from scipy.optimize import lsq_linear, nnls
 
 from cloning import TAKES, _animate, _load  # the P1 loader of bench/cloning.py (same folder)
 from faceretarget.cloning import ExpressionCloner, keymodel_rig, keyset_weights
@@ -47,7 +54,14 @@ from faceretarget.datasets import add_capture_noise
 from faceretarget.errors import SingularKeysError
 from faceretarget.io import read_c3d
 from faceretarget.metrics import metrics, oracle_rel_motion_pct
-from faceretarget.numerics import SELECTION_METHODS, RigidAligner, select_keyshapes, solve_nnls
+from faceretarget.numerics import (
+    EXAMPLE_RANGE,
+    SELECTION_METHODS,
+    RigidAligner,
+    select_keyshapes,
+    solve_bounded,
+    solve_nnls,
+)
 from faceretarget.retarget import BlendshapeRetargeter
 from faceretarget.rig import Rig
 
@@ -143,6 +157,10 @@ def p1(ict: Rig, ark: Rig, rom, takes, quick: bool, log) -> tuple[list[dict], li
 def _speed_problems(ict, rom, takes):
     """The solver problems of :func:`p1` (rom-K keys x takes, landmark features) without the P1 runs."""
     lm = ict.landmarks
+    frames = {}                                   # every take's landmark displacements, computed once
+    for take in TAKES:
+        src = ict.evaluate(ict.map_weights(takes[take].names, takes[take].weights, warn=False), vertices=lm)
+        frames[take] = (src - ict.neutral.vertices[lm]).reshape(len(src), -1)
     out = []
     for k in (10, 20, 40):
         for sel in SELECTION_METHODS:
@@ -150,51 +168,117 @@ def _speed_problems(ict, rom, takes):
             sk = keymodel_rig(ict, labels, U, names)
             Kl = sk.deltas[:, lm].reshape(sk.n_shapes, -1).T
             for take in TAKES:
-                src = _animate(ict, takes[take])
-                out.append((f"rom-{k}", sel, take, Kl, (src[:, lm] - ict.neutral.vertices[lm]).reshape(len(src), -1)))
+                out.append((f"rom-{k}", sel, take, Kl, frames[take]))
     return out
 
 
-def _scipy_loop(K, F):
-    return np.stack([nnls(K, f)[0] for f in F])
+def _scipy_loop(K, F, bounds=None):
+    """The reference, frame by frame: ``scipy.optimize.nnls``, or ``lsq_linear(K, f, bounds)`` (its default
+    method, trf) with ``bounds``."""
+    if bounds is None:
+        return np.stack([nnls(K, f)[0] for f in F])
+    return np.stack([lsq_linear(K, f, bounds=bounds).x for f in F])
 
 
-def speed(problems, quick: bool, log) -> dict:
-    """solve_nnls against scipy's nnls per frame on real P1 problems (single thread recommended)."""
-    cases = []
-    sel = problems if not quick else problems[:3]
-    for keys, method, take, K, F in sel:
-        t_ref = np.inf
-        for _ in range(REPEAT):                    # best of REPEAT for every contender
-            t0 = time.perf_counter()
-            Wref = _scipy_loop(K, F)
-            t_ref = min(t_ref, time.perf_counter() - t0)
-        best = {}
-        for backend in ("auto", "numpy"):
-            best[backend] = np.inf
-            for _ in range(REPEAT):
-                t0 = time.perf_counter()
-                Wb = solve_nnls(K, F, backend=backend)
-                best[backend] = min(best[backend], time.perf_counter() - t0)
-            if backend == "auto":
-                W = Wb
-        rel_fit = (np.linalg.norm(F - W @ K.T) - np.linalg.norm(F - Wref @ K.T)) / max(np.linalg.norm(F), 1e-300)
-        cases.append(dict(keys=keys, selection=method, take=take, frames=len(F), scipy_s=t_ref, ours_s=best["auto"],
-                          numpy_s=best["numpy"], speedup=t_ref / best["auto"],
-                          speedup_numpy=t_ref / best["numpy"], max_abs_diff=float(np.abs(W - Wref).max()),
-                          rel_fit_diff=float(rel_fit)))
+def _agreement(K, F, W, Wref, lo, hi) -> dict:
+    """How ``W`` (ours) compares with ``Wref`` (the per-frame reference) on ``min 1/2 ||K w - f||^2, lo <= w <= hi``.
+
+    ``obj_rel_diff``: the largest per-frame ``(J - J_ref) / J_ref`` (``J_ref`` floored at 1e-12 of the
+    frame's ``1/2 ||f||^2``); positive means ours is worse.  Where the keys are nearly dependent the
+    weights are not unique (or the reference stops early), so the objective is what must agree.
+    ``obj_rel_gain``: the largest ``(J_ref - J) / J_ref`` (ours lower).  ``kkt``: our largest violation
+    of the optimality conditions relative to ``max |K'(f - K lo)|`` per frame (the solver's ``tol``
+    scale).
+    """
+    def obj(X):
+        R = X @ K.T - F
+        return 0.5 * np.einsum("ij,ij->i", R, R)
+
+    J, Jr = obj(W), obj(Wref)
+    floor = np.maximum(1e-12 * 0.5 * np.einsum("ij,ij->i", F, F), 1e-300)
+    rel = (J - Jr) / np.maximum(Jr, floor)
+    g = (W @ K.T - F) @ K
+    width = 1e-12 * (hi - lo if np.isfinite(hi) else 1.0)
+    at_lo, at_hi = W <= lo + width, W >= hi - width
+    viol = np.where(at_lo, np.maximum(-g, 0.0), np.where(at_hi, np.maximum(g, 0.0), np.abs(g)))
+    scale = np.maximum(np.abs((F - lo * K.sum(axis=1)) @ K).max(axis=1), 1e-300)
+    return dict(max_abs_diff=float(np.abs(W - Wref).max()), obj_rel_diff=float(rel.max()),
+                obj_rel_gain=float(-rel.min()), kkt=float((viol.max(axis=1) / scale).max()))
+
+
+def _summary(cases, what: str) -> dict:
+    """The worst and median speedups of ``what`` ("nnls" or "bounded") over ``cases``, per backend."""
+    sp = np.array([c[f"{what}_speedup"] for c in cases])
+    spn = np.array([c[f"{what}_speedup_numpy"] for c in cases])
+    w = cases[int(np.argmin(sp))]
+    return {f"{what}_speedup": float(sp.min()), f"{what}_speedup_median": float(np.median(sp)),
+            f"{what}_speedup_numpy": float(spn.min()), f"{what}_speedup_numpy_median": float(np.median(spn)),
+            f"{what}_worst": dict(keys=w["keys"], selection=w["selection"], take=w["take"], frames=w["frames"],
+                                  speedup=w[f"{what}_speedup"]),
+            f"{what}_max_abs_diff": max(c[f"{what}_max_abs_diff"] for c in cases),
+            f"{what}_obj_rel_diff": max(c[f"{what}_obj_rel_diff"] for c in cases),
+            f"{what}_obj_rel_gain": max(c[f"{what}_obj_rel_gain"] for c in cases),
+            f"{what}_kkt": max(c[f"{what}_kkt"] for c in cases)}
+
+
+def speed(problems, quick: bool, log, repeat: int = REPEAT) -> dict:
+    """Whole-take solves against the scipy reference called per frame, on the real P1 problems.
+
+    ``solve_nnls(K, F)`` against ``scipy.optimize.nnls(K, f)`` and ``solve_bounded(K, F, lo, hi)``
+    against ``scipy.optimize.lsq_linear(K, f, bounds=(lo, hi))`` (the default range ``EXAMPLE_RANGE``),
+    each with the compiled kernel ("auto") and the NumPy methods alone; best of ``repeat`` runs per
+    contender, the runs interleaved so that every contender sees the same machine state.  Speedups
+    are reference time / ours; the summary gives the worst problem's and the median.
+    """
     from faceretarget.numerics import _nnls_numba
 
-    sp = np.array([c["speedup"] for c in cases])
-    spn = np.array([c["speedup_numpy"] for c in cases])
-    md = max(c["max_abs_diff"] for c in cases)
+    lo, hi = EXAMPLE_RANGE
+    contenders = {
+        "nnls_ref": lambda K, F: _scipy_loop(K, F),
+        "nnls_auto": lambda K, F: solve_nnls(K, F),
+        "nnls_numpy": lambda K, F: solve_nnls(K, F, backend="numpy"),
+        "bounded_ref": lambda K, F: _scipy_loop(K, F, (lo, hi)),
+        "bounded_auto": lambda K, F: solve_bounded(K, F, lo, hi),
+        "bounded_numpy": lambda K, F: solve_bounded(K, F, lo, hi, backend="numpy"),
+    }
+    solve_nnls(*problems[0][3:])                   # one-time costs (loading the compiled kernel)
+    cases = []
+    sel = problems if not quick else problems[:3]
+    t_start = time.perf_counter()
+    for keys, method, take, K, F in sel:
+        best = dict.fromkeys(contenders, np.inf)
+        out = {}
+        for _ in range(repeat):                    # best of `repeat` for every contender, interleaved
+            for name, fn in contenders.items():
+                t0 = time.perf_counter()
+                out[name] = fn(K, F)
+                best[name] = min(best[name], time.perf_counter() - t0)
+        case = dict(keys=keys, selection=method, take=take, frames=len(F))
+        for what, (a, b) in (("nnls", (0.0, np.inf)), ("bounded", (lo, hi))):
+            ref = best[f"{what}_ref"]
+            case.update({f"{what}_ref_s": ref, f"{what}_s": best[f"{what}_auto"],
+                         f"{what}_numpy_s": best[f"{what}_numpy"],
+                         f"{what}_speedup": ref / best[f"{what}_auto"],
+                         f"{what}_speedup_numpy": ref / best[f"{what}_numpy"]})
+            case.update({f"{what}_{k}": v for k, v in
+                         _agreement(K, F, out[f"{what}_auto"], out[f"{what}_ref"], a, b).items()})
+        cases.append(case)
+        log(f"  {keys:6s} {method:11s} {take[:9]:9s} {len(F):5d} frames: nnls {case['nnls_speedup']:6.1f}x "
+            f"(numpy {case['nnls_speedup_numpy']:5.1f}x)  bounded {case['bounded_speedup']:7.1f}x "
+            f"(numpy {case['bounded_speedup_numpy']:6.1f}x)")
     backend = "numba kernel" if _nnls_numba.available() else "NumPy (numba not installed)"
-    log(f"  solve_nnls ({backend}) vs scipy nnls per frame on {len(cases)} P1 problems: speedup min "
-        f"{sp.min():.1f}x, median {np.median(sp):.1f}x, max {sp.max():.1f}x; max |dW| {md:.2e}")
-    log(f"  NumPy backend alone: min {spn.min():.1f}x, median {np.median(spn):.1f}x, max {spn.max():.1f}x")
-    return dict(nnls_speedup=float(sp.min()), nnls_speedup_median=float(np.median(sp)),
-                nnls_speedup_numpy_median=float(np.median(spn)), nnls_max_abs_diff=md,
-                nnls_backend=backend, nnls_cases=cases)
+    res = dict(nnls_backend=backend, speed_repeat=repeat, speed_bench_s=time.perf_counter() - t_start,
+               **_summary(cases, "nnls"), **_summary(cases, "bounded"), nnls_cases=cases)
+    for what, ref in (("nnls", "scipy nnls"), ("bounded", f"lsq_linear bounds ({lo:g}, {hi:g})")):
+        w = res[f"{what}_worst"]
+        log(f"  {'solve_nnls' if what == 'nnls' else 'solve_bounded'} ({backend}) vs {ref} per frame on "
+            f"{len(cases)} P1 problems: worst {res[f'{what}_speedup']:.1f}x ({w['keys']} {w['selection']} "
+            f"{w['take']}, {w['frames']} frames), median {res[f'{what}_speedup_median']:.1f}x; NumPy backend worst "
+            f"{res[f'{what}_speedup_numpy']:.1f}x, median {res[f'{what}_speedup_numpy_median']:.1f}x; "
+            f"max |dW| {res[f'{what}_max_abs_diff']:.1e}, objective worse by at most "
+            f"{res[f'{what}_obj_rel_diff']:.1e} (relative), better by up to {res[f'{what}_obj_rel_gain']:.1e}, "
+            f"KKT {res[f'{what}_kkt']:.1e}")
+    return res
 
 
 def _remove(points: np.ndarray, frac: float, seed: int) -> np.ndarray:
@@ -276,6 +360,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--speed-only", action="store_true", help="only the solver speed on the P1 problems")
+    ap.add_argument("--repeat", type=int, default=REPEAT, help="timed runs per solver in the speed part (best kept)")
     args = ap.parse_args(argv)
     data = Path(args.data)
     log = print
@@ -289,7 +374,7 @@ def main(argv=None) -> int:
         rows, problems = p1(ict, ark, rom, takes, args.quick, log)
         _table(rows, log)
     log("\nsolver speed")
-    sp = speed(problems, args.quick, log)
+    sp = speed(problems, args.quick, log, max(1, args.repeat))
     mm = {}
     if not args.speed_only:
         log("\nmissing markers (10 % of samples removed at random)")

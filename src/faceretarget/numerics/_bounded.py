@@ -123,7 +123,8 @@ def solve_bounded(K: np.ndarray, F: np.ndarray, lower, upper, *, smooth: float =
     Returns
     -------
     W : (T, N) or (N,) float
-        Inside the range exactly (clipped after the solve against rounding).
+        Inside the range exactly (clipped after the solve against rounding); a weight at a bound
+        equals it.
 
     Raises
     ------
@@ -143,14 +144,23 @@ def solve_bounded(K: np.ndarray, F: np.ndarray, lower, upper, *, smooth: float =
     [1.9, -1.0]
     """
     K = np.asarray(K, dtype=np.float64)
-    N = K.shape[1] if K.ndim == 2 else 0
-    lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (N,)).copy()
-    hi = np.broadcast_to(np.asarray(upper, dtype=np.float64), (N,)).copy()
+    if K.ndim != 2 or 0 in K.shape:
+        raise InvalidDataError(f"solve_bounded: keyshape matrix K must be (D, N) with D, N > 0, got shape {K.shape}")
+    N = K.shape[1]
+    try:
+        lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (N,)).copy()
+        hi = np.broadcast_to(np.asarray(upper, dtype=np.float64), (N,)).copy()
+    except ValueError:
+        raise InvalidDataError(f"solve_bounded: lower and upper must be numbers or have one bound per key ({N}), "
+                               f"got shapes {np.shape(lower)} and {np.shape(upper)}") from None
     if not np.isfinite(lo).all():
         raise InvalidDataError("solve_bounded: the lower bounds must be finite")
     if np.isnan(hi).any() or not (hi > lo).all():
         raise InvalidDataError("solve_bounded: every upper bound must be above its lower bound")
     F = np.asarray(F, dtype=np.float64)
-    shift = K @ lo                                                     # (D,) the frames seen from w = lo
-    V = solve_nnls(K, F - shift, upper=hi - lo, smooth=smooth, mask=mask, tol=tol, backend=backend)
-    return np.clip(V + lo, lo, hi)
+    if F.ndim in (1, 2) and F.shape[-1] == K.shape[0]:      # else solve_nnls names the shape error
+        F = F - K @ lo                                      # the frames seen from w = lo
+    V = solve_nnls(K, F, upper=hi - lo, smooth=smooth, mask=mask, tol=tol, backend=backend)
+    W = V + lo
+    np.copyto(W, hi, where=V >= hi - lo)                    # exactly at the bound (V + lo may round below)
+    return np.clip(W, lo, hi)

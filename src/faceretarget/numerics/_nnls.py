@@ -29,18 +29,32 @@ LAPACK solve, so one step over the whole take is a few dozen LAPACK calls.
   run in chunks of 8 consecutive frames, each starting from the free set of the previous one
   (consecutive frames of a take share most of it).
 
-With ``numba`` installed and no upper bound, a compiled Lawson-Hanson kernel solves the frames one
-after another instead, each warm-started from the previous frame's free set
-(:mod:`faceretarget.retarget._nnls_numba`): sparse solutions with strongly correlated keys (keys
-chosen among a take's frames) are where the vectorised methods pay NumPy's per-call overhead on
-every small step, and where the compiled loop is tens of times faster than ``scipy.optimize.nnls``
-per frame.  When ``cond(G) > 1e10`` its answers are refined and checked against the exact KKT
-conditions computed from ``K``, and frames that fail go to the NumPy methods.
+With ``numba`` installed (``pip install 'faceretarget[fast]'``) a compiled kernel
+(:mod:`._nnls_numba`) solves the frames one after another instead, upper bounds included: bounded
+Lawson-Hanson (BVLS), each frame starting from the previous frame's point and sets, with the
+Cholesky factor of ``G`` on the free set updated (not recomputed) when a variable enters or
+leaves.  Consecutive frames of a take share most of their sets, so a frame typically costs one or
+two solves on its free set (measured: 1.1 to 4 on every real P1 problem, bounded or not) and well
+under a microsecond to a few microseconds, where ``scipy.optimize.nnls`` / ``lsq_linear`` pay tens
+of microseconds to milliseconds of Python per frame.  A probe on the first 64 frames hands takes
+whose sets change at every frame (dense weights, more than 10 solves per frame) to block pivoting,
+which exchanges many variables per step.
 
-When ``cond(G) > 1e10`` every frame then gets one step of iterative refinement with the residual
-computed from ``K`` itself (corrected semi-normal equations), so forming ``K'K`` costs no accuracy.
-The result is exact: it agrees with :func:`scipy.optimize.nnls` per frame to rounding (where the
-solution is unique) and is several times faster than calling it per frame (``bench/nnls.py``).
+Keys chosen among a take's frames can be nearly dependent (hull and k-means selections pick
+near-duplicate frames: ``cond(K'K)`` up to 2e14).  When ``cond(G) > 1e10`` the keys are projected
+once, ``K = QR`` and ``c_t = Q'f_t`` (``||K w - f||^2 = ||R w - c||^2 + const``, so the per-frame
+work does not depend on ``D``), and every frame's optimum gets one step of iterative refinement
+with the gradient computed from ``(R, c_t)`` itself (corrected semi-normal equations), so forming
+``K'K`` costs no accuracy; the compiled kernel decides the sets at ``1e-4`` of the tolerance,
+checks every frame against the exact KKT conditions and finishes a frame that fails in exact mode
+(every solve refined, every gradient exact).  The result is exact: it agrees with
+:func:`scipy.optimize.nnls` per frame to rounding where the solution is unique, and where it is not
+(nearly dependent keys) its objective agrees with scipy's or is lower (``bench/retarget.py
+--speed-only``, ``bench/nnls.py``).
+
+A take's products (frames x features x keys) are computed in row blocks small enough for BLAS to
+run them on one thread: on a busy machine waking BLAS threads costs milliseconds per call, more than
+such a product.
 
 Beyond the thesis, in the spirit of NVIDIA Audio2Face's blendshape solver, the objective can have::
 
@@ -83,17 +97,45 @@ import numpy as np
 from scipy.fft import dct, idct
 from scipy.linalg import cho_solve_banded, cholesky_banded
 
-from ..errors import FitWarning, InvalidDataError, MissingDependencyError
+from ..errors import FitWarning, InvalidDataError
+from ..optional import optional_import
 
 __all__ = ["solve_nnls", "temporal_filter", "extremes_removed", "filter_cutoff_hz"]
 
 _RIDGE = 1e-13
 _INVERSE_COND = 1e10
+_EXACT_COND = 1e10
+_EXACT_TOL = 1e-4
 _SMALL_BATCH = 256
-# mean non-zero weights per frame (probe) up to which the compiled kernel is used; measured on
-# 2,028-frame synthetic takes: 12 non-zero of 20 keys, kernel 13 ms vs pivoting 16 ms; 24 of 40,
-# 66 vs 47 ms; 50 of 83, 160 vs 50 ms (keyshapes chosen among a take's frames: 4-6 non-zero)
-_COMPILED_MAX_NONZERO = 16
+# free-set solves per frame (on the first 64 frames of a take) up to which the compiled kernel goes
+# on; above, the vectorised NumPy methods (block pivoting) solve the take.  Measured on 2,028-frame
+# synthetic takes with dense, often-changing weights (bench/nnls.py "keyshapes"): 14 solves per
+# frame with 40 keys, kernel 40 ms vs pivoting 37 ms; 30 with 83 keys, 450 vs 310 ms.  Every real
+# P1 problem (keys chosen among a take's frames, also with the range -1..2) needs 1.1 to 4.
+_COMPILED_MAX_SOLVES = 10
+_COMPILED_PROBE = 64
+# OpenBLAS runs a product on one thread when m*n*k <= 65536 * 4: a take's tall, skinny products
+# (frames x features x keys) are computed in row blocks that small.  Waking BLAS threads costs more
+# than such a product, and on a busy machine (other processes on the cores) milliseconds per call.
+_ONE_THREAD_MNK = 262144
+
+
+def _mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A @ B`` for a tall ``A`` (n, m) and a small ``B`` (m, k), in row blocks BLAS runs on one thread.
+
+    Returns
+    -------
+    (n, k) float
+    """
+    n, m = A.shape
+    k = B.shape[1]
+    rows = _ONE_THREAD_MNK // max(m * k, 1)
+    if n <= rows or rows < 8:
+        return A @ B
+    out = np.empty((n, k), dtype=np.result_type(A, B))
+    for i in range(0, n, rows):
+        np.matmul(A[i:i + rows], B, out=out[i:i + rows])
+    return out
 
 
 # ----------------------------------------------------------------------------- batched dense solves
@@ -192,10 +234,10 @@ def _fixed_rhs(G: np.ndarray, H: np.ndarray | None, C: np.ndarray, P: np.ndarray
         R = C.copy()
     else:
         X = np.where(P, 0.0, A0)
-        R = C - X @ G
+        R = C - _mm(X, G)
     Z = lam = None
     if not free_form.all():
-        Z = C @ H
+        Z = _mm(C, H)
         a = ~free_form
         R[a] = -Z[a] if A0 is None else (A0 - Z)[a]
         lam = np.zeros((n, N))
@@ -276,11 +318,11 @@ def _solve_fixed(G: np.ndarray, H: np.ndarray | None, C: np.ndarray, P: np.ndarr
     X, R, Z, lam = _fixed_rhs(G, H, C, P, A0, free_form)
     _stacked_solves(G, H, R, X, lam, free_form, ks, cols, start)
     if Z is None:
-        return X, X @ G - C
+        return X, _mm(X, G) - C
     ai = np.flatnonzero(~free_form)
-    X[ai] = np.where(P[ai], Z[ai] + lam[ai] @ H, X[ai])
+    X[ai] = np.where(P[ai], Z[ai] + _mm(lam[ai], H), X[ai])
     fi = np.flatnonzero(free_form)
-    lam[fi] = X[fi] @ G - C[fi]                                 # gradient; on fixed-set rows it is lambda
+    lam[fi] = _mm(X[fi], G) - C[fi]                                 # gradient; on fixed-set rows it is lambda
     return X, lam
 
 
@@ -304,7 +346,7 @@ def _bpp_start(G: np.ndarray, H: np.ndarray | None, B: np.ndarray,
     """
     fin = None if ub is None else np.isfinite(ub)
     ubf = None if ub is None else np.where(fin, ub, 0.0)
-    X0 = B @ H if H is not None else np.linalg.solve(G, B.T).T
+    X0 = _mm(B, H) if H is not None else np.linalg.solve(G, B.T).T
     P = X0 > 0
     U = np.zeros_like(P)
     if ub is not None:
@@ -585,71 +627,45 @@ def _lh(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | Non
     return W, Wfree, np.flatnonzero(stuck)
 
 
-def _use_compiled(backend: str, ub) -> bool:
-    """Whether the compiled Lawson-Hanson kernel (:mod:`._nnls_numba`) solves this problem."""
-    if backend == "numpy" or ub is not None:
+def _use_compiled(backend: str) -> bool:
+    """Whether the compiled kernel (:mod:`._nnls_numba`) may solve (``backend`` "auto" or "numba")."""
+    if backend == "numpy":
         return False
-    try:
-        from . import _nnls_numba
-    except ImportError:                                         # pragma: no cover
-        return False
+    from . import _nnls_numba
+
     if backend == "numba" and not _nnls_numba.available():
-        raise MissingDependencyError("backend='numba' asked for but numba is not installed "
-                               "(pip install 'faceretarget[fast]')")
+        optional_import("numba", "solve_nnls(backend='numba')")
     return _nnls_numba.available()
 
 
-def _compiled_box_qp(G: np.ndarray, B: np.ndarray, tol: float, max_iter: int, refine,
-                     inverse: bool) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_box_qp` without upper bounds by the compiled Lawson-Hanson kernel (:mod:`._nnls_numba`)."""
-    from ._nnls_numba import free_set_solve, lawson_hanson_frames
+def _compiled_box_qp(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, tol: float, max_iter: int,
+                     refine: _LSData | None, inverse: bool,
+                     probe: bool = True) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_box_qp` by the compiled kernel, frame after frame, each warm-started from the previous.
 
-    # with cond(G) > 1e10 the kernel decides the active set at a tighter tolerance, its answers
-    # are refined on the free set with gradients from K itself and checked against the exact
-    # KKT conditions; frames that fail that check, or stop at max_iter, go to the NumPy methods
-    X, free, st = lawson_hanson_frames(G, B, tol if refine is None else tol * 1e-4, max_iter)
-    bad = st.copy()
-    if refine is not None:
-        g = refine(X)                                       # exact b - G x
-        dX = free_set_solve(G, g, free)
-        X += dX
-        # the correction is small: Gram form is exact enough
-        g -= dX @ G
-        xs = tol * np.maximum(np.abs(X).max(axis=1), 1.0)[:, None]
-        ys = tol * np.maximum(np.abs(B).max(axis=1), 1e-300)[:, None]
-        bad |= (free & (X < -xs)).any(axis=1) | (~free & (g > ys)).any(axis=1)
-    bad = np.flatnonzero(bad)
-    stuck = np.zeros(0, dtype=np.int64)
-    if bad.size:
-        sub = None if refine is None else (lambda Y, rows=bad: refine(Y, rows))
-        X[bad], st_bad = _box_qp(G, B[bad], None, tol, max_iter, sub, inverse, backend="numpy")
-        stuck = bad[st_bad]
-    np.maximum(X, 0.0, out=X)
-    return X, stuck
-
-
-def _compiled_wins(G: np.ndarray, B: np.ndarray, tol: float, max_iter: int) -> bool:
-    """Whether the compiled Lawson-Hanson kernel beats block pivoting on ``B``, by a probe of 32 rows.
-
-    Parameters
-    ----------
-    G : (N, N) float
-    B : (n, N) float
-    tol : float
-    max_iter : int
+    With ``probe`` (and more than ``2 _COMPILED_PROBE`` frames) the kernel stops after the first
+    ``_COMPILED_PROBE`` frames when they needed more than ``_COMPILED_MAX_SOLVES`` free-set solves
+    per frame (dense weights whose sets change at every frame are faster by block pivoting) and
+    None is returned.  Frames stopped by ``max_iter`` are finished by the NumPy methods.
     """
-    n = len(B)
-    # the compiled Lawson-Hanson enters one key per step, so its cost grows steeply with the
-    # number of non-zero weights; block pivoting (NumPy) wins on dense solutions.  A probe of
-    # 32 frames (microseconds in compiled code) decides.
-    use = n <= 64
-    if not use:
-        from ._nnls_numba import lawson_hanson_frames
+    from ._nnls_numba import box_frames
 
-        probe = np.unique(np.linspace(0, n - 1, 32).astype(np.int64))
-        Xp = lawson_hanson_frames(G, B[probe], tol, max_iter, warm=False)[0]
-        use = (Xp > 0).sum(axis=1).mean() <= _COMPILED_MAX_NONZERO
-    return use
+    n = len(B)
+    # with ill-conditioned keys (exact data given) the sets are decided at a tighter tolerance: a
+    # gradient of tol |b| along a near-duplicate key's direction is still worth a visible share of
+    # the objective (the kernel's gradients are exact enough for 1e-4 of it)
+    X, _, st, _, done = box_frames(G, B, ub, exact=None if refine is None else refine.data,
+                                   tol=tol if refine is None else tol * _EXACT_TOL,
+                                   max_iter=max_iter, probe=_COMPILED_PROBE if probe and n > 2 * _COMPILED_PROBE
+                                   else 0, max_solves=_COMPILED_MAX_SOLVES)
+    if done < n:
+        return None
+    stuck = np.flatnonzero(st)
+    if stuck.size:
+        sub = None if refine is None else refine.rows(stuck)
+        X[stuck], st_bad = _box_qp(G, B[stuck], ub, tol, max_iter, sub, inverse, backend="numpy")
+        stuck = stuck[st_bad]
+    return X, stuck
 
 
 def _pivoting_wins(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | None, tol: float,
@@ -716,10 +732,13 @@ def _active_set_solve(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np
 
 
 def _box_qp(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, tol: float, max_iter: int,
-            refine=None, inverse: bool = True, backend: str = "auto") -> tuple[np.ndarray, np.ndarray]:
+            refine: _LSData | None = None, inverse: bool = True,
+            backend: str = "auto") -> tuple[np.ndarray, np.ndarray]:
     """Solve ``min 1/2 x'Gx - b_t'x, 0 <= x <= ub`` exactly for every row ``b_t`` of ``B``.
 
-    Block principal pivoting (few iterations over large batches), unless on a probe of 32 rows it
+    The compiled kernel (:func:`_compiled_box_qp`) when numba is installed, unless its probe finds
+    dense, fast-changing sets; else block principal pivoting (few iterations over large batches),
+    unless on a probe of 32 rows it
     needs more than 8 solves per row, or more than 5 and more than Lawson-Hanson with chunks of 8
     consecutive rows needs (probed on 4 runs of 8 rows): strongly correlated keys, sparse
     solutions, where full exchanges oscillate.  Rows that pivoting has not settled after 20
@@ -735,11 +754,13 @@ def _box_qp(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, tol: float, max
         Relative KKT tolerance.
     max_iter : int
         Iterations per row (pivoting stops at ``min(20, max_iter)``, Lawson-Hanson at ``max_iter``).
-    refine : callable, optional
-        ``refine(X)`` returns the exact negative gradient ``b_t - G x_t`` ``(n, N)``, computed from
-        the original least-squares data; used for one step of iterative refinement.
+    refine : _LSData, optional
+        The least-squares data behind ``G`` and ``B``: ``refine(X)`` is the exact negative gradient
+        ``b_t - G x_t`` ``(n, N)``, for iterative refinement (ill-conditioned ``G``).
     inverse : bool
         Allow solving through ``G^-1`` on the fixed set (when ``G`` is well conditioned).
+    backend : {"auto", "numpy", "numba"}
+        "numba": the compiled kernel without its probe.
 
     Returns
     -------
@@ -750,8 +771,10 @@ def _box_qp(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None, tol: float, max
     n, N = B.shape
     if n == 0:
         return np.zeros((0, N)), np.zeros(0, dtype=np.int64)
-    if _use_compiled(backend, ub) and _compiled_wins(G, B, tol, max_iter):
-        return _compiled_box_qp(G, B, tol, max_iter, refine, inverse)
+    if _use_compiled(backend):
+        done = _compiled_box_qp(G, B, ub, tol, max_iter, refine, inverse, probe=backend != "numba")
+        if done is not None:
+            return done
     H = None
     if inverse:
         H = np.linalg.inv(G)
@@ -1113,9 +1136,10 @@ def _check_inputs(K, F, upper, mask):
     K = np.asarray(K, dtype=np.float64)
     if K.ndim != 2 or K.shape[0] == 0 or K.shape[1] == 0:
         raise InvalidDataError(f"keyshape matrix K must be (D, N) with D, N > 0, got shape {K.shape}")
+    K = np.ascontiguousarray(K)                                 # (frames x features) @ K runs faster
     D, N = K.shape
-    bad = ~np.isfinite(K).all(axis=0)
-    if bad.any():
+    bad = None if np.isfinite(K).all() else ~np.isfinite(K).all(axis=0)
+    if bad is not None:
         raise InvalidDataError(f"keyshape matrix K has NaN or infinite values in key column(s) "
                                f"{', '.join(map(str, np.flatnonzero(bad)[:10]))}")
     F = np.asarray(F, dtype=np.float64)
@@ -1135,14 +1159,14 @@ def _check_inputs(K, F, upper, mask):
             raise InvalidDataError(f"mask must be (T, D) = ({T}, {D}) or per marker (T, P) with D a multiple "
                                    f"of P, got shape {np.shape(mask)}")
         rows = np.repeat(m.astype(bool), D // m.shape[1], axis=1)
-    finite = np.isfinite(F)
-    bad = ~finite if rows is None else (~finite & rows)
-    if bad.any():
-        frames = np.flatnonzero(bad.any(axis=1))
-        raise InvalidDataError(f"frame {frames[0]} has NaN or infinite feature values"
-                               + (f" ({len(frames)} frames in all)" if len(frames) > 1 else "")
-                               + (" where the mask says they are present" if rows is not None else "")
-                               + "; mark missing markers with mask=")
+    if rows is not None:
+        _check_finite(F, rows)
+    else:
+        # without a mask F is checked through F K ((T, N) values instead of (T, D), :func:`_solve_frames`):
+        # a NaN or inf reaches every key that moves its feature; the features no key moves are checked here
+        idle = ~K.any(axis=1)
+        if idle.any():
+            _check_finite(F[:, idle], None)
     ub = None
     if upper is not None:
         ub = np.broadcast_to(np.asarray(upper, dtype=np.float64), (N,)).copy() if np.ndim(upper) == 0 \
@@ -1155,6 +1179,18 @@ def _check_inputs(K, F, upper, mask):
         if np.isinf(ub).all():
             ub = None
     return K, F, single, rows, ub
+
+
+def _check_finite(F: np.ndarray, rows: np.ndarray | None) -> None:
+    """Raise naming the first frame of ``F`` (T, D) with a NaN or infinite value where ``rows`` (T, D) is
+    true (everywhere when None)."""
+    bad = ~np.isfinite(F) if rows is None else (~np.isfinite(F) & rows)
+    if bad.any():
+        frames = np.flatnonzero(bad.any(axis=1))
+        raise InvalidDataError(f"frame {frames[0]} has NaN or infinite feature values"
+                               + (f" ({len(frames)} frames in all)" if len(frames) > 1 else "")
+                               + (" where the mask says they are present" if rows is not None else "")
+                               + "; mark missing markers with mask=")
 
 
 def _check_options(l2, l1, smooth, tol, backend) -> tuple[float, float, float, float]:
@@ -1203,9 +1239,8 @@ def _mask_patterns(F: np.ndarray,
 
 
 def _pattern_system(K: np.ndarray, F: np.ndarray, G_all: np.ndarray, pat: np.ndarray, p: int,
-                    r: np.ndarray | None, l2: float,
-                    l1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The least-squares data and normal equations of the frames with mask pattern ``p``.
+                    r: np.ndarray | None, l2: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The least-squares data and Gram matrix of the frames with mask pattern ``p``.
 
     Parameters
     ----------
@@ -1217,7 +1252,7 @@ def _pattern_system(K: np.ndarray, F: np.ndarray, G_all: np.ndarray, pat: np.nda
     p : int
     r : (D,) bool or None
         The pattern's present rows (``None``: all).
-    l2, l1 : float
+    l2 : float
 
     Returns
     -------
@@ -1227,8 +1262,6 @@ def _pattern_system(K: np.ndarray, F: np.ndarray, G_all: np.ndarray, pat: np.nda
         Keyshapes and frames on the present rows.
     G : (N, N) float
         ``Kp'Kp + l2 I``.
-    Bp : (t, N) float
-        ``Fp Kp - l1``.
     """
     N = K.shape[1]
     if r is None:
@@ -1238,11 +1271,11 @@ def _pattern_system(K: np.ndarray, F: np.ndarray, G_all: np.ndarray, pat: np.nda
         Kp, Fp = K[r], F[frames][:, r]
         G = Kp.T @ Kp
     G[np.diag_indices(N)] += l2
-    Bp = Fp @ Kp - l1
-    return frames, Kp, Fp, G, Bp
+    return frames, Kp, Fp, G
 
 
-def _live_keys(G: np.ndarray, floor: float, l2: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def _live_keys(G: np.ndarray, floor: float, l2: float,
+               ev: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """The keys that move an observed row, their Gram matrix (with a rank ridge if needed) and its spectrum.
 
     Parameters
@@ -1251,6 +1284,8 @@ def _live_keys(G: np.ndarray, floor: float, l2: float) -> tuple[np.ndarray, np.n
     floor : float
         Rank ridge: ``1e-13`` of ``K'K``'s largest eigenvalue.
     l2 : float
+    ev : (N,) float, optional
+        Eigenvalues of ``G`` if known (used when every key is live).
 
     Returns
     -------
@@ -1263,8 +1298,12 @@ def _live_keys(G: np.ndarray, floor: float, l2: float) -> tuple[np.ndarray, np.n
     """
     # keys that do not move any observed row: weight 0 (any value fits equally; 0 is the smallest)
     live = np.flatnonzero(np.diag(G) > floor)
-    Gl = G[np.ix_(live, live)]
-    ev = np.linalg.eigvalsh(Gl) if live.size else np.ones(1)
+    if live.size == len(G):
+        Gl = G.copy()
+        ev = np.linalg.eigvalsh(Gl) if ev is None else ev
+    else:
+        Gl = G[np.ix_(live, live)]
+        ev = np.linalg.eigvalsh(Gl) if live.size else np.ones(1)
     ridge = l2
     if ev[0] < floor:                                           # keys the observed rows cannot tell apart
         Gl[np.diag_indices(len(live))] += floor
@@ -1273,13 +1312,58 @@ def _live_keys(G: np.ndarray, floor: float, l2: float) -> tuple[np.ndarray, np.n
     return live, Gl, ev, ridge
 
 
-def _refiner(Fp: np.ndarray, Kl: np.ndarray, ridge: float, l1: float):
-    """``refine(X, rows=None)``: the exact negative gradient ``b_t - G x_t`` computed from the
-    least-squares data ``Fp`` (t, d) and ``Kl`` (d, k), for :func:`_box_qp`."""
-    def refine(X, rows=None):
-        Fr = Fp if rows is None else Fp[rows]
-        return (Fr - X @ Kl.T) @ Kl - ridge * X - l1
-    return refine
+class _LSData:
+    """The least-squares data behind a Gram system, for exact gradients (ill-conditioned keys).
+
+    ``G = R'R + ridge I`` and ``B = C R - l1`` with ``R`` (m, k) ``K``'s triangular QR factor when
+    ``K`` (d, k) has more rows than columns (``C = F Q``: ``||K w - f||^2 = ||R w - c||^2 + const``,
+    so the per-frame work does not depend on ``d``), else ``K`` itself with ``C = F``.
+    """
+
+    __slots__ = ("R", "C", "ridge", "l1")
+
+    def __init__(self, R: np.ndarray, C: np.ndarray, ridge: float, l1: float):
+        self.R, self.C, self.ridge, self.l1 = R, C, ridge, l1
+
+    @classmethod
+    def project(cls, K: np.ndarray, F: np.ndarray, ridge: float, l1: float) -> _LSData:
+        """From keys ``K`` (d, k) and frames ``F`` (t, d)."""
+        if K.shape[0] > K.shape[1]:
+            Q, R = np.linalg.qr(K)
+            return cls(R, _mm(F, Q), ridge, l1)
+        return cls(K, F, ridge, l1)
+
+    @property
+    def data(self) -> tuple[np.ndarray, np.ndarray, float, float]:
+        return self.R, self.C, self.ridge, self.l1
+
+    def rows(self, rows) -> _LSData:
+        """The data of the frames ``rows`` (an index array or a slice)."""
+        return _LSData(self.R, self.C[rows], self.ridge, self.l1)
+
+    def rhs(self) -> np.ndarray:
+        """``B = C R - l1`` (t, k)."""
+        return _mm(self.C, self.R) - self.l1
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        """The exact negative gradient ``b_t - G x_t`` (t, k) at ``X`` (t, k)."""
+        return _mm(self.C - _mm(X, self.R.T), self.R) - self.ridge * X - self.l1
+
+
+def _pattern_rhs(Kp: np.ndarray, Fp: np.ndarray, live: np.ndarray, exact: _LSData | None,
+                 l1: float) -> np.ndarray:
+    """``B = Fp Kp - l1`` (t, N), from the projected data ``exact`` on the live keys when given."""
+    if exact is None:
+        Bp = _mm(Fp, Kp)
+        if l1:
+            Bp -= l1
+        return Bp
+    Bp = np.empty((len(Fp), Kp.shape[1]))
+    Bp[:, live] = exact.rhs()
+    dead = np.setdiff1d(np.arange(Kp.shape[1]), live)
+    if dead.size:
+        Bp[:, dead] = _mm(Fp, Kp[:, dead]) - l1
+    return Bp
 
 
 def _solve_frames(K: np.ndarray, F: np.ndarray, rows: np.ndarray | None, ub: np.ndarray | None, l2: float,
@@ -1312,29 +1396,42 @@ def _solve_frames(K: np.ndarray, F: np.ndarray, rows: np.ndarray | None, ub: np.
     """
     T, N = len(F), K.shape[1]
     G_all = K.T @ K
-    floor = _RIDGE * max(float(np.linalg.eigvalsh(G_all)[-1]), 1e-300)
+    ev_all = np.linalg.eigvalsh(G_all)
+    floor = _RIDGE * max(float(ev_all[-1]), 1e-300)
     pats, pat, F = _mask_patterns(F, rows)
     Gs: list[np.ndarray] = []
     Graw: list[np.ndarray] = []                                 # without the rank ridge
-    B = np.empty((T, N))
-    W = np.empty((T, N))
+    one = rows is None                                          # one pattern: every frame, every row
+    B = None if one else np.empty((T, N))
+    W = None if one else np.zeros((T, N))
     stuck: list[np.ndarray] = []
     for p, r in enumerate(pats):
-        frames, Kp, Fp, G, Bp = _pattern_system(K, F, G_all, pat, p, r, l2, l1)
-        B[frames] = Bp
-        live, Gl, ev, ridge = _live_keys(G, floor, l2)
+        frames, Kp, Fp, G = _pattern_system(K, F, G_all, pat, p, r, l2)
+        live, Gl, ev, ridge = _live_keys(G, floor, l2, ev_all + l2 if r is None else None)
         Graw.append(G)
         Gs.append(G + floor * np.eye(N) if (ridge != l2 or live.size < N) else G)
-        W[frames] = 0.0
+        exact = None
+        if live.size and ev[-1] > _EXACT_COND * ev[0]:       # normal equations lose digits: refine
+            with np.errstate(invalid="ignore", over="ignore"):
+                exact = _LSData.project(Kp[:, live], Fp, ridge, l1)
+        with np.errstate(invalid="ignore", over="ignore"):    # a NaN or inf in F is reported below
+            Bp = _pattern_rhs(Kp, Fp, live, exact, l1)
+        if one:
+            if not np.isfinite(Bp).all():                       # NaN or inf in F (checked here: cheaper)
+                _check_finite(F, None)
+            B = Bp
+            W = np.zeros((T, N))
+        else:
+            B[frames] = Bp
         if live.size == 0:
             continue
-        Kl, ubl = Kp[:, live], (None if ub is None else ub[live])
-        refine = None
-        if ev[-1] > 1e10 * ev[0]:                               # normal equations lose digits: refine
-            refine = _refiner(Fp, Kl, ridge, l1)
-        Wp, bad = _box_qp(Gl, Bp[:, live], ubl, tol, max_iter, refine, inverse=ev[-1] < _INVERSE_COND * ev[0],
-                          backend=backend)
-        W[np.ix_(frames, live)] = Wp
+        ubl = None if ub is None else ub[live]
+        Wp, bad = _box_qp(Gl, Bp[:, live] if live.size < N else Bp, ubl, tol, max_iter, exact,
+                          inverse=ev[-1] < _INVERSE_COND * ev[0], backend=backend)
+        if live.size < N or not one:
+            W[np.ix_(frames, live)] = Wp
+        else:
+            W = Wp
         stuck.append(frames[bad])
     return W, pat, B, Gs, Graw, stuck
 
@@ -1357,6 +1454,8 @@ def _smooth_take(Gs: list[np.ndarray], Graw: list[np.ndarray], pat: np.ndarray, 
 
 def _unconverged_frames_message(stuck: list[np.ndarray], max_iter: int) -> str | None:
     """The warning about the frames ``stuck`` (lists of frame numbers) that did not converge, or None."""
+    if not any(s.size for s in stuck):
+        return None
     bad = np.sort(np.concatenate(stuck))
     if bad.size:
         return (f"solve_nnls: {bad.size} frame(s) did not converge in {max_iter} iterations "
@@ -1401,10 +1500,12 @@ def solve_nnls(K: np.ndarray, F: np.ndarray, *, upper=None, l2: float = 0.0, l1:
         Newton iterations of the whole take (default 100).  Weights that do not converge are
         returned as they are, with a :class:`~faceretarget.errors.FitWarning`.
     backend : {"auto", "numpy", "numba"}
-        Without an upper bound, ``"auto"`` solves frame after frame with a compiled Lawson-Hanson
-        kernel warm-started from the previous frame (:mod:`._nnls_numba`) when ``numba`` is
-        installed (``pip install 'faceretarget[fast]'``), else with the vectorised NumPy methods;
-        the results agree to rounding.
+        ``"auto"`` solves frame after frame with a compiled bounded Lawson-Hanson kernel
+        warm-started from the previous frame (:mod:`._nnls_numba`) when ``numba`` is installed
+        (``pip install 'faceretarget[fast]'``; a probe hands dense, fast-changing weights to block
+        pivoting), else with the vectorised NumPy methods; ``"numpy"``: the NumPy methods;
+        ``"numba"``: the kernel always (:class:`~faceretarget.errors.MissingDependencyError`
+        without numba).  The results agree to rounding (the temporal term is NumPy's either way).
 
     Returns
     -------
