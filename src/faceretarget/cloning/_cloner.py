@@ -299,8 +299,14 @@ class ExpressionCloner(Model):
         """Weights ``(T, N)`` inside :attr:`weight_range_` whose target face is nearest to that of
         ``W`` ``(T, N)`` (module docstring): ``min ||L' (w - w_t)||`` with ``L L' = B'B``."""
         lo, hi = self.weight_range_
+        W = np.asarray(W, dtype=np.float64)
+        rows = ~((W >= lo) & (W <= hi)).all(axis=1)              # frames already inside are their own
+        if not rows.any():                                         # nearest point: nothing to solve
+            return W.copy()
         Lt = self.range_metric_
-        return solve_bounded(Lt, W @ Lt.T, lo, hi)
+        res = W.copy()
+        res[rows] = solve_bounded(Lt, W[rows] @ Lt.T, lo, hi)
+        return res
 
     def blend(self, weights: np.ndarray) -> np.ndarray:
         """Target meshes ``(T, Vt, 3)`` for key-model weights ``(T, N)`` (Eq. 9-11), one matrix product."""
