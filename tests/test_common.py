@@ -102,7 +102,7 @@ def _cases() -> list[Case]:
     from faceretarget.cloning import CardinalBasis, ExpressionCloner, FeaturePCA, NohNeumannCloner
     from faceretarget.headmotion import HeadMotionDatabase
     from faceretarget.numerics import RigidAligner
-    from faceretarget.retarget import BlendshapeRetargeter, Regions, default_regions
+    from faceretarget.retarget import BlendshapeRetargeter, LandmarkSolver, Regions, default_regions
     from faceretarget.style import (
         AsymmetricBilinearModel,
         ExpressionSliders,
@@ -138,6 +138,9 @@ def _cases() -> list[Case]:
     cases.append(Case("NohNeumannCloner", lambda: NohNeumannCloner(),
                       lambda c: c.fit(demo()[0].neutral, demo()[1].neutral, demo()[0].landmarks, demo()[1].landmarks),
                       lambda c: c.transform(demo()[5][:5])))
+    cases.append(Case("LandmarkSolver", lambda: LandmarkSolver(smooth=0.5),
+                      lambda m: m.fit(demo()[1], demo()[1].neutral.vertices[demo()[1].landmarks] * 100.0),
+                      lambda m: m.transform(demo()[6] * 100.0, np.full((90, demo()[1].n_shapes), 0.1))))
     cases.append(Case("RigidAligner", lambda: RigidAligner(n_auto=6), lambda a: a.fit(_markers()),
                       lambda a: a.transform(_markers(seed=5))))
     cases.append(Case("StyleModel", lambda: StyleModel(variance=0.999, energy=0.999, prior=1.0, local=0),

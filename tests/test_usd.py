@@ -504,3 +504,30 @@ def test_cli_clone_to_usd_with_and_without_bake(tmp_path, capsys):
     W_all = np.array([attr.Get(t) for t in attr.GetTimeSamples()])
     assert W_all.shape == (60, 8)
     assert ("clamps" in log) == bool(((W_all < 0) | (W_all > 1)).any()) and "clamps" not in baked_log
+
+
+def test_audio_is_a_spatial_audio_prim_with_a_sidecar_wav(take, tmp_path):
+    """The soundtrack: ``<name>.wav`` beside the stage, played from time code 0 by a SpatialAudio prim
+    that resolves to it; the samples round-trip to 16-bit precision; the stage still validates."""
+    from pxr import UsdMedia
+    from scipy.io import wavfile
+
+    rig, w, t, head = take
+    rate = 16000
+    n = int((t[-1] - t[0] + 0.5) * rate)
+    audio = 0.5 * np.sin(2 * np.pi * 220 * np.arange(n) / rate)
+    out = write_usd(tmp_path / "talk.usda", rig, w, t, head=head, audio=audio, audio_rate=rate)
+    wav = tmp_path / "talk.wav"
+    r, pcm = wavfile.read(wav)
+    assert r == rate and np.abs(pcm / 32767.0 - audio).max() < 1.0 / 32767
+    stage = Usd.Stage.Open(str(out))
+    prim = UsdMedia.SpatialAudio(stage.GetPrimAtPath("/Face/Audio"))
+    assert prim and prim.GetAuralModeAttr().Get() == UsdMedia.Tokens.nonSpatial
+    assert Path(prim.GetFilePathAttr().Get().resolvedPath) == wav.resolve()
+    assert prim.GetStartTimeAttr().Get() == 0.0
+    assert abs(prim.GetEndTimeAttr().Get() / stage.GetTimeCodesPerSecond() - n / rate) < 1e-4  # usda digits
+    errors, _ = usd_problems(stage)
+    assert not errors, errors
+    with pytest.raises(InvalidDataError, match="non-finite"):
+        write_usd(tmp_path / "bad.usda", rig, w, t, audio=np.full(10, np.nan), audio_rate=rate)
+    assert not (tmp_path / "bad.usda").exists() and not (tmp_path / "bad.wav").exists()

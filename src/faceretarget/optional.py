@@ -22,6 +22,7 @@ EXTRAS: dict[str, str] = {
     "numba": "fast",
     "pxr": "usd",
     "bpy": "blender",
+    "moderngl": "preview",
 }
 
 

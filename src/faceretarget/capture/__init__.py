@@ -26,12 +26,16 @@ from ._capture import (
     track_video,
     write_preview,
 )
-from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
+from ._filters import OneEuroFilter, OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
+from ._points import MEDIAPIPE_68, face_points, mouth_opening
 from ._tracker import FaceTracker, find_model
 from ._warp import PiecewiseAffineWarp
 
 __all__ = [
     "Capture",
+    "MEDIAPIPE_68",
+    "face_points",
+    "mouth_opening",
     "DEFAULT_SMOOTH",
     "track_video",
     "capture_video",
@@ -42,6 +46,7 @@ __all__ = [
     "find_model",
     "OneEuroParams",
     "one_euro",
+    "OneEuroFilter",
     "fill_gaps",
     "neutral_baseline",
     "calibrate_neutral",

@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import InvalidDataError
 from ..numerics import runs
 
-__all__ = ["OneEuroParams", "one_euro", "fill_gaps", "neutral_baseline", "calibrate_neutral"]
+__all__ = ["OneEuroParams", "one_euro", "OneEuroFilter", "fill_gaps", "neutral_baseline", "calibrate_neutral"]
 
 
 @dataclass(frozen=True)
@@ -119,6 +119,85 @@ def one_euro(x: np.ndarray, times: np.ndarray, params: OneEuroParams | None = No
         a = _alpha(p.min_cutoff + p.beta * speed / scale, dt)
         prev = out[i] = prev + a * (x[i] - prev)
     return out
+
+
+class OneEuroFilter:
+    """The One Euro filter of :func:`one_euro` one sample at a time, for a live stream.
+
+    Feeding the samples of a signal one by one gives what :func:`one_euro` gives for the whole
+    signal (the same arithmetic in the same order)::
+
+        f = OneEuroFilter(params, vector_axis=-1, scale=face_width)
+        for t, x in stream:
+            y = f(x, t)
+
+    Parameters
+    ----------
+    params : OneEuroParams, optional
+        Defaults to ``OneEuroParams()``.
+    vector_axis : int, optional
+        Axis of a sample whose Euclidean norm is the speed (see :func:`one_euro`).
+    scale : float
+        The speed is divided by ``scale`` before ``beta`` applies (see :func:`one_euro`).
+    """
+
+    def __init__(self, params: OneEuroParams | None = None, *, vector_axis: int | None = None,
+                 scale: float = 1.0):
+        if not (np.isfinite(scale) and scale > 0):
+            raise InvalidDataError(f"OneEuroFilter: scale must be a positive number, got {scale}")
+        self.params = params or OneEuroParams()
+        self.vector_axis = vector_axis
+        self.scale = float(scale)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the past: the next sample passes through (as after a gap in the signal)."""
+        self._t: float | None = None
+        self._prev = None
+        self._dprev = None
+
+    @property
+    def started(self) -> bool:
+        """True once a sample has been filtered since the last :meth:`reset`."""
+        return self._t is not None
+
+    def __call__(self, x: np.ndarray, t: float) -> np.ndarray:
+        """Filter one sample.
+
+        Parameters
+        ----------
+        x : (...) float
+            The sample (finite), the same shape every call.
+        t : float
+            Its time in seconds, later than the previous sample's.
+
+        Returns
+        -------
+        (...) float64
+            The filtered sample (a new array; the first sample after a reset is passed through).
+        """
+        x = np.array(x, dtype=np.float64)
+        t = float(t)
+        if not np.isfinite(x).all():
+            raise InvalidDataError("OneEuroFilter: the sample holds NaN or infinite values (reset after a gap)")
+        if self._t is None:
+            self._t, self._prev, self._dprev = t, x, np.zeros_like(x)
+            return x.copy()
+        if x.shape != self._prev.shape:
+            raise InvalidDataError(f"OneEuroFilter: sample shape {x.shape} differs from the first sample's "
+                                   f"{self._prev.shape}")
+        dt = t - self._t
+        if not dt > 0:
+            raise InvalidDataError(f"OneEuroFilter: time {t} s does not follow the previous sample's {self._t} s")
+        p = self.params
+        dx = (x - self._prev) / dt
+        self._dprev = self._dprev + _alpha(p.d_cutoff, dt) * (dx - self._dprev)
+        speed = (np.abs(self._dprev) if self.vector_axis is None
+                 else np.linalg.norm(self._dprev, axis=self.vector_axis, keepdims=True))
+        a = _alpha(p.min_cutoff + p.beta * speed / self.scale, dt)
+        self._prev = self._prev + a * (x - self._prev)
+        self._t = t
+        return np.array(self._prev, dtype=np.float64)
 
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import InvalidDataError, OutputError
 from ._support import protect as _protect
-from ._support import run_command
+from ._support import run_alone
 
 __all__ = ["register", "cmd_capture", "cmd_appearance_fit", "cmd_appearance_encode", "main"]
 
@@ -177,10 +177,7 @@ def register(subparsers) -> None:
 
 def main(argv=None) -> int:
     """Run ``capture`` / ``appearance`` alone, with ``faceretarget``'s error conventions."""
-    p = argparse.ArgumentParser(prog="faceretarget", description="Performance capture from video.")
-    p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
-    register(p.add_subparsers(dest="command", required=True))
-    return run_command(p.parse_args(argv))
+    return run_alone(register, argv, "Performance capture from video.")
 
 
 if __name__ == "__main__":  # pragma: no cover

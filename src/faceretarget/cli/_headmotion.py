@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import InvalidDataError, OutputError
 from ._support import protect as _protect
-from ._support import run_command, warnings_to_log
+from ._support import run_alone, warnings_to_log
 
 __all__ = ["register", "cmd_headmotion_build", "cmd_headmotion_synth", "main"]
 
@@ -116,10 +116,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Run ``headmotion`` commands stand-alone (``argv`` starts with ``headmotion``)."""
-    p = argparse.ArgumentParser(prog="faceretarget")
-    p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
-    register(p.add_subparsers(dest="command", required=True))
-    return run_command(p.parse_args(argv))
+    return run_alone(register, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,5 +1,5 @@
-"""Command line: ``faceretarget clone | retarget | keys compose | keys select | capture | appearance |
-style fit | restyle | headmotion build | headmotion synth | demo``.
+"""Command line: ``faceretarget animate | clone | retarget | keys compose | keys select | capture | appearance |
+style fit | restyle | headmotion build | headmotion synth | live | demo``.
 
 Every error a user can act on is printed as one line (``faceretarget: error: ...``) naming the file,
 shape or frame, and the exit code is non-zero (2 for bad input, 1 otherwise).  Outputs are written to a
@@ -312,13 +312,17 @@ def build_parser() -> argparse.ArgumentParser:
     _register_clone(sub)
     _register_keys(sub)
     _register_retarget(sub)
+    from ._animate import register as _register_animate
     from ._capture import register as _register_capture
     from ._headmotion import register as _register_headmotion
+    from ._live import register as _register_live
     from ._style import register as _register_style
 
+    _register_animate(sub)
     _register_capture(sub)
     _register_style(sub)
     _register_headmotion(sub)
+    _register_live(sub)
 
     _register_demo(sub)
     return p

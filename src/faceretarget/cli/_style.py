@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..errors import InvalidDataError, OutputError
 from ._support import protect as _protect
-from ._support import run_command, warnings_to_log
+from ._support import run_alone, warnings_to_log
 
 __all__ = ["register", "cmd_style_fit", "cmd_restyle", "main"]
 
@@ -73,7 +73,7 @@ def _pairs(items, what: str) -> dict[str, str]:
 def cmd_style_fit(args, log) -> int:
     """``style fit``: align takes of one text in several styles and write a :class:`StyleModel`."""
     from ..files import check_output_path
-    from ..pipelines import fit_style, read_style_take
+    from ..pipelines import VIDEO_EXTENSIONS, face_takes, fit_style, read_style_take
 
     takes = _pairs(args.take, "--take")
     audio = _pairs(args.audio, "--audio")
@@ -91,8 +91,15 @@ def cmd_style_fit(args, log) -> int:
     if out.suffix.lower() != ".npz":
         raise OutputError(f"{out}: a style model is written as .npz")
     check_output_path(out)                     # before any work
-    perfs = {k: read_style_take(v, args.fps, audio.get(k)) for k, v in takes.items()}
-    added = {k: read_style_take(v, args.fps, audio.get(k)) for k, v in adds.items()}
+    videos = [Path(v).suffix.lower() in VIDEO_EXTENSIONS for v in [*takes.values(), *adds.values()]]
+    if any(videos) and not all(videos):
+        raise InvalidDataError("give all takes as videos (face takes are captured from them) or none")
+    if all(videos):                             # the actor's 68 face points, sharing the neutral's rest face
+        faces = face_takes({**takes, **adds}, reference=args.reference, log=log)
+        perfs, added = {k: faces[k] for k in takes}, {k: faces[k] for k in adds}
+    else:
+        perfs = {k: read_style_take(v, args.fps, audio.get(k)) for k, v in takes.items()}
+        added = {k: read_style_take(v, args.fps, audio.get(k)) for k, v in adds.items()}
     with warnings_to_log(log):
         model = fit_style(perfs, reference=args.reference, added=added, log=log, variance=args.variance,
                           energy=args.energy, content_dims=args.content_dims, style_dims=args.style_dims,
@@ -201,10 +208,7 @@ def register(subparsers) -> None:
 
 def main(argv=None) -> int:
     """Run ``restyle`` / ``style fit`` on their own (the main ``faceretarget`` program does the same)."""
-    p = argparse.ArgumentParser(prog="faceretarget")
-    p.add_argument("--quiet", "-q", action="store_true")
-    register(p.add_subparsers(dest="command", required=True))
-    return run_command(p.parse_args(argv))
+    return run_alone(register, argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -57,3 +57,14 @@ def run_command(args) -> int:
     except OSError as e:
         print(f"faceretarget: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
         return 1
+
+
+def run_alone(register, argv=None, description: str | None = None) -> int:
+    """Run one module's sub-commands on their own (``python -m faceretarget.cli._capture ...``), with
+    ``faceretarget``'s options and error conventions: ``register(subparsers)`` adds them."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="faceretarget", description=description)
+    p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
+    register(p.add_subparsers(dest="command", required=True))
+    return run_command(p.parse_args(argv))

@@ -34,6 +34,14 @@ from ._keyshapes import (
     write_keyshapes,
 )
 from ._livelinkface import LiveLinkFaceInfo, read_livelinkface, write_livelinkface
+from ._livelinkstream import (
+    LLF_PACKET_VERSION,
+    LLF_PORT,
+    LiveLinkFacePacket,
+    arkit_curve_map,
+    livelinkface_packet,
+    read_livelinkface_packet,
+)
 from ._npz import read_npz_performance, write_npz
 from ._obj import read_obj, read_obj_sequence, read_obj_vertices, write_obj, write_obj_sequence
 from ._registry import (
@@ -58,6 +66,8 @@ __all__ = [
     "read_obj", "read_obj_vertices", "write_obj", "read_obj_sequence", "write_obj_sequence",
     "read_rig", "write_rig", "write_rig_npz", "read_rig_npz",
     "read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo",
+    "livelinkface_packet", "read_livelinkface_packet", "LiveLinkFacePacket", "arkit_curve_map", "LLF_PORT",
+    "LLF_PACKET_VERSION",
     "write_glb", "read_glb_weights", "read_glb_rig", "glb_vertex_order", "write_glb_head", "read_glb_head",
     "write_usd", "usd_prim_names", "USD_FORMATS",
     "write_blend", "write_fbx", "blender_timebase",

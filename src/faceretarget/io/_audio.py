@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import os
 import warnings
+from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError
+from ..errors import InputFileError, InvalidDataError
 from ..files import input_file
 
-__all__ = ["read_audio"]
+__all__ = ["read_audio", "checked_audio", "write_wav"]
 
 
 def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
@@ -74,3 +75,33 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
     if not rate or rate <= 0:
         raise InputFileError(f"{path}: invalid sampling rate {rate}")
     return np.clip(x, -1.0, 1.0), float(rate)
+
+
+def checked_audio(path, audio, audio_rate) -> tuple[np.ndarray, int] | None:
+    """``(samples, integer rate)`` of audio an output file carries, checked (messages name ``path``);
+    None for no audio."""
+    if audio is None:
+        return None
+    a = np.asarray(audio, dtype=np.float64)
+    if a.ndim == 2 and a.shape[0] < a.shape[1] and a.shape[0] <= 8:
+        raise InvalidDataError(f"{path}: audio must be (n,) or (n, channels) samples, got {a.shape} "
+                               "(channels first?)")
+    if a.ndim not in (1, 2) or a.shape[0] == 0 or (a.ndim == 2 and not 1 <= a.shape[1] <= 8):
+        raise InvalidDataError(f"{path}: audio must be (n,) or (n, channels) samples, got {a.shape}")
+    if not np.isfinite(a).all():
+        raise InvalidDataError(f"{path}: the audio holds non-finite samples")
+    if audio_rate is None or not (np.isfinite(audio_rate) and audio_rate > 0):
+        raise InvalidDataError(f"{path}: audio needs a positive audio_rate in Hz, got {audio_rate}")
+    rate = int(round(float(audio_rate)))
+    if abs(rate - float(audio_rate)) > 1e-6 * rate:
+        raise InvalidDataError(f"{path}: a WAV needs an integer sampling rate, got {audio_rate} Hz")
+    return a, rate
+
+
+def write_wav(path: str | os.PathLike, audio: np.ndarray, rate: int) -> Path:
+    """Write samples in [-1, 1] as a 16-bit PCM WAV (clipped), in place; returns the path."""
+    from scipy.io import wavfile
+
+    path = Path(path)
+    wavfile.write(path, int(rate), np.round(np.clip(audio, -1.0, 1.0) * 32767.0).astype(np.int16))
+    return path

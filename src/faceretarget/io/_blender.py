@@ -56,6 +56,7 @@ from ..headpose import HeadPose
 from ..optional import optional_import
 from ..rig import Rig
 from ..timebase import check_times, infer_fps
+from ._audio import checked_audio, write_wav
 from ._gltf import _checked_weights
 
 __all__ = ["write_blend", "write_fbx", "blender_timebase", "BLENDER_AXES", "SLIDER_LIMIT"]
@@ -142,25 +143,6 @@ def _filled_head(path: Path, head: HeadPose, T: int) -> tuple[np.ndarray, np.nda
     return q, tr
 
 
-def _checked_audio(path: Path, audio, audio_rate) -> tuple[np.ndarray, int] | None:
-    if audio is None:
-        return None
-    a = np.asarray(audio, dtype=np.float64)
-    if a.ndim == 2 and a.shape[0] < a.shape[1] and a.shape[0] <= 8:
-        raise InvalidDataError(f"{path}: audio must be (n,) or (n, channels) samples, got {a.shape} "
-                               "(channels first?)")
-    if a.ndim not in (1, 2) or a.shape[0] == 0 or (a.ndim == 2 and not 1 <= a.shape[1] <= 8):
-        raise InvalidDataError(f"{path}: audio must be (n,) or (n, channels) samples, got {a.shape}")
-    if not np.isfinite(a).all():
-        raise InvalidDataError(f"{path}: the audio holds non-finite samples")
-    if audio_rate is None or not (np.isfinite(audio_rate) and audio_rate > 0):
-        raise InvalidDataError(f"{path}: audio needs a positive audio_rate in Hz, got {audio_rate}")
-    rate = int(round(float(audio_rate)))
-    if abs(rate - float(audio_rate)) > 1e-6 * rate:
-        raise InvalidDataError(f"{path}: a WAV needs an integer sampling rate, got {audio_rate} Hz")
-    return a, rate
-
-
 # ------------------------------------------------------------------------------------------ writers
 def write_blend(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.ndarray,
                 names: list[str] | None = None, *, head: HeadPose | None = None,
@@ -234,7 +216,7 @@ def _write(path, kind: str, rig: Rig, weights, times, names, head, audio, audio_
     t = check_times(t, source=str(path))
     lo, hi = _slider_ranges(path, rig, w)
     head_keys = None if head is None else _filled_head(path, head, t.size)
-    sound = _checked_audio(path, audio, audio_rate)
+    sound = checked_audio(path, audio, audio_rate)
     pivot = np.asarray(head_pivot, dtype=np.float64).reshape(-1)
     if pivot.shape != (3,) or not np.isfinite(pivot).all():
         raise InvalidDataError(f"{path}: head_pivot must be 3 finite numbers (metres), got {head_pivot!r}")
@@ -476,12 +458,7 @@ def _head_rig(bpy, scene, obj, action, strip, head_keys, pivot: np.ndarray, fram
 
 
 def _sound_strip(bpy, scene, path: Path, audio_and_rate, scratch: Path) -> None:
-    from scipy.io import wavfile
-
-    a, rate = audio_and_rate
-    pcm = np.round(np.clip(a, -1.0, 1.0) * 32767.0).astype(np.int16)
-    wav = scratch / f"{path.stem}.wav"
-    wavfile.write(wav, rate, pcm)
+    wav = write_wav(scratch / f"{path.stem}.wav", *audio_and_rate)
     editor = scene.sequence_editor_create()
     strips = editor.strips if hasattr(editor, "strips") else editor.sequences
     strip = strips.new_sound("audio", str(wav), 1, 1)

@@ -249,7 +249,8 @@ def _write_usd(path: Path, a: Animation) -> Path:
 
     if a.rig is None or a.weights is None:
         raise OutputError(f"{path}: a USD file needs a rig and weights (blend shapes + animation)")
-    return write_usd(path, a.rig, a.weights, a.times, names=a.names, head=a.head, bake=a.bake)
+    return write_usd(path, a.rig, a.weights, a.times, names=a.names, head=a.head, bake=a.bake, audio=a.audio,
+                     audio_rate=a.audio_rate)
 
 
 def _write_blend(path: Path, a: Animation) -> Path:

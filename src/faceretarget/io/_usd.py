@@ -70,6 +70,7 @@ from ..headpose import HeadPose
 from ..optional import optional_import
 from ..rig import Rig, RigFrames
 from ..timebase import check_times, infer_fps
+from ._audio import checked_audio, write_wav
 from ._gltf import _checked_weights
 
 __all__ = ["write_usd", "USD_FORMATS", "usd_prim_names"]
@@ -153,7 +154,8 @@ def _head_arrays(path: Path, head: HeadPose, T: int) -> tuple[np.ndarray, np.nda
 
 def write_usd(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.ndarray,
               names: list[str] | None = None, *, head: HeadPose | None = None, bake: bool = False,
-              head_pivot: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0)) -> Path:
+              head_pivot: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
+              audio: np.ndarray | None = None, audio_rate: float | None = None) -> Path:
     """Write the rig animated by ``weights`` as a USD stage (module docstring, ``docs/usd.md``).
 
     Parameters
@@ -178,6 +180,12 @@ def write_usd(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
         Write time-sampled ``points`` (the evaluated rig, metres) instead of UsdSkel blend shapes.
     head_pivot : 3 floats
         Rotation centre of the head in the rig's coordinates, metres.
+    audio : (n,) or (n, channels) float, optional
+        The soundtrack (samples in [-1, 1], starting at ``times[0]``): written beside the stage as
+        ``<name>.wav`` (16-bit PCM) and referenced by a ``UsdMedia.SpatialAudio`` prim
+        ``/Face/Audio`` (non-spatial, from time code 0), which Omniverse and usdview play.
+    audio_rate : float, optional
+        Its sampling rate in Hz (an integer rate).
 
     Returns
     -------
@@ -206,6 +214,10 @@ def write_usd(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     if pivot.shape != (3,) or not np.isfinite(pivot).all():
         raise InvalidDataError(f"{path}: head_pivot must be 3 finite numbers (metres), got {head_pivot!r}")
     head_keys = None if head is None else _head_arrays(path, head, t.size)
+    sound = checked_audio(path, audio, audio_rate)
+    wav = path.with_suffix(".wav") if sound is not None else None
+    if wav is not None:
+        check_output_path(wav)
     Sdf = _pxr()[2]
     from pxr import Tf
 
@@ -225,7 +237,8 @@ def write_usd(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
                     layer = Sdf.Layer.CreateNew(str(out))
                 else:  # text is written in one go from memory
                     layer = Sdf.Layer.CreateAnonymous("faceretarget.usda")
-                _author(layer, rig, w, codes, fps, scale, head_keys, pivot, bake)
+                _author(layer, rig, w, codes, fps, scale, head_keys, pivot, bake,
+                        None if wav is None else (wav.name, len(sound[0]) / sound[1]))
                 ok = layer.Save() if crate else layer.Export(str(out))
             except Tf.ErrorException as e:
                 raise OutputError(f"{path}: USD could not write the stage ({str(e).strip()})") from e
@@ -233,13 +246,16 @@ def write_usd(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
                 raise OutputError(f"{path}: USD could not write the stage")
             del layer
             os.replace(out, tmp)
+            if wav is not None:                 # the sidecar first: the stage never names a missing file
+                with atomic_path(wav) as wtmp:
+                    write_wav(wtmp, *sound)
         finally:
             out.unlink(missing_ok=True)
     return path
 
 
 def _author(layer, rig: Rig, w: np.ndarray, codes: np.ndarray, fps: float, scale: float, head_keys,
-            pivot: np.ndarray, bake: bool) -> None:
+            pivot: np.ndarray, bake: bool, sound: tuple[str, float] | None = None) -> None:
     """Build the whole stage in ``layer`` (module docstring)."""
     Gf, Kind, Sdf, Usd, UsdGeom, UsdSkel, Vt = _pxr()
     stage = Usd.Stage.Open(layer)
@@ -261,6 +277,20 @@ def _author(layer, rig: Rig, w: np.ndarray, codes: np.ndarray, fps: float, scale
         _write_baked(stage, layer, parent, rig, w, codes, scale, Sdf, UsdGeom, Vt)
     else:
         _write_skel(stage, layer, parent, rig, w, codes, scale, Gf, Sdf, UsdGeom, UsdSkel, Vt)
+    if sound is not None:
+        _write_audio(stage, root.GetPath(), *sound, fps, Sdf)
+
+
+def _write_audio(stage, parent, wav_name: str, seconds: float, fps: float, Sdf) -> None:
+    """A ``SpatialAudio`` prim playing the sidecar WAV (relative asset path) from time code 0."""
+    from pxr import UsdMedia
+
+    audio = UsdMedia.SpatialAudio.Define(stage, parent.AppendChild("Audio"))
+    audio.CreateFilePathAttr(Sdf.AssetPath(f"./{wav_name}"))
+    audio.CreateAuralModeAttr(UsdMedia.Tokens.nonSpatial)
+    audio.CreatePlaybackModeAttr(UsdMedia.Tokens.onceFromStartToEnd)
+    audio.CreateStartTimeAttr(0.0)
+    audio.CreateEndTimeAttr(float(seconds * fps))
 
 
 def _mesh(stage, mesh_path, rig: Rig, scale: float, Sdf, UsdGeom, Vt):

@@ -10,14 +10,35 @@
 :mod:`._capture`                 :func:`capture_take`, :func:`fit_appearance`, :func:`encode_appearance`
 :mod:`._style`                   :func:`fit_style`, :func:`read_style_take`: emotion models from takes
 :mod:`._head`                    :func:`build_head_database`: a head-motion database from file pairs
+:mod:`._animate`                 :func:`animate`: a video onto a character in one call (Ch. 5): capture,
+                                 emotion, solve, head, write, preview
+:mod:`._preview`                 :func:`write_animation_preview`: the video beside the animated
+                                 character, with its audio (OpenGL through EGL, or NumPy)
+:mod:`._live`                    :func:`run_live`, :class:`LiveSession`: a camera or video frame by
+                                 frame onto a character in a local three.js page (``live``)
+:mod:`._liveserver`              :class:`LiveServer`: the page's HTTP server and WebSocket (stdlib)
 :mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
 ================================ ================================================================
 """
 
+from ._animate import (
+    HEAD_SOURCES,
+    VIDEO_EXTENSIONS,
+    AnimateResult,
+    animate,
+    drives_by_landmarks,
+    face_take,
+    face_takes,
+    parse_emotion,
+    tracked_take,
+)
 from ._capture import capture_take, encode_appearance, fit_appearance, tracked_videos
 from ._demo import run_demo
 from ._head import build_head_database
 from ._keys import SELECTION_ALIASES, KeyGeometry, KeySelection, compose_keys, key_geometry, select_keys
+from ._live import LIVE_LIMITS, LiveFrame, LiveSession, LiveStats, character_glb, run_live
+from ._liveserver import LiveServer
+from ._preview import TakeSampler, write_animation_preview
 from ._style import fit_style, read_style_take
 from ._transfer import (
     CHUNK_FRAMES,
@@ -33,8 +54,11 @@ from ._transfer import (
 )
 
 __all__ = [
+    "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
     "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES",
     "select_keys", "compose_keys", "key_geometry", "KeySelection", "KeyGeometry", "SELECTION_ALIASES",
+    "write_animation_preview", "TakeSampler",
+    "run_live", "LiveSession", "LiveStats", "LiveFrame", "LiveServer", "character_glb", "LIVE_LIMITS",
     "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "fit_style", "read_style_take", "build_head_database", "run_demo",
 ]

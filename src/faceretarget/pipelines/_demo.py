@@ -1,13 +1,20 @@
 """``faceretarget demo``: the main job end to end on the embedded procedural characters.
 
-No data from outside the package is needed.  Source character "ada" performs a take (seeded ARKit
-weight curves); only her 68 landmarks are "captured", with 0.5 mm of Gaussian capture noise.  An
-artist's key-models are stood in for by 20 frames of a separate range-of-motion take chosen by PCA
-extrema and modelled on both characters; the take is cloned onto "bo" (different topology and
-proportions, his own broader smile) with the paper's method and with the package default, and
-compared with the ground truth (bo driven by the same weights).  Writes ``clone.glb`` (bo's
-key-models as morph targets, the take as morph-weight animation), ``preview.png`` and
-``metrics.json``.
+No data from outside the package is needed.  Two parts:
+
+1. The main job, :func:`~faceretarget.pipelines.animate` (the same function as ``faceretarget
+   animate VIDEO``): "ada" performs a take with her head moving; what a video tracker would give is
+   stood in for by her 68 landmarks as a camera sees them (head motion, 1 px = 1/400 of her face
+   scale, 0.5 mm of noise) and her weights with noise as the tracker's scores.  ``animate`` drives
+   "bo"'s own shapes from the landmarks and writes ``animate.glb`` (face and head) and
+   ``preview.mp4`` (ada rendered as the input video beside bo; needs PyAV, ``make demo`` installs
+   it), and the result is compared with bo driven by ada's true weights.
+2. Example-based cloning on the same characters: only ada's 68 landmarks are "captured" (0.5 mm
+   of noise); an artist's key-models are stood in for by 20 frames of a separate range-of-motion
+   take (pivoted QR) modelled on both characters; the take is cloned onto bo (different topology
+   and proportions, his own broader smile) with the paper's method and the package default, and
+   compared with the ground truth.  Writes ``clone.glb`` (bo's key-models as morph targets),
+   ``preview.png`` and ``metrics.json``.
 """
 
 from __future__ import annotations
@@ -22,11 +29,70 @@ import numpy as np
 from ..cloning import ExpressionCloner, keymodel_pair
 from ..datasets import add_capture_noise, demo_vertex_colors, make_demo_character, make_demo_take
 from ..files import atomic_path
+from ..headpose import HeadPose
 from ..io import write_glb
 from ..metrics import metrics
+from ..performance import Performance
 from ..render import render_frames, render_grid, save_png
 
 __all__ = ["run_demo"]
+
+
+def _demo_head(times: np.ndarray) -> HeadPose:
+    """A nod and a turn (degrees: yaw 12, pitch 6, roll 3) and a small sway (metres)."""
+    ang = np.c_[12 * np.sin(2 * np.pi * times / 3.1), 6 * np.sin(2 * np.pi * times / 1.7 + 1), 3 * np.sin(times)]
+    tr = np.c_[0.01 * np.sin(times), 0.005 * np.sin(1.3 * times), np.zeros_like(times)]
+    return HeadPose.from_euler("YXZ", ang, tr, degrees=True, source="demo head")
+
+
+def _tracked_demo(ada, take, src: np.ndarray, head: HeadPose, noise_mm: float) -> Performance:
+    """What a video tracker gives of ada: her 68 landmarks seen by a camera (head motion, pixels, white
+    noise) and her weights with noise as the tracker's scores."""
+    rng = np.random.default_rng(11)
+    X = add_capture_noise(src[:, ada.landmarks], noise_mm, ada.unit, seed=0)
+    pivot = ada.neutral.vertices.mean(axis=0)
+    R = head.as_matrix()
+    px = 400.0 / np.ptp(ada.neutral.vertices[:, 0])            # ada's face 400 px wide
+    m = 1000.0 / ada.mm_per_unit                                 # metres -> rig units
+    P = px * (np.einsum("tij,tpj->tpi", R, X - pivot) + pivot + m * head.translation[:, None])
+    scores = np.clip(take.weights + rng.normal(0, 0.03, take.weights.shape), 0.0, 1.0)
+    return Performance(take.times, take.fps, points=P, labels=[f"lm{i}" for i in range(68)], unit="px",
+                       weights=scores, names=list(take.names), head=head, source="ada (tracked)")
+
+
+def _source_video(path: Path, ada, src: np.ndarray, head: HeadPose, fps: float, size: int) -> None:
+    """ada's take rendered with her head moving, as the "input video" of the preview."""
+    from ..io import write_video
+    from ..render import MeshRenderer
+
+    with MeshRenderer(ada.neutral, (size, size), color=demo_vertex_colors("ada"),
+                      mm_per_unit=ada.mm_per_unit) as r:
+        R, T = head.as_matrix(), head.translation
+        write_video(path, (r.render(src[i], R[i], T[i]) for i in range(len(src))), fps)
+
+
+def _main_job(out: Path, ada, bo, take, src, truth, noise_mm: float, log) -> dict:
+    """The main job (:func:`animate`) on the procedural take, compared with the ground truth."""
+    from ._animate import animate
+
+    head = _demo_head(take.times - take.times[0])
+    tracked = _tracked_demo(ada, take, src, head, noise_mm)
+    try:
+        import av  # noqa: F401  (the preview video needs PyAV)
+        video = out / "ada_input.mp4"
+        _source_video(video, ada, src, head, take.fps, 384)
+        preview = out / "preview.mp4"
+    except ImportError:
+        video = preview = None
+        log("no preview video: PyAV is missing (pip install 'faceretarget[preview]'; make demo installs it)")
+    res = animate(tracked, bo, out=out / "animate.glb", preview=preview, preview_size=384,
+                  preview_video=video, log=log)
+    pred = bo.evaluate(res.weights)
+    m = metrics(pred, truth, bo.neutral.vertices, bo)
+    log(f"animate ada -> bo (bo's own shapes from the tracked landmarks, against bo driven by ada's true "
+        f"weights): rel_motion {m['rel_motion_pct']:.2f} %, mean vertex error {m['mve_mm']:.3f} mm, lips "
+        f"{m['lve_mm']:.2f} mm; mouth correlation {res.mouth_corr:.3f}")
+    return {k: float(v) for k, v in m.items()} | {"mouth_corr": res.mouth_corr}
 
 
 def run_demo(out: Path, log=print, noise_mm: float = 0.5) -> int:
@@ -37,12 +103,13 @@ def run_demo(out: Path, log=print, noise_mm: float = 0.5) -> int:
     rom = make_demo_take(seconds=40.0, fps=30.0, seed=1)
     take = make_demo_take(seconds=6.0, fps=30.0, seed=7)
     log(f"characters: ada {ada.n_vertices} vertices, bo {bo.n_vertices} vertices, {ada.n_shapes} ARKit shapes each")
-    sk, tk, _ = keymodel_pair(ada, bo, "rom-20", rom=rom)
-    log(f"key-models: 20 frames of a {rom.duration:.0f} s range-of-motion take (pivoted QR), on both characters")
     src = ada.evaluate(ada.map_weights(take.names, take.weights, warn=False))
     truth = bo.evaluate(bo.map_weights(take.names, take.weights, warn=False))
+    log(f"performance: {take.n_frames} frames at {take.fps:g} fps")
+    summary = {"animate": _main_job(out, ada, bo, take, src, truth, noise_mm, log)}
+    sk, tk, _ = keymodel_pair(ada, bo, "rom-20", rom=rom)
+    log(f"key-models: 20 frames of a {rom.duration:.0f} s range-of-motion take (pivoted QR), on both characters")
     captured = add_capture_noise(src[:, ada.landmarks], noise_mm, ada.unit, seed=0)
-    log(f"performance: {take.n_frames} frames at {take.fps:g} fps, 68 landmarks with {noise_mm} mm capture noise")
     rows, results = [], {}
     for method in ("pyun", "linear", "temporal"):
         with warnings.catch_warnings():
@@ -54,8 +121,8 @@ def run_demo(out: Path, log=print, noise_mm: float = 0.5) -> int:
         results[method] = {"weights": w, "pred": pred, "metrics": m}
         rows.append(f"  {method:9s} rel_motion {m['rel_motion_pct']:6.2f} %   err (Eq. 12) {m['err_pct']:.4f} %   "
                     f"mean vertex error {m['mve_mm']:.3f} mm   lips {m['lve_mm']:.2f} mm")
-    log("cloning ada -> bo, against ground truth (share of the motion that is wrong; oracle floor "
-        f"{results['temporal']['metrics']['oracle_rel_motion_pct']:.2f} %):")
+    log("cloning ada -> bo through key-models, against ground truth (share of the motion that is wrong; oracle "
+        f"floor {results['temporal']['metrics']['oracle_rel_motion_pct']:.2f} %):")
     for r in rows:
         log(r)
     best = results["temporal"]
@@ -72,7 +139,7 @@ def run_demo(out: Path, log=print, noise_mm: float = 0.5) -> int:
               + ["bo: faceretarget"] * len(frames) + ["bo: ground truth"] * len(frames))
     sheet = render_grid(src_imgs + pyun_imgs + our_imgs + gt_imgs, labels, cols=len(frames))
     save_png(out / "preview.png", sheet)
-    summary = {m: {k: float(v) for k, v in r["metrics"].items()} for m, r in results.items()}
+    summary |= {m: {k: float(v) for k, v in r["metrics"].items()} for m, r in results.items()}
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=2))
     log(f"wrote {glb}, {out / 'preview.png'}, {out / 'metrics.json'} in {time.perf_counter() - t0:.1f} s")

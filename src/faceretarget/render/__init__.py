@@ -1,5 +1,7 @@
-"""Preview rendering with no system dependencies: see :mod:`faceretarget.render.preview`."""
+"""Preview rendering: the NumPy rasteriser (no system dependencies) and :class:`MeshRenderer`, the fast
+OpenGL (EGL) path for preview videos that falls back to it."""
 
+from ._gl import GL_PACKAGES, MeshRenderer, gl_available
 from ._preview import (
     DEFAULT_BACKGROUND,
     DEFAULT_COLOR,
@@ -15,6 +17,9 @@ from ._preview import (
 )
 
 __all__ = [
+    "MeshRenderer",
+    "gl_available",
+    "GL_PACKAGES",
     "Camera",
     "fit_camera",
     "view_rotation",

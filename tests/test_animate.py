@@ -1,0 +1,299 @@
+"""The main job: a video onto a character (``animate``), and the landmark solve under it."""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from faceretarget.capture import MEDIAPIPE_68, face_points, mouth_opening
+from faceretarget.errors import InvalidDataError
+from faceretarget.pipelines import drives_by_landmarks, parse_emotion
+from faceretarget.retarget import LandmarkSolver, neutral_face, similarity_fit
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+REQUIRE = os.environ.get("FACERETARGET_REQUIRE_DATA") == "1"
+
+
+def _need(path: Path) -> Path:
+    if not path.exists():
+        if REQUIRE:
+            pytest.fail(f"{path} missing (FACERETARGET_REQUIRE_DATA=1)")
+        pytest.skip(f"{path} not available")
+    return path
+
+
+@pytest.fixture(scope="module")
+def arkit():
+    from faceretarget.io import read_rig
+
+    return read_rig(_need(DATA / "arkit-face"))
+
+
+def _take(rig, T=120, seed=0):
+    """Sparse weights in [0, 1] of the rig's shapes and its 68 landmarks under a moving head, as an
+    actor of another size seen by a camera (pixels, +Y up)."""
+    rng = np.random.default_rng(seed)
+    W = np.zeros((T, rig.n_shapes))
+    for k in rng.choice(rig.n_shapes, 12, replace=False):
+        W[:, k] = np.clip(np.sin(np.linspace(0, rng.uniform(2, 6), T) + rng.uniform(0, 6)), 0, None) * rng.uniform(.3, 1)
+    W[: T // 10] = 0.0                                     # a neutral start
+    X = rig.evaluate(W, rig.landmarks)
+    R = Rotation.from_rotvec(np.c_[0.2 * np.sin(np.arange(T) / 11), 0.3 * np.sin(np.arange(T) / 17), 0.05 * np.ones(T)])
+    s = 4000.0 * (1 + 0.1 * np.sin(np.arange(T) / 23))    # metres -> pixels, varying distance
+    P = s[:, None, None] * np.einsum("tij,tpj->tpi", R.as_matrix(), X) + np.array([256.0, 240.0, 0.0])
+    return W, X, P
+
+
+def test_mediapipe_68_table_is_a_valid_landmark_map():
+    assert MEDIAPIPE_68.shape == (68,) and len(set(MEDIAPIPE_68.tolist())) == 68
+    assert MEDIAPIPE_68.min() >= 0 and MEDIAPIPE_68.max() < 468
+    # the symmetric pairs of the Multi-PIE layout are MediaPipe's mirrored points (outer eye corners,
+    # mouth corners) and the midline holds the chin, nose tip and lip middles
+    assert (MEDIAPIPE_68[[36, 45, 48, 54, 8, 30, 62, 66]] == [33, 263, 61, 291, 152, 4, 13, 14]).all()
+    L = np.zeros((2, 478, 3))
+    L[:, :, 1] = 10.0
+    L[:, :, 2] = 3.0
+    P = face_points(L)
+    assert P.shape == (2, 68, 3) and (P[..., 1] == -10).all() and (P[..., 2] == -3).all()
+    with pytest.raises(InvalidDataError, match="478"):
+        face_points(np.zeros((5, 468, 3)))
+
+
+def test_similarity_fit_recovers_scale_rotation_translation():
+    rng = np.random.default_rng(1)
+    Y = rng.normal(size=(13, 3))
+    R = Rotation.random(4, random_state=2).as_matrix()
+    s = np.array([0.5, 1.0, 2.0, 30.0])
+    c = rng.normal(size=(4, 3))
+    X = s[:, None, None] * np.einsum("tij,sj->tsi", R, Y) + c[:, None]
+    s2, R2, c2 = similarity_fit(Y, X)
+    assert np.allclose(s2, s, rtol=1e-10) and np.allclose(R2, R, atol=1e-10) and np.allclose(c2, c, atol=1e-9)
+
+
+def test_landmark_solver_recovers_the_rigs_own_weights_under_head_motion(arkit):
+    W, X, P = _take(arkit)
+    n0 = neutral_face(P, W)                                # the tracker's scores find the rest frames
+    sol = LandmarkSolver(prior=0.0).fit(arkit, n0)
+    r = sol.transform(P)
+    assert r.weights.shape == W.shape and r.weights.min() >= 0 and r.weights.max() <= 1
+    # the solved face reproduces the landmark motion (head motion, scale and the actor-to-character map removed)
+    motion = X - arkit.neutral.vertices[arkit.landmarks]
+    err = arkit.evaluate(r.weights, arkit.landmarks) - X
+    rel = np.linalg.norm(err) / np.linalg.norm(motion)
+    assert rel < 0.005, rel                                # measured 0.1 %
+    assert np.abs(r.weights - W).max() < 0.02              # measured 0.003
+    corr = np.corrcoef(mouth_opening(X), mouth_opening(arkit.evaluate(r.weights, arkit.landmarks)))[0, 1]
+    assert corr > 0.999
+    # with the tracker's scores as prior (here the truth, noisy), shapes the landmarks do not see follow it
+    eyes = [i for i, n in enumerate(arkit.names) if n.startswith("eyeLook")]
+    prior = np.clip(W + np.random.default_rng(3).normal(0, 0.02, W.shape), 0, 1)
+    r2 = LandmarkSolver(prior=0.1).fit(arkit, n0).transform(P, prior)
+    assert np.abs(r2.weights[:, eyes] - W[:, eyes]).max() < 0.1
+    assert np.linalg.norm(arkit.evaluate(r2.weights, arkit.landmarks) - X) / np.linalg.norm(motion) < 0.05
+
+
+def test_landmark_solver_errors_name_the_problem(arkit):
+    _, _, P = _take(arkit, T=20)
+    with pytest.raises(InvalidDataError, match="68"):
+        LandmarkSolver().fit(arkit, P[0, :60])
+    sol = LandmarkSolver().fit(arkit, P[0])
+    bad = P.copy()
+    bad[7, 3] = np.nan
+    with pytest.raises(InvalidDataError, match="frame 7"):
+        sol.transform(bad)
+    with pytest.raises(InvalidDataError, match="prior"):
+        sol.transform(P, np.zeros((20, 3)))
+    with pytest.raises(InvalidDataError, match="prior must be a finite"):
+        LandmarkSolver(prior=-1).fit(arkit, P[0])
+
+
+def test_neutral_face_takes_closed_lips_at_rest(arkit):
+    W, X, P = _take(arkit)
+    jaw = arkit.names.index("jawOpen")
+    W2 = W.copy()
+    W2[:, jaw] = 0.3                                         # mouth open everywhere but the first frames
+    W2[:5, :] = 0.0
+    X2 = arkit.evaluate(W2, arkit.landmarks)
+    n0 = neutral_face(X2 * 1000.0, share=0.05)
+    rest = arkit.neutral.vertices[arkit.landmarks] * 1000.0
+    s, R, c = similarity_fit(rest, n0[None])
+    fitted = s[0] * rest @ R[0].T + c[0]
+    assert np.abs(fitted - n0).max() < 1e-6 * np.abs(n0).max()
+
+
+def test_parse_emotion_constants_curves_and_errors(tmp_path):
+    assert parse_emotion("angry:0.6") == {"angry": 0.6}
+    assert parse_emotion("angry:0.6, happy:0.2") == {"angry": 0.6, "happy": 0.2}
+    f = tmp_path / "curve.txt"
+    f.write_text("# t emotion amount\n0 angry 0\n1.5 angry 0.8\n2.0 sad 0.5\n")
+    assert parse_emotion(str(f)) == {"angry": [(0.0, 0.0), (1.5, 0.8)], "sad": [(2.0, 0.5)]}
+    with pytest.raises(InvalidDataError, match="outside"):
+        parse_emotion("angry:1.5")
+    with pytest.raises(InvalidDataError, match="EMOTION:AMOUNT"):
+        parse_emotion("angry:lots")
+    f.write_text("0 angry\n")
+    with pytest.raises(InvalidDataError, match="line 1"):
+        parse_emotion(str(f))
+    with pytest.raises(InvalidDataError, match="not in the style model"):
+        parse_emotion("bored:0.5", styles=["neutral", "angry"])
+
+
+def test_which_characters_are_driven_by_their_own_shapes(arkit):
+    assert drives_by_landmarks(arkit)
+    from faceretarget.datasets import make_demo_character
+
+    assert drives_by_landmarks(make_demo_character("bo"))
+
+
+# ------------------------------------------------------------------------------------ real video
+@pytest.fixture(scope="module")
+def aoc_capture():
+    pytest.importorskip("mediapipe") if not REQUIRE else None
+    from faceretarget.pipelines import capture_take
+
+    video = _need(DATA / "video" / "WDA_AOC_000.mp4")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return capture_take(video, max_frames=100, neutral_percentile=5.0)
+
+
+def test_animate_a_real_video_follows_the_mouth_and_the_head(arkit, aoc_capture, tmp_path):
+    from faceretarget.io import read_head_motion
+    from faceretarget.pipelines import animate
+
+    out = tmp_path / "aoc.glb"
+    r = animate(aoc_capture, arkit, out=out)
+    assert out.is_file() and r.weights.shape == (100, arkit.n_shapes)
+    assert r.weights.min() >= 0 and r.weights.max() <= 1
+    assert r.mouth_corr > 0.9, r.mouth_corr
+    # the head in the file is the tracked one (about its rest pose) to well under a degree
+    head = read_head_motion(out).head
+    tracked = r.capture.head[r.capture.valid].rotation
+    rel = tracked.mean().inv() * tracked
+    err = np.degrees((head.rotation.inv() * rel).magnitude())
+    assert np.median(err) < 1.0 and rel.magnitude().max() > np.radians(2)   # the head does move
+    # half the amplitude halves the angles; no head leaves the file without one
+    r2 = animate(aoc_capture, arkit, head_amplitude=0.5)
+    assert np.allclose(r2.head.rotation.magnitude(), 0.5 * r.head.rotation.magnitude(), atol=1e-9)
+    assert animate(aoc_capture, arkit, head="off").head is None
+
+
+def test_animate_cli_checks_outputs_before_any_work(tmp_path, capsys):
+    from faceretarget.cli import main
+
+    video = _need(DATA / "video" / "WDA_AOC_000.mp4")
+    rig = _need(DATA / "arkit-face")
+    assert main(["animate", str(video), "--character", str(rig), "--out", str(tmp_path / "x.xyz")]) == 2
+    assert "unknown output format" in capsys.readouterr().err
+    assert main(["animate", str(video), "--character", str(rig), "--out", str(tmp_path / "x.glb"),
+                 "--emotion", "angry:0.5"]) == 2
+    assert "needs a style model" in capsys.readouterr().err
+    assert main(["animate", str(video), "--character", str(rig), "--out", str(video)]) == 2
+    assert not (tmp_path / "x.glb").exists()
+
+
+def test_new_speech_retimes_the_animation_by_dtw(arkit, aoc_capture, tmp_path):
+    """New speech: the video's own speech played 1.25 times slower (pitch kept); the animation must
+    follow the known warp."""
+    from scipy.io import wavfile
+
+    from faceretarget.pipelines import animate, tracked_take
+    from faceretarget.style import resample, time_warp_audio
+
+    take = tracked_take(aoc_capture)
+    x = np.asarray(take.audio, dtype=np.float64).reshape(len(take.audio), -1).mean(axis=1)
+    rate = take.audio_rate
+    slow = 1.25
+    y = time_warp_audio(x, rate, lambda t: np.asarray(t) / slow, duration=slow * len(x) / rate)
+    wav = tmp_path / "slow.wav"
+    wavfile.write(wav, int(rate), (np.clip(y, -1, 1) * 32767).astype(np.int16))
+    r0 = animate(take, arkit)
+    r = animate(take, arkit, speech=wav)
+    assert abs(r.times[-1] - slow * (take.times[-1] - take.times[0])) < 0.1
+    assert len(r.audio) == len(y)
+    expect = resample(r0.weights, r0.times, take.times[0] + r.times / slow)
+    jaw = arkit.names.index("jawOpen")
+    err = np.abs(r.weights[:, jaw] - expect[:, jaw]).mean() / max(np.abs(r0.weights[:, jaw] - r0.weights[:, jaw].mean()).mean(), 1e-9)
+    assert err < 0.1, err                                   # measured 0.03 of the jaw's own variation
+    assert np.corrcoef(r.weights[:, jaw], expect[:, jaw])[0, 1] > 0.98      # measured 0.999 (0.17 unwarped)
+
+
+@pytest.fixture(scope="module")
+def mead_style():
+    from faceretarget.pipelines import face_takes, fit_style
+
+    mead = DATA / "emotion-video" / "mead"
+    vids = {e: _need(mead / f"M030_front_{e}_level{1 if e == 'neutral' else 3}_001.mp4")
+            for e in ("neutral", "angry", "happy")}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        takes = face_takes(vids)
+        return fit_style(takes, reference="neutral"), takes
+
+
+def test_face_takes_share_the_reference_neutral(mead_style):
+    _, takes = mead_style
+    from faceretarget.retarget import neutral_face
+
+    # in the normalised face frame the eye corners are 90 mm apart on the neutral take's rest face ...
+    n = neutral_face(takes["neutral"].points)
+    assert abs(np.linalg.norm(n[36] - n[45]) - 90.0) < 2.0
+    # ... and the angry take keeps its emotion against that rest face: its brows sit lower
+    brow = lambda p: (p[:, 17:27, 1].mean(axis=1) - p[:, 36:48, 1].mean(axis=1)).mean()  # noqa: E731
+    assert brow(takes["angry"].points) < brow(takes["neutral"].points)
+
+
+def test_emotion_blends_restyled_solves_by_alpha_and_keeps_the_lip_sync(arkit, aoc_capture, mead_style, tmp_path):
+    from faceretarget.pipelines import animate
+
+    style, _ = mead_style
+    r0 = animate(aoc_capture, arkit)
+    r = animate(aoc_capture, arkit, emotion="angry:0.6", style=style)
+    assert r.weights.min() >= 0 and r.weights.max() <= 1
+    assert np.abs(r.weights - r0.weights).mean() > 0.01       # the face changed ...
+    assert r.mouth_corr > 0.9, r.mouth_corr                   # ... and still speaks the same (0.98 measured)
+    # a curve that is 0 until 1 s leaves those frames exactly as without emotion (Eq. 5.1)
+    curve = tmp_path / "curve.txt"
+    curve.write_text("0 angry 0\n1.0 angry 0\n2.0 angry 1\n")
+    rc = animate(aoc_capture, arkit, emotion=str(curve), style=style)
+    early = r0.times - r0.times[0] <= 1.0
+    assert np.allclose(rc.weights[early], r0.weights[early], atol=1e-12)
+    assert not np.allclose(rc.weights[~early], r0.weights[~early], atol=1e-3)
+    late = r0.times - r0.times[0] >= 2.0
+    assert np.allclose(rc.alpha[late, 0], 1.0)
+
+
+def test_a_character_without_arkit_shapes_goes_through_keyshape_pairs(arkit, aoc_capture):
+    """Source keys: 20 frames of the face take (68 points); target keys: the character at those
+    frames (what an artist would model).  The keyshape route must play nearly what the character's
+    own shapes give, and a character without ARKit shapes and without keys is refused by name."""
+    from faceretarget.mesh import Mesh
+    from faceretarget.pipelines import animate, face_take, tracked_take
+    from faceretarget.retarget import neutral_face as nf
+    from faceretarget.rig import Rig
+
+    take = tracked_take(aoc_capture)
+    direct = animate(take, arkit)
+    plain = Rig(arkit.neutral, [f"s{i}" for i in range(arkit.n_shapes)], arkit.deltas, arkit.unit,
+                arkit.landmarks, name="no-arkit-names")
+    with pytest.raises(InvalidDataError, match="no-arkit-names.*keyshape pairs"):
+        animate(take, plain)
+    ft = face_take(take)
+    frames = np.linspace(0, take.n_frames - 1, 20).astype(int)
+    n0 = nf(ft.points)
+    sk = Rig(Mesh(n0), [f"k{i}" for i in frames], ft.points[frames] - n0, "mm", name="source-keys")
+    tk = Rig(plain.neutral, list(sk.names), plain.evaluate(direct.weights[frames]) - plain.neutral.vertices,
+             plain.unit, plain.landmarks, name="target-keys")
+    r = animate(take, plain, source_keys=sk, target_keys=tk)
+    assert r.weights.shape == (take.n_frames, 20) and r.names == sk.names
+    played = tk.evaluate(r.weights, tk.landmarks)
+    want = arkit.evaluate(direct.weights, arkit.landmarks)
+    motion = want - arkit.neutral.vertices[arkit.landmarks]
+    rel = np.linalg.norm(played - want) / np.linalg.norm(motion)
+    assert rel < 0.5, rel                                  # measured 0.39 (20 keys of 100 frames, NNLS)
+    assert r.mouth_corr > 0.95, r.mouth_corr                # measured 0.98
