@@ -622,3 +622,27 @@ def test_cli_errors(data_dir, tmp_path, capsys):
     rc = _cli(["headmotion", "build", "--take", str(silent), str(motion), "--out", str(motion)])
     assert rc == 2 and "refusing to write over the input" in capsys.readouterr().err
     assert motion.read_bytes() == before
+
+
+def test_speech_and_motion_of_different_lengths_are_refused(data_dir, tmp_path, capsys):
+    """issue 14: an 8 s WAV beside a 69 s BVH (or another take's audio) built a database silently."""
+    from faceretarget.cli import main
+    from faceretarget.errors import DataWarning
+    from faceretarget.io import read_head_take
+
+    hm = data_dir / "headmotion"
+    bvh = hm / "zeggs_067_Speech_2_x_1_0.bvh"
+    short = tmp_path / "short.wav"
+    rate, x = wavfile.read(hm / "zeggs_067_Speech_2_x_1_0.wav")
+    wavfile.write(short, rate, x[: 8 * rate])
+    with pytest.raises(InvalidDataError, match=r"short.wav lasts 8.00 s but its head motion .*68.83 s.*allow-mismatch"):
+        read_head_take(short, bvh)
+    with pytest.raises(InvalidDataError, match="not the same take"):            # another take's speech
+        read_head_take(hm / "beat_2_scott_0_1_1.wav", bvh)
+    with pytest.warns(DataWarning, match="not the same take"):
+        take = read_head_take(short, bvh, allow_mismatch=True)
+    assert take.n_frames == 2065
+    read_head_take(hm / "beat_2_scott_0_1_1.wav", hm / "beat_2_scott_0_1_1.bvh")   # 64.10 vs 63.80 s: fine
+    out = tmp_path / "db.npz"
+    assert main(["-q", "headmotion", "build", "--take", str(short), str(bvh), "--out", str(out)]) == 2
+    assert "not the same take" in capsys.readouterr().err and not out.exists()

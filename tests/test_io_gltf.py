@@ -174,3 +174,58 @@ def test_ict_rig_2000_frames(ict_rig, data_dir, tmp_path):
     diag = np.linalg.norm(g.neutral.vertices.max(0) - g.neutral.vertices.min(0))
     assert 0.15 < diag < 0.6  # a human face in metres
     validate(out)
+
+
+def test_point_set_keys_write_a_valid_points_primitive(tmp_path):
+    """Keyshapes exported from markers are point sets (no faces): the .glb holds a POINTS primitive
+    (mode 0, no indices) with the morph targets, the Khronos validator accepts it, and it reads back."""
+    rng = np.random.default_rng(5)
+    pts = Mesh(rng.normal(size=(12, 3)) * 30.0, name="markers")
+    rig = Rig(pts, ["frame_00010", "frame_00042"], rng.normal(size=(2, 12, 3)), unit="mm", name="markers")
+    w = rng.random((25, 2))
+    out = write_glb(tmp_path / "points.glb", rig, w, np.arange(25) / 60.0)
+    report = validate(out)
+    assert report["issues"]["numErrors"] == 0
+    g = read_glb_rig(out)
+    assert g.neutral.n_faces == 0 and g.names == rig.names
+    np.testing.assert_allclose(g.neutral.vertices, rig.neutral.vertices / 1000, atol=1e-6)
+    np.testing.assert_allclose(g.deltas, rig.deltas / 1000, atol=1e-6)
+    names, _, back = read_glb_weights(out)
+    np.testing.assert_array_equal(back, w.astype(np.float32))
+
+
+def test_readme_marker_keys_command_writes_a_valid_glb(data_dir, tmp_path):
+    """The README's marker route (issue 14): keys select on Jaw.c3d, the same point sets as the
+    'artist's' target keys, retarget Cheeks.c3d to .glb: the validator accepts the file."""
+    import shutil as sh
+
+    from faceretarget.cli import main
+
+    jaw, cheeks = data_dir / "facial-mocap" / "Jaw.c3d", data_dir / "facial-mocap" / "Cheeks.c3d"
+    keys = tmp_path / "jaw_keys"
+    assert main(["-q", "keys", "select", "--performance", str(jaw), "--k", "8", "--out", str(keys)]) == 0
+    target = tmp_path / "target_keys"
+    sh.copytree(keys, target)
+    out = tmp_path / "t.glb"
+    assert main(["-q", "retarget", "--performance", str(cheeks), "--source-keys", str(keys),
+                 "--target-keys", str(target), "--out", str(out)]) == 0
+    validate(out)
+    assert read_glb_rig(out).neutral.n_faces == 0
+
+
+@pytest.mark.parametrize("ext", [".glb", ".npz", ".csv", ".usda"])
+def test_no_writer_accepts_non_finite_values(ext, tmp_path):
+    """issue 14: output sanity at the writer, one place for every format."""
+    from faceretarget.errors import InvalidDataError
+    from faceretarget.io import write_animation
+
+    rig = _seam_rig()
+    w = np.random.default_rng(1).random((10, 3))
+    w[4, 1] = np.nan
+    out = tmp_path / f"x{ext}"
+    with pytest.raises(InvalidDataError, match=r"weights hold a non-finite value at frame 4 \('eyeBlinkLeft'\)"):
+        write_animation(out, rig=rig, weights=w, times=np.arange(10) / 30.0)
+    assert not out.exists()
+    with pytest.raises(InvalidDataError, match="times must be finite"):
+        write_animation(out, rig=rig, weights=np.zeros((10, 3)), times=np.r_[np.arange(9) / 30.0, np.inf])
+    assert not out.exists()

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from faceretarget.errors import InputFileError, InvalidDataError
+from faceretarget.errors import DataWarning, InputFileError, InvalidDataError
 from faceretarget.headpose import HeadPose
 from faceretarget.io import read_livelinkface, write_livelinkface
 from faceretarget.io._livelinkface import EYE_COLUMNS, HEAD_COLUMNS, LLF_NAMES
@@ -212,3 +212,80 @@ def test_not_a_live_link_face_csv(tmp_path):
         read_livelinkface(p)
     with pytest.raises(InputFileError, match=r"missing\.csv: file not found"):
         read_livelinkface(tmp_path / "missing.csv")
+
+
+# ---------------------------------------------------------------------- takes that drive nothing (issue 14)
+def _csv_with_header(data_dir, tmp_path, edit, rows=30):
+    lines = (data_dir / "livelinkface" / "S07-001.csv").read_text().splitlines()[: rows + 1]
+    header = lines[0].split(",")
+    header, keep = edit(header)
+    body = [",".join(c for j, c in enumerate(line.split(",")) if j in keep) for line in lines[1:]]
+    out = tmp_path / "edited.csv"
+    out.write_text(",".join(header) + "\n" + "\n".join(body) + "\n")
+    return out
+
+
+def test_a_csv_without_curves_is_an_error(data_dir, tmp_path):
+    from faceretarget.errors import InputFileError
+
+    def only_head(h):
+        keep = [0, 1] + [j for j, c in enumerate(h) if c.startswith("Head")]
+        return [h[j] for j in keep], set(keep)
+
+    with pytest.raises(InputFileError, match="no blendshape curve columns.*drive nothing"):
+        read_livelinkface(_csv_with_header(data_dir, tmp_path, only_head))
+
+    def unknown(h):
+        return [c if j < 2 or c.startswith(("Head", "LeftEye", "RightEye")) else f"col{j}" for j, c in enumerate(h)], \
+            set(range(len(h)))
+
+    with pytest.raises(InputFileError, match="none of its .* curve columns is an ARKit blendshape"):
+        read_livelinkface(_csv_with_header(data_dir, tmp_path, unknown))
+
+
+def test_a_missing_standard_curve_is_a_warning_naming_it(data_dir, tmp_path):
+    def no_jaw(h):
+        keep = [j for j, c in enumerate(h) if c != "JawOpen"]
+        return [h[j] for j in keep], set(keep)
+
+    with pytest.warns(DataWarning, match=r"1 of the 52 ARKit curves are missing.*jawOpen"):
+        perf = read_livelinkface(_csv_with_header(data_dir, tmp_path, no_jaw))
+    assert "jawOpen" not in perf.names and len(perf.names) == 51
+
+
+def test_prefixed_curve_names_are_mapped(data_dir, tmp_path):
+    ref = read_livelinkface(data_dir / "livelinkface" / "S07-001.csv")
+
+    def prefixed(h):
+        return [c if j < 2 or c.startswith(("Head", "LeftEye", "RightEye")) else f"blendshape_{c}"
+                for j, c in enumerate(h)], set(range(len(h)))
+
+    import warnings as w
+
+    with w.catch_warnings():
+        w.simplefilter("error")                 # all 52 found: no warning at all
+        perf = read_livelinkface(_csv_with_header(data_dir, tmp_path, prefixed))
+    assert perf.names == ref.names
+    np.testing.assert_array_equal(perf.weights, ref.weights[: perf.n_frames])
+
+
+def test_an_impossible_weight_is_an_error_naming_frame_and_curve(data_dir, tmp_path):
+    """A 1e30 weight used to flow through clone/retarget to vertices 4e28 m away (issue 14)."""
+    from faceretarget.cli import main
+    from faceretarget.io import MAX_TAKE_WEIGHT, read_performance
+
+    lines = (data_dir / "livelinkface" / "S07-001.csv").read_text().splitlines()[:40]
+    header = lines[0].split(",")
+    j = header.index("JawOpen")
+    cells = lines[12].split(",")
+    cells[j] = "1e30"
+    lines[12] = ",".join(cells)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InvalidDataError, match=r"frame 11 .*'jawOpen' is 1e\+30, outside the plausible range \+-10"):
+        read_performance(bad)
+    assert MAX_TAKE_WEIGHT == 10.0
+    out = tmp_path / "o.glb"
+    rc = main(["-q", "clone", "--source-rig", str(data_dir / "arkit-face"), "--target-rig", str(data_dir / "ict-face"),
+               "--keys", "arkit", "--performance", str(bad), "--out", str(out)])
+    assert rc == 2 and not out.exists()

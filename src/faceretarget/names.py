@@ -85,6 +85,11 @@ def normalize_name(name: str) -> str:
     'jawLeft'
     >>> normalize_name("PupilDilate_L")
     'pupilDilateLeft'
+
+    Exporters' prefixes, suffixes and namespaces around an ARKit name are removed:
+
+    >>> normalize_name("blendshape_JawOpen"), normalize_name("blendShape1.mouthSmile_L")
+    ('jawOpen', 'mouthSmileLeft')
     """
     raw = name.strip()
     if raw in _ARKIT_SET:
@@ -93,6 +98,10 @@ def normalize_name(name: str) -> str:
     if low in _ARKIT_LOWER:
         return _ARKIT_LOWER[low]
     m = _SIDE_SUFFIX.match(raw)
+    if m and m.group("base") and (_PREFIX.match(raw) or any(c in raw for c in ".:|/")):
+        bare = _without_affixes(raw)
+        if bare is not None:
+            return bare
     if m and m.group("base"):
         base, sep, side = m.group("base"), m.group("sep"), m.group("side")
         word = side.lower() in ("left", "right")
@@ -107,8 +116,35 @@ def normalize_name(name: str) -> str:
                 return cand_arkit
             if sep or word:
                 return cand
+    bare = _without_affixes(raw)
+    if bare is not None:
+        return bare
     c = _camel(raw)
     return _ARKIT_LOWER.get(c.lower(), c)
+
+
+#: Prefixes exporters put before a shape name ("blendshape_JawOpen", "BS_jawOpen", "ARKit_jawOpen").
+_PREFIX = re.compile(r"^(?:blend[_ ]?shapes?|bs|arkit|morphs?|shapes?|face|mt)[._:\- ]*", re.IGNORECASE)
+#: Suffixes likewise ("jawOpen_weight", "jawOpen.value").
+_SUFFIX = re.compile(r"[._\- ]*(?:weights?|value|amount|bs)$", re.IGNORECASE)
+
+
+def _without_affixes(raw: str) -> str | None:
+    """The ARKit name inside a prefixed, suffixed or namespaced one (``blendShape1.jawOpen``,
+    ``Face:mouthSmile_L``, ``blendshape_JawOpen``, ``jawOpen_weight``), or None."""
+    cands = []
+    for sep in (".", ":", "|", "/"):
+        if sep in raw:
+            cands.append(raw.rsplit(sep, 1)[1])
+    stripped = _SUFFIX.sub("", _PREFIX.sub("", raw))
+    if stripped and stripped != raw:
+        cands.append(stripped)
+    for c in cands:
+        if c and c != raw:
+            n = normalize_name(c)
+            if n in _ARKIT_SET:
+                return n
+    return None
 
 
 def split_parent(name: str) -> str | None:

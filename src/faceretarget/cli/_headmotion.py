@@ -40,7 +40,8 @@ def cmd_headmotion_build(args, log) -> int:
     t0 = time.perf_counter()
     with warnings_to_log(log):
         db = build_head_database(pairs, log=log, fps=args.fps, f0_min=args.f0_min, f0_max=args.f0_max,
-                                 pause=args.pause, mirror=not args.no_mirror)
+                                 pause=args.pause, mirror=not args.no_mirror,
+                                 allow_mismatch=args.allow_mismatch)
     db.save(out)
     log(f"wrote {out}: {db.summary()} ({time.perf_counter() - t0:.1f} s)")
     return 0
@@ -95,6 +96,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     b.add_argument("--f0-min", type=float, default=60.0, help="lowest pitch searched, Hz (default 60)")
     b.add_argument("--f0-max", type=float, default=500.0, help="highest pitch searched, Hz (default 500)")
     b.add_argument("--no-mirror", action="store_true", help="do not add left-right mirrored copies")
+    b.add_argument("--allow-mismatch", action="store_true",
+                   help="accept a WAV and a motion file whose durations differ by more than max(0.5 s, 2 %%) "
+                   "(a warning instead of an error)")
     b.set_defaults(func=cmd_headmotion_build)
 
     s = hs.add_parser("synth", help="head motion for new speech from a database",

@@ -46,6 +46,7 @@ from ._npz import read_npz_performance, write_npz
 from ._obj import read_obj, read_obj_sequence, read_obj_vertices, write_obj, write_obj_sequence
 from ._registry import (
     HEAD_FORMATS,
+    MAX_TAKE_WEIGHT,
     READ_FORMATS,
     READERS,
     WRITE_FORMATS,
@@ -72,7 +73,7 @@ __all__ = [
     "write_usd", "usd_prim_names", "USD_FORMATS",
     "write_blend", "write_fbx", "blender_timebase",
     "write_npz", "read_npz_performance",
-    "read_performance", "write_animation", "READ_FORMATS", "WRITE_FORMATS", "READERS", "WRITERS",
+    "read_performance", "MAX_TAKE_WEIGHT", "write_animation", "READ_FORMATS", "WRITE_FORMATS", "READERS", "WRITERS",
     "register_reader", "register_writer", "Animation", "holds_head",
     "read_c3d", "write_c3d",
     "read_audio",

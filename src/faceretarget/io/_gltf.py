@@ -235,18 +235,22 @@ def _mesh_primitive(b: _Builder, rig: Rig) -> tuple[np.ndarray, dict]:
     nrm[zero] = (0.0, 0.0, 1.0)
     nrm = (nrm / np.linalg.norm(nrm, axis=1, keepdims=True)).astype(np.float32)
 
-    attrs = {"POSITION": b.accessor(pos, "VEC3", target=_ARRAY_BUFFER),
-             "NORMAL": b.accessor(nrm, "VEC3", target=_ARRAY_BUFFER)}
+    points = len(tri) == 0                              # a point set (markers, landmarks): POINTS
+    attrs = {"POSITION": b.accessor(pos, "VEC3", target=_ARRAY_BUFFER)}
+    if not points:
+        attrs["NORMAL"] = b.accessor(nrm, "VEC3", target=_ARRAY_BUFFER)
     if uv is not None:
         uv32 = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1).astype(np.float32)
         attrs["TEXCOORD_0"] = b.accessor(uv32, "VEC2", target=_ARRAY_BUFFER, minmax=False)
-    idx_dtype = np.uint16 if len(src) <= 65535 else np.uint32
-    indices = b.accessor(tri.astype(idx_dtype).reshape(-1), "SCALAR", target=_ELEMENT_ARRAY_BUFFER,
-                         minmax=False)
     targets = []
     for k in range(rig.n_shapes):
         d = (rig.deltas[k][src] * scale).astype(np.float32)
         targets.append({"POSITION": b.accessor(d, "VEC3", target=_ARRAY_BUFFER)})
+    if points:                                          # glTF mode 0, no indices: every vertex a point
+        return src, {"attributes": attrs, "mode": 0, "targets": targets}
+    idx_dtype = np.uint16 if len(src) <= 65535 else np.uint32
+    indices = b.accessor(tri.astype(idx_dtype).reshape(-1), "SCALAR", target=_ELEMENT_ARRAY_BUFFER,
+                         minmax=False)
     return src, {"attributes": attrs, "indices": indices, "mode": 4, "targets": targets}
 
 
@@ -509,10 +513,13 @@ def read_glb_rig(path: str | os.PathLike) -> Rig:
         raise InputFileError(f"{path}: no mesh")
     m = gltf["meshes"][0]
     prim = m["primitives"][0]
-    if prim.get("mode", 4) != 4:
-        raise InputFileError(f"{path}: only triangle meshes are supported")
+    mode = prim.get("mode", 4)
+    if mode not in (0, 4):
+        raise InputFileError(f"{path}: only triangle meshes and point sets are supported (primitive mode {mode})")
     pos = _accessor(path, gltf, binchunk, prim["attributes"]["POSITION"]).astype(np.float64)
-    if "indices" in prim:
+    if mode == 0:                                       # a point set: vertices without faces
+        idx = np.zeros((0, 3), dtype=np.int64)
+    elif "indices" in prim:
         idx = _accessor(path, gltf, binchunk, prim["indices"]).astype(np.int64).reshape(-1, 3)
     else:
         idx = np.arange(len(pos)).reshape(-1, 3)
@@ -520,7 +527,8 @@ def read_glb_rig(path: str | os.PathLike) -> Rig:
     if "TEXCOORD_0" in prim["attributes"]:
         uv = _accessor(path, gltf, binchunk, prim["attributes"]["TEXCOORD_0"]).astype(np.float64)
         uvs = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
-        fuv = idx.reshape(-1)
+        fuv = idx.reshape(-1) if len(idx) else None
+        uvs = uvs if len(idx) else None
     mesh = Mesh(pos, np.full(len(idx), 3), idx.reshape(-1), uvs, fuv, name=path.name)
     targets = prim.get("targets", [])
     names = m.get("extras", {}).get("targetNames") or [f"target{k}" for k in range(len(targets))]

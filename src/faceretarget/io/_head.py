@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import InputFileError, InvalidDataError
+from ..errors import DataWarning, InputFileError, InvalidDataError
 from ..files import input_file
 from ..headpose import HeadPose
 from ..performance import Performance
@@ -207,8 +207,14 @@ def read_head_motion(path: str | os.PathLike, *, neck_length: float = 0.10) -> P
     raise InputFileError(f"{path}: unknown head-motion format '{ext}' (use {', '.join(HEAD_READ_FORMATS)})")
 
 
+#: How far the speech and the head motion of one take may differ in length: the larger of 0.5 s and
+#: 2 % of the longer (recordings are cut by hand; more is another take's audio or a truncated file).
+MISMATCH_S, MISMATCH_SHARE = 0.5, 0.02
+
+
 def read_head_take(audio_path: str | os.PathLike, motion_path: str | os.PathLike, *,
-                   name: str | None = None, neck_length: float = 0.10) -> Performance:
+                   name: str | None = None, neck_length: float = 0.10,
+                   allow_mismatch: bool = False) -> Performance:
     """Speech audio and its head motion as one take (``head`` and ``audio``; ``source`` the name).
 
     Parameters
@@ -221,9 +227,20 @@ def read_head_take(audio_path: str | os.PathLike, motion_path: str | os.PathLike
         Take name (default: the motion file's stem).
     neck_length : float
         For SMPL-X, metres (:func:`read_smplx_head`).
+    allow_mismatch : bool
+        Durations that differ by more than :data:`MISMATCH_S` / :data:`MISMATCH_SHARE` are an
+        error (another take's audio, a truncated file); with ``allow_mismatch`` a warning.
     """
     motion_path = Path(motion_path)
     motion = read_head_motion(motion_path, neck_length=neck_length)
     audio, rate = read_audio(audio_path)
+    a_s, m_s = len(audio) / rate, motion.n_frames / motion.fps
+    tol = max(MISMATCH_S, MISMATCH_SHARE * max(a_s, m_s))
+    if abs(a_s - m_s) > tol:
+        msg = (f"{audio_path} lasts {a_s:.2f} s but its head motion {motion_path} lasts {m_s:.2f} s "
+               f"(more than {tol:.2f} s apart): not the same take?")
+        if not allow_mismatch:
+            raise InvalidDataError(msg + " (--allow-mismatch to use them anyway)")
+        warnings.warn(msg, DataWarning, stacklevel=2)
     return Performance(frame_times(motion.n_frames, motion.fps), motion.fps, head=motion.head, audio=audio,
                        audio_rate=rate, source=name or motion_path.stem)

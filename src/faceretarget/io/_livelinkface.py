@@ -135,6 +135,7 @@ def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = No
     path = input_file(path)
     lines = read_text(path, encoding="utf-8-sig").splitlines()
     first, header, names, cols = _header(path, lines)
+    _check_curves(path, header, names)
     rows = _classify_rows(lines, first, len(header))
     rate = _timecode_rate(path, rows, timecode_rate)
     _parse_values(lines, rows, header)
@@ -162,6 +163,24 @@ def read_livelinkface(path: str | os.PathLike, *, timecode_rate: int | None = No
         start_seconds=float(times_abs[0]), timecode_rate=rate, eye_rotation=eyes,
         dropped_lines=sorted(trailing + noface))
     return perf, info
+
+
+def _check_curves(path: Path, header: list[str], names: list[str]) -> None:
+    """A take whose columns drive no ARKit shape is an error; missing standard curves a warning naming them."""
+    if not names:
+        raise InputFileError(f"{path}: no blendshape curve columns (the header has only "
+                             f"{', '.join(header[:8])}): the take would drive nothing")
+    known = {n if n in ARKIT_NAMES else split_parent(n) for n in names} & set(ARKIT_NAMES)
+    if not known:
+        shown = ", ".join(repr(n) for n in names[:4])
+        raise InputFileError(f"{path}: none of its {len(names)} curve columns is an ARKit blendshape "
+                             f"(first: {shown}); the take would drive nothing. Expected names such as "
+                             "'JawOpen' or 'eyeBlink_L' (known prefixes like 'blendshape_' are removed)")
+    missing = [n for n in ARKIT_NAMES if n not in known]
+    if missing:
+        more = f" and {len(missing) - 8} more" if len(missing) > 8 else ""
+        warnings.warn(f"{path}: {len(missing)} of the 52 ARKit curves are missing and will be 0: "
+                      f"{', '.join(missing[:8])}{more}", DataWarning, stacklevel=3)
 
 
 # the kinds of row the reader tells apart

@@ -125,7 +125,27 @@ def read_performance(path: str | os.PathLike, fps: float | None = None) -> Perfo
     fmt = READERS.get(ext)
     if fmt is None:
         raise InputFileError(f"{path}: unknown take format '{ext}'; supported: {_listing(READERS)}")
-    return fmt.function(path, fps=fps)
+    return _plausible(fmt.function(path, fps=fps))
+
+
+#: Largest blendshape weight a take may hold (ARKit curves are in [0, 1]; exaggerated rigs and
+#: example-based key weights stay within a few units).  A larger value is a corrupt or mis-scaled
+#: file, not a performance: it would drive vertices kilometres away.
+MAX_TAKE_WEIGHT = 10.0
+
+
+def _plausible(perf: Performance) -> Performance:
+    """The take, unless its weights leave [-MAX_TAKE_WEIGHT, MAX_TAKE_WEIGHT] (an error naming the
+    frame, its time and the curve)."""
+    if perf.weights is not None and perf.weights.size:
+        bad = np.abs(perf.weights) > MAX_TAKE_WEIGHT
+        if bad.any():
+            f, k = (int(x[0]) for x in np.nonzero(bad))
+            raise InvalidDataError(
+                f"{perf.source}: frame {f} (t={perf.times[f]:.3f} s) weight '{perf.names[k]}' is "
+                f"{perf.weights[f, k]:g}, outside the plausible range +-{MAX_TAKE_WEIGHT:g} of blendshape weights "
+                f"({int(bad.sum())} value(s) in {int(bad.any(axis=1).sum())} frame(s))")
+    return perf
 
 
 @dataclass(eq=False)
@@ -208,7 +228,35 @@ def write_animation(path: str | os.PathLike, *, rig: Rig | None = None,
     anim = Animation(np.asarray(times, dtype=np.float64).reshape(-1), rig, weights, names, vertices, mesh, head,
                      timecode, timecode_rate, curves, None if curve_names is None else list(curve_names),
                      bake=bool(bake), audio=audio, audio_rate=audio_rate)
+    _check_sane(path, anim)
     return fmt.function(path, anim)
+
+
+def _first_bad(a: np.ndarray) -> tuple[int, ...]:
+    return tuple(int(x[0]) for x in np.nonzero(~np.isfinite(a)))
+
+
+def _check_sane(path: Path, a: Animation) -> None:
+    """No writer gets non-finite numbers or a rig it cannot draw (errors naming frame and channel)."""
+    if a.times.size == 0 or not np.isfinite(a.times).all():
+        raise InvalidDataError(f"{path}: times must be finite and at least one, got {a.times.size} "
+                               f"with {int((~np.isfinite(a.times)).sum())} non-finite")
+    checks = [("weights", a.weights), ("vertices", a.vertices), ("curves", a.curves), ("audio", a.audio)]
+    for what, arr in checks:
+        if arr is None:
+            continue
+        arr = np.asarray(arr, dtype=np.float64)
+        if not np.isfinite(arr).all():
+            at = _first_bad(arr)
+            col = ""
+            if what == "weights" and arr.ndim == 2:
+                names = a.names or (a.rig.names if a.rig is not None else None)
+                col = f" ('{names[at[1]]}')" if names is not None and at[1] < len(names) else ""
+            raise InvalidDataError(f"{path}: {what} hold a non-finite value at frame {at[0]}{col}: "
+                                   f"{arr[at]}; nothing written")
+    if a.rig is not None:                       # (a Rig's own values are checked finite when it is made)
+        if a.rig.neutral.n_vertices == 0:
+            raise InvalidDataError(f"{path}: the rig {a.rig.name} has no vertices; nothing written")
 
 
 # ------------------------------------------------------------------------------------ the formats

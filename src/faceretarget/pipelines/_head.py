@@ -20,7 +20,8 @@ def _quiet(*_a) -> None:
 
 
 def build_head_database(pairs: Sequence[tuple[str | os.PathLike, str | os.PathLike]], *,
-                        log: Callable[..., None] = _quiet, **params) -> HeadMotionDatabase:
+                        allow_mismatch: bool = False, log: Callable[..., None] = _quiet,
+                        **params) -> HeadMotionDatabase:
     """A :class:`~faceretarget.headmotion.HeadMotionDatabase` of (speech, head motion) file pairs.
 
     Each take is named after its motion file (``_2``, ``_3``... when two share a name); takes
@@ -30,6 +31,9 @@ def build_head_database(pairs: Sequence[tuple[str | os.PathLike, str | os.PathLi
     ----------
     pairs : sequence of (audio path, motion path)
         Speech (``.wav``) and its head motion (``.bvh``, SMPL-X ``.npz``, ``.c3d``).
+    allow_mismatch : bool
+        Accept a pair whose durations differ beyond the tolerance of
+        :func:`~faceretarget.io.read_head_take` (a warning instead of an error).
     **params
         :class:`~faceretarget.headmotion.HeadMotionDatabase` parameters.
     """
@@ -40,7 +44,7 @@ def build_head_database(pairs: Sequence[tuple[str | os.PathLike, str | os.PathLi
         while name in used:
             name, k = f"{motion.stem}_{k}", k + 1
         used.add(name)
-        take = read_head_take(audio, motion, name=name)
+        take = read_head_take(audio, motion, name=name, allow_mismatch=allow_mismatch)
         pitch = db.pitch(take.audio, take.audio_rate)
         n_voiced = int(np.isfinite(pitch.f0).sum())
         log(f"{audio.name} + {motion.name}: {take_duration(take):.1f} s, head motion at {take.fps:g} fps, "
