@@ -445,11 +445,11 @@ def test_cli_live_bad_input_is_one_line(data_dir, tmp_path, capsys):
     video = tmp_path / "v.mp4"
     video.write_bytes(b"")
     for argv, msg in (
-        (["--video", str(tmp_path / "none.mp4")], "none.mp4: video not found"),
+        (["--video", str(tmp_path / "none.mp4")], "none.mp4: file not found"),
         (["--video", str(video), "--serve", "here:port"], "--serve 'here:port'"),
         (["--video", str(video), "--llf", "127.0.0.1:70000"], "--llf '127.0.0.1:70000'"),
-        (["--video", str(video), "--max-frames", "0"], "--max-frames must be at least 1"),
-        (["--video", str(video), "--emotion-amount", "-1"], "emotion_amount must be a number in [0.0, 3.0]"),
+        (["--video", str(video), "--max-frames", "0"], "--max-frames: '0' is outside the range >= 1"),
+        (["--video", str(video), "--emotion-amount", "-1"], "--emotion-amount: '-1' is outside the range [0, 3]"),
     ):
         rc = main(["live", *argv, "--character", rig])
         err = capsys.readouterr().err.strip().splitlines()

@@ -34,6 +34,7 @@ __all__ = [
     "StyleRangeWarning",
     "StyleFitWarning",
     "format_ranges",
+    "excerpt",
 ]
 
 
@@ -117,3 +118,21 @@ def format_ranges(indices, limit: int | None = None) -> str:
             start = k
     more = f" and {len(runs) - limit} more run(s)" if limit is not None and len(runs) > limit else ""
     return ", ".join(runs if limit is None else runs[:limit]) + more
+
+
+def excerpt(text, limit: int = 40, *, bare: bool = False) -> str:
+    """A piece of a bad input for a message: ``repr`` of at most ``limit`` characters of ``text``
+    (control characters and undecodable bytes escaped), ``...`` after it when it was longer.  With
+    ``bare``, a printable text within the limit (a name) is shown as it is.
+
+    >>> excerpt("12:00:01:02,x")
+    "'12:00:01:02,x'"
+    >>> excerpt("z" * 50, limit=4)
+    "'zzzz'..."
+    >>> excerpt("Head", bare=True)
+    'Head'
+    """
+    s = text.decode("utf-8", "backslashreplace") if isinstance(text, bytes) else str(text)
+    if bare and len(s) <= limit and s.isprintable():
+        return s
+    return repr(s[:limit]) + ("..." if len(s) > limit else "")

@@ -13,14 +13,17 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import struct
 import tempfile
+import tokenize
 import zipfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputFileError, OutputError
+from .errors import InputFileError, OutputError, excerpt
 
 __all__ = ["input_file", "read_text", "check_output_path", "atomic_path", "atomic_dir", "protect_inputs",
            "save_npz_arrays", "load_npz_arrays"]
@@ -35,13 +38,24 @@ def input_file(path: str | os.PathLike) -> Path:
     return path
 
 
+_BOMS = ((b"\xff\xfe\x00\x00", "utf-32"), (b"\x00\x00\xfe\xff", "utf-32"), (b"\xef\xbb\xbf", "utf-8-sig"),
+         (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16"))
+
+
 def read_text(path: str | os.PathLike, encoding: str = "utf-8") -> str:
-    """The text of an input file (undecodable bytes replaced); :class:`InputFileError` when it cannot be read."""
+    """The text of an input file; :class:`InputFileError` when it cannot be read.
+
+    A byte-order mark chooses the encoding (UTF-8, UTF-16 or UTF-32, as spreadsheets save "Unicode
+    text"); otherwise ``encoding``.  Undecodable bytes are replaced (U+FFFD), so what they were in is
+    reported by the reader's own checks.
+    """
     path = input_file(path)
     try:
-        return path.read_text(encoding=encoding, errors="replace")
+        raw = path.read_bytes()
     except OSError as e:
         raise InputFileError(f"{path}: cannot read ({e.strerror or e})") from e
+    enc = next((e for bom, e in _BOMS if raw.startswith(bom)), encoding)
+    return raw.decode(enc, errors="replace")
 
 
 # ----------------------------------------------------------------------------------------- outputs
@@ -162,10 +176,20 @@ def load_npz_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Every array of an ``.npz`` file (no pickles), or an :class:`InputFileError` naming the file."""
     path = input_file(path)
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise InputFileError(f"{path}: not a readable .npz file ({e})") from e
+        with open(path, "rb") as f:  # ours to close: np.load leaks the file of a broken zip
+            head = f.read(12)
+            if not head.startswith(b"PK\x03\x04"):
+                raise InputFileError(f"{path}: not a readable .npz file: not a zip archive of .npy arrays "
+                                     f"(it starts with {excerpt(head)})")
+            f.seek(0)
+            with np.load(f, allow_pickle=False) as z:
+                return {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError, RuntimeError,
+            KeyError, struct.error, OverflowError, MemoryError, SyntaxError, tokenize.TokenError) as e:
+        # what numpy's zip and .npy header parsers raise on a corrupt archive
+        if isinstance(e, InputFileError):
+            raise
+        raise InputFileError(f"{path}: not a readable .npz file ({excerpt(e, 120)})") from e
 
 
 def save_npz_arrays(path: str | os.PathLike, arrays: dict[str, np.ndarray], *, compress: bool = True) -> Path:

@@ -64,12 +64,21 @@ class Mesh:
             raise InvalidDataError(
                 f"{self.name}: a face refers to a vertex outside 0..{len(v) - 1}"
             )
+        if (self.uvs is None) != (self.face_uv_indices is None):
+            raise InvalidDataError(f"{self.name}: give uvs and face_uv_indices together")
         if self.uvs is not None:
             self.uvs = np.asarray(self.uvs, dtype=np.float64).reshape(-1, 2)
+            if not np.isfinite(self.uvs).all():
+                raise InvalidDataError(f"{self.name}: texture coordinate "
+                                       f"{int(np.flatnonzero(~np.isfinite(self.uvs).all(axis=1))[0])} is not finite")
         if self.face_uv_indices is not None:
             self.face_uv_indices = np.asarray(self.face_uv_indices, dtype=np.int64).reshape(-1)
             if self.face_uv_indices.size != self.face_indices.size:
                 raise InvalidDataError(f"{self.name}: face_uv_indices must have one entry per corner")
+            if self.face_uv_indices.size and (int(self.face_uv_indices.min()) < 0
+                                              or int(self.face_uv_indices.max()) >= len(self.uvs)):
+                raise InvalidDataError(f"{self.name}: a face refers to a texture coordinate outside "
+                                       f"0..{len(self.uvs) - 1}")
 
     # ------------------------------------------------------------------ constructors
     @classmethod

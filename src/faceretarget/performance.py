@@ -214,7 +214,9 @@ class Performance:
             return np.arange(n) / float(fps), float(fps)
         t = np.asarray(times, dtype=np.float64)
         if fps is None:
-            fps = infer_fps(t, default=30.0)
+            d = np.diff(t.reshape(-1))
+            ok = np.isfinite(t).all() and (d > 0).all()
+            fps = infer_fps(t, default=30.0) if ok else 30.0  # bad times: __post_init__ names the frame
         return t, float(fps)
 
     @classmethod

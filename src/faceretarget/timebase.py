@@ -50,7 +50,10 @@ def infer_fps(times, default: float | None = None, *, source: str = "times") -> 
         if default is None:
             raise InvalidDataError(f"{source}: a frame rate cannot be inferred from {t.size} frame(s); give fps")
         return float(default)
-    return 1.0 / float(np.median(np.diff(t)))
+    step = float(np.median(np.diff(t)))
+    if not (np.isfinite(step) and step > 0):
+        raise InvalidDataError(f"{source}: times must be finite and increase to give a frame rate")
+    return 1.0 / step
 
 
 def frame_times(n: int, fps: float, start: float = 0.0) -> np.ndarray:

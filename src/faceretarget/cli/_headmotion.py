@@ -19,24 +19,25 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
+from ..errors import InvalidDataError
+from ._support import FPS, POSITIVE, Range, check_inputs, check_out, run_alone, warnings_to_log
 
-from ..errors import InvalidDataError, OutputError
-from ._support import protect as _protect
-from ._support import run_alone, warnings_to_log
+#: Option ranges (shown in ``--help``).
+AMPLITUDE = Range(0, 10)
+PAUSE = Range(0, 5, lo_open=True)
+SEED = Range(0, 2**32 - 1, integer=True)
 
 __all__ = ["register", "cmd_headmotion_build", "cmd_headmotion_synth", "main"]
 
 
 def cmd_headmotion_build(args, log) -> int:
     """``headmotion build``: analyse takes and write a database ``.npz``."""
-    from ..files import check_output_path
-    from ..pipelines import build_head_database
-
-    out = Path(args.out)
     pairs = [(Path(a), Path(m)) for a, m in args.take]
-    _protect(out, [p for pair in pairs for p in pair])
-    check_output_path(out)                     # before any work
+    out = check_out(args.out, [p for pair in pairs for p in pair], (".npz",))      # before any work
+    check_inputs(*(("--take", p) for pair in pairs for p in pair))
+    if not args.f0_min < args.f0_max:
+        raise InvalidDataError(f"--f0-min {args.f0_min:g} must be below --f0-max {args.f0_max:g}")
+    from ..pipelines import build_head_database
     t0 = time.perf_counter()
     with warnings_to_log(log):
         db = build_head_database(pairs, log=log, fps=args.fps, f0_min=args.f0_min, f0_max=args.f0_max,
@@ -49,13 +50,13 @@ def cmd_headmotion_build(args, log) -> int:
 
 def cmd_headmotion_synth(args, log) -> int:
     """``headmotion synth``: head motion for new speech, written as .bvh, .glb or .csv."""
+    import numpy as np
+
     from ..headmotion import HeadMotionDatabase
     from ..io import HEAD_FORMATS, read_audio, write_head_motion
 
-    out = Path(args.out)
-    if out.suffix.lower() not in HEAD_FORMATS:
-        raise OutputError(f"{out}: unknown output format '{out.suffix}' (use {', '.join(HEAD_FORMATS)})")
-    _protect(out, [args.db, args.audio])
+    out = check_out(args.out, [args.db, args.audio], HEAD_FORMATS)                # before any work
+    check_inputs(("--db", args.db), ("--audio", args.audio))
     if args.no_rotation and args.no_translation:
         raise InvalidDataError("--no-rotation and --no-translation together leave nothing to write")
     db = HeadMotionDatabase.load(args.db)
@@ -91,10 +92,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     b.add_argument("--take", nargs=2, action="append", required=True, metavar=("AUDIO.wav", "MOTION"),
                    help="a take: speech WAV and head motion (.bvh, SMPL-X .npz, .c3d); repeat for more")
     b.add_argument("--out", required=True, help="database .npz to write")
-    b.add_argument("--fps", type=float, default=30.0, help="database frame rate (default 30)")
-    b.add_argument("--pause", type=float, default=0.3, help="voiceless seconds that end a phrase (default 0.3)")
-    b.add_argument("--f0-min", type=float, default=60.0, help="lowest pitch searched, Hz (default 60)")
-    b.add_argument("--f0-max", type=float, default=500.0, help="highest pitch searched, Hz (default 500)")
+    b.add_argument("--fps", type=FPS, default=30.0, help=f"database frame rate, {FPS} (default 30)")
+    b.add_argument("--pause", type=PAUSE, default=0.3,
+                   help=f"voiceless seconds that end a phrase, {PAUSE} (default 0.3)")
+    b.add_argument("--f0-min", type=POSITIVE, default=60.0, help=f"lowest pitch searched, Hz, {POSITIVE} (default 60)")
+    b.add_argument("--f0-max", type=POSITIVE, default=500.0,
+                   help=f"highest pitch searched, Hz, {POSITIVE} and above --f0-min (default 500)")
     b.add_argument("--no-mirror", action="store_true", help="do not add left-right mirrored copies")
     b.add_argument("--allow-mismatch", action="store_true",
                    help="accept a WAV and a motion file whose durations differ by more than max(0.5 s, 2 %%) "
@@ -108,12 +111,13 @@ def register(subparsers) -> argparse.ArgumentParser:
     s.add_argument("--db", required=True, help="database .npz (headmotion build)")
     s.add_argument("--audio", required=True, help="speech WAV")
     s.add_argument("--out", required=True, help="output .bvh, .glb or .csv")
-    s.add_argument("--amplitude", type=float, default=1.0, help="scale of the motion (default 1)")
+    s.add_argument("--amplitude", type=AMPLITUDE, default=1.0,
+                   help=f"scale of the motion, {AMPLITUDE} (default 1; 0 holds the head still)")
     s.add_argument("--no-translation", action="store_true", help="rotation only")
     s.add_argument("--no-rotation", action="store_true", help="translation only (rotation zero)")
-    s.add_argument("--seed", type=int, default=None,
-                   help="pick a near-best alternative (default: the best path, deterministic)")
-    s.add_argument("--fps", type=float, default=None, help="output frame rate (default the database's)")
+    s.add_argument("--seed", type=SEED, default=None,
+                   help=f"pick a near-best alternative, {SEED} (default: the best path, deterministic)")
+    s.add_argument("--fps", type=FPS, default=None, help=f"output frame rate, {FPS} (default the database's)")
     s.set_defaults(func=cmd_headmotion_synth)
     return h
 

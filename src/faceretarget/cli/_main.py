@@ -14,19 +14,39 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import InvalidDataError
-from ..performance import Performance
-from ._support import protect, run_command, warnings_to_log
+from ._support import (
+    FPS,
+    NON_NEGATIVE,
+    Parser,
+    Range,
+    check_out,
+    check_out_folder,
+    neutral_option,
+    parse_and_run,
+    protect,
+    warnings_to_log,
+)
 
 __all__ = ["main"]
 
 
 _protect = protect
 
+#: ``retarget --temporal``: relative to the source keys' mean squared norm; the same bound as
+#: :data:`faceretarget.pipelines.MAX_TEMPORAL` (a test keeps them equal; the parser does not import it).
+TEMPORAL = Range(0, 1000)
+#: ``keys select --k``.
+KEYS = Range(1, 10000, integer=True)
 
-def _rig(path, neutral=None, landmarks=None):
+
+def _rig(path, neutral=None, landmarks=None, flag: str = "--neutral"):
+    """The rig folder ``path`` (None without one); a missing neutral names the command's ``flag``."""
     from ..io import read_rig
 
-    return read_rig(path, neutral=neutral, landmarks=landmarks) if path else None
+    if not path:
+        return None
+    with neutral_option(flag):
+        return read_rig(path, neutral=neutral, landmarks=landmarks)
 
 
 def cmd_clone(args, log) -> int:
@@ -62,13 +82,13 @@ def _clone_keys(args, perf, source_rig, log):
     if args.source_keys or args.target_keys:
         if not (args.source_keys and args.target_keys):
             raise InvalidDataError("give both --source-keys and --target-keys")
-        sk = _rig(args.source_keys, args.source_neutral, args.source_landmarks)
-        tk = _rig(args.target_keys, args.target_neutral, args.target_landmarks)
+        sk = _rig(args.source_keys, args.source_neutral, args.source_landmarks, "--source-neutral")
+        tk = _rig(args.target_keys, args.target_neutral, args.target_landmarks, "--target-neutral")
         log(f"key-models: {sk.n_shapes} pairs from {args.source_keys} and {args.target_keys}")
         return sk, tk
     if not (args.source_rig and args.target_rig):
         raise InvalidDataError("give --source-keys/--target-keys, or --source-rig/--target-rig with --keys")
-    target_rig = _rig(args.target_rig, args.target_neutral, args.target_landmarks)
+    target_rig = _rig(args.target_rig, args.target_neutral, args.target_landmarks, "--target-neutral")
     rom = read_performance(args.keys_from) if args.keys_from else None
     if args.keys.startswith("rom-") and rom is None:
         if perf.kind != "weights":
@@ -95,29 +115,32 @@ def _weight_range(words: list[str]):
 
 
 def _clone(args, log) -> int:
+    out = check_out(args.out, [args.performance, args.source_keys, args.target_keys, args.source_rig,
+                               args.target_rig, args.keys_from, None if args.head in ("auto", "off") else args.head])
+    # the heavy imports after the quick checks
     from ..io import read_performance
-    from ..pipelines import clone_take, write_result
+    from ..pipelines import check_result_path, clone_take, write_result
 
-    out = Path(args.out)
-    _protect(out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.target_rig,
-                   args.keys_from, None if args.head in ("auto", "off") else args.head])
+    check_result_path(out, bake=args.bake)                 # before any work: format, folder, --bake
     head = _head_choice(args.head, out)
+    weight_range = _weight_range(args.weight_range)
     perf = read_performance(args.performance, fps=args.fps)
     source_rig = _rig(args.source_rig, args.source_neutral,
-                      args.source_landmarks if not (args.source_keys or args.target_keys) else None)
+                      args.source_landmarks if not (args.source_keys or args.target_keys) else None,
+                      "--source-neutral")
     sk, tk = _clone_keys(args, perf, source_rig, log)
+    check_result_path(out, keys=tk, bake=args.bake)        # a .csv needs ARKit keys: known before the solve
     job = clone_take(perf, sk, tk, source_rig=source_rig, method=args.method, features=args.features,
-                     weight_range=_weight_range(args.weight_range), log=log)
+                     weight_range=weight_range, log=log)
     write_result(out, job, head=head, bake=args.bake, log=log)
     return 0
 
 
 def cmd_keys_compose(args, log) -> int:
+    out = check_out_folder(args.out, [args.rig])            # before any work (and the heavy imports)
     from ..io import write_rig
     from ..pipelines import compose_keys
 
-    out = Path(args.out)
-    _protect(out, [args.rig])
     keys = compose_keys(_rig(args.rig, args.neutral), log=log)
     write_rig(keys, out)
     log(f"wrote the neutral and {keys.n_shapes} composed key-models (84 key-models) as OBJ to {out}")
@@ -129,15 +152,14 @@ def _subset(text: str | None):
 
 
 def cmd_keys_select(args, log) -> int:
+    out = check_out_folder(args.out, [args.performance, args.source_rig])     # before any work
     from ..io import read_performance, write_keyshapes
+    from ..performance import Performance
     from ..pipelines import select_keys
 
-    out = Path(args.out)
-    _protect(out, [args.performance, args.source_rig])
-    if args.k < 1:
-        raise InvalidDataError(f"--k must be at least 1, got {args.k}")
     perf = read_performance(args.performance, fps=args.fps)
-    sel = select_keys(perf, args.k, args.method, source_rig=_rig(args.source_rig, args.source_neutral),
+    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral")
+    sel = select_keys(perf, args.k, args.method, source_rig=rig,
                       features=args.features, neutral_frame=args.neutral_frame, align=not args.no_align,
                       rigid_subset=_subset(args.rigid_subset), log=log)
     geo = sel.geometry
@@ -159,32 +181,42 @@ def cmd_retarget(args, log) -> int:
 
 
 def _retarget(args, log) -> int:
+    out = check_out(args.out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions,
+                               None if args.head in ("auto", "off") else args.head])
+    # the heavy imports after the quick checks
     from ..cloning import keymodel_pair
     from ..io import is_keyshape_folder, read_keys, read_performance
-    from ..pipelines import retarget_take, write_result
+    from ..pipelines import check_result_path, retarget_take, write_result
     from ..retarget import load_regions
 
-    out = Path(args.out)
-    _protect(out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions,
-                   None if args.head in ("auto", "off") else args.head])
+    check_result_path(out, bake=args.bake)                 # before any work: format, folder, --bake
     head = _head_choice(args.head, out)
+    for opt, v in (("--temporal", args.temporal), ("--l1", args.l1)):
+        if v and args.solver != "nnls":
+            raise InvalidDataError(f"{opt} {v:g} applies to --solver nnls only (the default 'signed' solve has no "
+                                   f"such term{'; smooth its curves with --smooth' if opt == '--temporal' else ''})")
+    weight_range = _weight_range(args.weight_range)
     perf = read_performance(args.performance, fps=args.fps)
-    rig = _rig(args.source_rig, args.source_neutral)
-    sk, labels = read_keys(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks, rig=rig)
-    tk, _ = read_keys(args.target_keys, neutral=args.target_neutral, landmarks=args.target_landmarks)
+    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral")
+    with neutral_option("--source-neutral"):
+        sk, labels = read_keys(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks,
+                               rig=rig)
+    with neutral_option("--target-neutral"):
+        tk, _ = read_keys(args.target_keys, neutral=args.target_neutral, landmarks=args.target_landmarks)
     if not is_keyshape_folder(args.source_keys) and not is_keyshape_folder(args.target_keys):
         # two ARKit-style rigs: pair their shapes through the ARKit names (split halves, aliases)
         rig = sk if rig is None else rig
         sk, tk, _ = keymodel_pair(sk, tk, "arkit")
     log(f"keyshapes: {sk.n_shapes} source from {args.source_keys}, {tk.n_shapes} target from {args.target_keys}")
+    check_result_path(out, keys=tk, bake=args.bake)        # a .csv needs ARKit keys: known before the solve
     regions = None
     if args.regions:
         regions = args.regions if args.regions in ("upper-lower", "default") else load_regions(args.regions)
     if perf.kind == "weights" and rig is None:
         raise InvalidDataError(f"{perf.source}: a weight take needs the rig it drives (--source-rig DIR)")
     job = retarget_take(perf, sk, tk, source_labels=labels, source_rig=rig, check=args.check, log=log,
-                        solver=args.solver, weight_range=_weight_range(args.weight_range), l1=args.l1, l2=args.l2,
-                        smooth=args.temporal,
+                        solver=args.solver, weight_range=weight_range, l1=args.l1, l2=args.l2,
+                        temporal=args.temporal,
                         denoise=not args.no_denoise, filter_level=args.smooth, regions=regions,
                         align=not args.no_align, rigid_subset=_subset(args.rigid_subset))
     write_result(out, job, head=head, bake=args.bake, log=log)
@@ -194,7 +226,8 @@ def _retarget(args, log) -> int:
 def cmd_demo(args, log) -> int:
     from ..pipelines import run_demo
 
-    return run_demo(Path(args.out), log=log)
+    out = check_out_folder(args.out, parents=True)          # before any work (missing folders are created)
+    return run_demo(out, log=log)
 
 
 _HEAD_HELP = ("head motion written with the face (.glb head node, .csv head columns): auto (default) = the "
@@ -223,7 +256,7 @@ def _register_clone(sub) -> None:
     c.add_argument("--method", default="temporal", choices=["temporal", "linear", "pyun"],
                    help="weight functions (default temporal: linear cardinal + take-adaptive denoising)")
     c.add_argument("--weight-range", nargs="+", default=["auto"], metavar="LO HI", help=_RANGE_HELP)
-    c.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
+    c.add_argument("--fps", type=FPS, help=f"frame rate of an OBJ sequence without times.txt, {FPS}")
     c.add_argument("--source-landmarks", help="landmark index file for the source (default landmarks68.txt)")
     c.add_argument("--target-landmarks", help="landmark index file for the target")
     c.add_argument("--source-neutral", help="the source folder's neutral OBJ when it is not named neutral*")
@@ -246,7 +279,7 @@ def _register_keys(sub) -> None:
                          "counterparts.  Marker takes lose their rigid head motion first.")
     ks.add_argument("--performance", required=True, help="take: .c3d markers, .csv weights (with --source-rig), "
                     ".npz, OBJ-sequence folder")
-    ks.add_argument("--k", type=int, default=20, help="number of keyshapes (default 20)")
+    ks.add_argument("--k", type=KEYS, default=20, help=f"number of keyshapes, {KEYS} (default 20)")
     ks.add_argument("--method", default="pivoted-qr",
                     help="pivoted-qr (default: keys for retargeting other takes too), nnls-greedy (best "
                     "non-negative fit of this take), pca-extrema (the thesis), hull, kmeans (= kmeans2), kmeans3")
@@ -254,11 +287,11 @@ def _register_keys(sub) -> None:
     ks.add_argument("--source-rig", help="rig folder a weight take drives (frames exported as its meshes)")
     ks.add_argument("--source-neutral", help="the rig's neutral OBJ when it is not named neutral*")
     ks.add_argument("--features", default="landmarks", help="with a rig: landmarks (default) or all vertices")
-    ks.add_argument("--neutral-frame", type=int, help="frame of a marker/mesh take at rest (default the first "
-                    "complete frame)")
+    ks.add_argument("--neutral-frame", type=Range(0, integer=True), help="frame of a marker/mesh take at rest, "
+                    ">= 0 (default the first complete frame)")
     ks.add_argument("--rigid-subset", help="comma-separated markers that move with the skull (default automatic)")
     ks.add_argument("--no-align", action="store_true", help="keep the markers' rigid head motion")
-    ks.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
+    ks.add_argument("--fps", type=FPS, help=f"frame rate of an OBJ sequence without times.txt, {FPS}")
     ks.set_defaults(func=cmd_keys_select)
 
 
@@ -277,13 +310,17 @@ def _register_retarget(sub) -> None:
     r.add_argument("--bake", action="store_true", help=_BAKE_HELP)
     r.add_argument("--source-rig", help="rig a weight take drives")
     r.add_argument("--regions", help="upper-lower, or a regions JSON file (see docs/retargeting.md)")
-    r.add_argument("--smooth", type=float, default=0.0, help="low-pass level of the weight curves (0 = none)")
+    r.add_argument("--smooth", type=NON_NEGATIVE, default=0.0,
+                   help=f"low-pass level of the weight curves, {NON_NEGATIVE} (0 = none, the default)")
     r.add_argument("--solver", default="signed", choices=["signed", "nnls"],
                    help="signed least squares (default; new takes) or non-negative (the thesis)")
     r.add_argument("--weight-range", nargs="+", default=["auto"], metavar="LO HI", help=_RANGE_HELP)
-    r.add_argument("--l1", type=float, default=0.0, help="nnls: sparsity weight")
-    r.add_argument("--l2", type=float, default=0.0, help="ridge weight")
-    r.add_argument("--temporal", type=float, default=0.0, help="nnls: temporal smoothness weight in the solve")
+    r.add_argument("--l1", type=NON_NEGATIVE, default=0.0, help=f"nnls: sparsity weight, {NON_NEGATIVE} (default 0)")
+    r.add_argument("--l2", type=NON_NEGATIVE, default=0.0, help=f"ridge weight, {NON_NEGATIVE} (default 0)")
+    r.add_argument("--temporal", type=TEMPORAL, default=0.0,
+                   help=f"nnls: temporal smoothness inside the solve, {TEMPORAL}, in units of the source keys' mean "
+                   "squared norm (the same for a rig in m or cm): 0 none (default), about 1 visibly smoother, "
+                   "100 and more nearly constant weights; the solve stops converging from about 3000")
     r.add_argument("--no-denoise", action="store_true", help="do not estimate and remove capture noise")
     r.add_argument("--check", action="store_true", help="print the consistency report of the target keyshapes")
     r.add_argument("--rigid-subset", help="comma-separated markers that move with the skull (default automatic)")
@@ -292,7 +329,7 @@ def _register_retarget(sub) -> None:
     r.add_argument("--target-neutral", help="neutral OBJ of the target folder (default neutral.obj / neutral*)")
     r.add_argument("--source-landmarks", help="landmark index file for mesh source keys")
     r.add_argument("--target-landmarks", help="landmark index file for the target")
-    r.add_argument("--fps", type=float, help="frame rate of an OBJ sequence without times.txt")
+    r.add_argument("--fps", type=FPS, help=f"frame rate of an OBJ sequence without times.txt, {FPS}")
     r.set_defaults(func=cmd_retarget)
 
 
@@ -304,7 +341,7 @@ def _register_demo(sub) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="faceretarget", description="Facial performance retargeting and expression cloning.")
+    p = Parser(prog="faceretarget", description="Facial performance retargeting and expression cloning.")
     p.add_argument("--version", action="version", version=f"faceretarget {__version__}")
     p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
     sub = p.add_subparsers(dest="command", required=True)
@@ -329,8 +366,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    return run_command(parser.parse_args(argv))
+    """Run ``faceretarget`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code: 0, 2 for bad
+    options or input (one ``faceretarget: error:`` line on stderr), 1 for system errors."""
+    return parse_and_run(build_parser(), argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -22,37 +22,68 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..errors import InvalidDataError, OutputError
-from ._support import protect as _protect
-from ._support import run_alone, warnings_to_log
+from ..errors import InvalidDataError
+from ._support import (
+    FPS,
+    NON_NEGATIVE,
+    POSITIVE,
+    Range,
+    check_inputs,
+    check_out,
+    neutral_option,
+    run_alone,
+    warnings_to_log,
+)
 
 __all__ = ["register", "cmd_style_fit", "cmd_restyle", "main"]
 
+#: ``restyle --amount``: 0 keeps the take's style, 1 is the target, > 1 exaggerates, < 0 moves away
+#: from it; on P3 the result leaves the training range (a warning) from about 2 (docs/style.md).
+AMOUNT = Range(-1, 3)
+#: Shares of variance / energy to keep.
+SHARE = Range(0, 1, lo_open=True)
+COUNT = Range(1, integer=True)
 
 
-def _auto_float(v: str):
-    if v == "auto":
-        return v
-    try:
-        return float(v)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {v!r}") from e
+class _AutoOr:
+    """``argparse`` type: ``auto`` or a number in ``rng``."""
+
+    def __init__(self, rng: Range):
+        self.rng = rng
+        self.__name__ = "number"
+
+    def __str__(self) -> str:
+        return f"auto or {self.rng}"
+
+    def __call__(self, v: str):
+        if v.strip().lower() == "auto":
+            return "auto"
+        try:
+            return self.rng(v)
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(f"expected 'auto' or a number in {self.rng}, got {v!r}") from None
+
+
+VARIANCE, ENERGY, PRIOR = _AutoOr(SHARE), _AutoOr(SHARE), _AutoOr(NON_NEGATIVE)
 
 
 def _local_arg(v: str):
     if v == "auto":
         return v
-    for kind, conv, form in (("kernel", float, "kernel:BANDWIDTH:RIDGE"), ("points", int, "points:NEIGHBOURS:FRAMES")):
+    for kind, ra, rb, form in (("kernel", POSITIVE, NON_NEGATIVE, "kernel:BANDWIDTH:RIDGE (BANDWIDTH > 0, RIDGE >= 0)"),
+                               ("points", COUNT, Range(0, integer=True),
+                                "points:NEIGHBOURS:FRAMES (NEIGHBOURS >= 1, FRAMES >= 0)")):
         if v.startswith(kind + ":"):
             try:
                 _, a, b = v.split(":")
-                return (kind, conv(a), conv(b))
-            except ValueError as e:
-                raise argparse.ArgumentTypeError(f"expected {form}, got {v!r}") from e
+                return (kind, ra(a), rb(b))
+            except (ValueError, argparse.ArgumentTypeError):
+                raise argparse.ArgumentTypeError(f"expected {form}, got {v!r}") from None
     try:
-        return int(v)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(f"expected auto, an integer, kernel:H:LAM or points:M:K, got {v!r}") from e
+        return Range(0, integer=True)(v)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected auto, an integer >= 0, kernel:H:LAM or points:M:K, got {v!r}") \
+            from None
 
 
 def _pairs(items, what: str) -> dict[str, str]:
@@ -72,9 +103,6 @@ def _pairs(items, what: str) -> dict[str, str]:
 
 def cmd_style_fit(args, log) -> int:
     """``style fit``: align takes of one text in several styles and write a :class:`StyleModel`."""
-    from ..files import check_output_path
-    from ..pipelines import VIDEO_EXTENSIONS, face_takes, fit_style, read_style_take
-
     takes = _pairs(args.take, "--take")
     audio = _pairs(args.audio, "--audio")
     adds = _pairs(args.add, "--add")
@@ -86,11 +114,13 @@ def cmd_style_fit(args, log) -> int:
     for k in adds:
         if k in takes:
             raise InvalidDataError(f"--add {k}=...: style '{k}' is also a --take")
-    out = Path(args.out)
-    _protect(out, [*takes.values(), *audio.values(), *adds.values()])
-    if out.suffix.lower() != ".npz":
-        raise OutputError(f"{out}: a style model is written as .npz")
-    check_output_path(out)                     # before any work
+    if args.reference is not None and args.reference not in takes:
+        raise InvalidDataError(f"--reference {args.reference}: no --take of that style (styles: {', '.join(takes)})")
+    out = check_out(args.out, [*takes.values(), *audio.values(), *adds.values()], (".npz",))   # before any work
+    check_inputs(*(("--take", v) for v in takes.values()), *(("--audio", v) for v in audio.values()),
+                 *(("--add", v) for v in adds.values()), folders=("--take", "--add"))
+    from ..pipelines import VIDEO_EXTENSIONS, face_takes, fit_style, read_style_take
+
     videos = [Path(v).suffix.lower() in VIDEO_EXTENSIONS for v in [*takes.values(), *adds.values()]]
     if any(videos) and not all(videos):
         raise InvalidDataError("give all takes as videos (face takes are captured from them) or none")
@@ -112,23 +142,21 @@ def cmd_style_fit(args, log) -> int:
 
 def cmd_restyle(args, log) -> int:
     """``restyle``: change the emotion of a take with a trained :class:`StyleModel`."""
-    from ..io import read_rig, write_animation
+    from ..io import WRITERS, read_rig, write_animation
     from ..pipelines import read_style_take
     from ..style import StyleModel
 
-    out = Path(args.out)
-    _protect(out, [args.model, args.performance, args.rig])
+    out = check_out(args.out, [args.model, args.performance, args.rig], WRITERS)      # before any work
+    check_inputs(("--model", args.model), ("--performance", args.performance), ("--rig", args.rig),
+                 folders=("--performance", "--rig"))
     model = StyleModel.load(args.model)
     perf = read_style_take(args.performance, args.fps)
     ext = out.suffix.lower()
     if perf.kind == "weights" and ext in (".glb", ".npz", "") and args.rig is None:
         raise InvalidDataError(f"{out}: writing a weight take as {ext or 'an OBJ sequence'} needs the rig (--rig DIR)")
-    rig = read_rig(args.rig, neutral=args.rig_neutral) if args.rig else None
-    window = None
-    if args.window is not None:
-        if not args.window > 0:
-            raise InvalidDataError(f"--window must be positive seconds, got {args.window}")
-        window = max(1, int(round(args.window * perf.fps)))
+    with neutral_option("--rig-neutral"):
+        rig = read_rig(args.rig, neutral=args.rig_neutral) if args.rig else None
+    window = None if args.window is None else max(1, int(round(args.window * perf.fps)))
     with warnings_to_log(log):
         res = model.transform(perf, args.to, args.amount, source=args.source, window=window, margin=args.margin)
         new = res.take
@@ -159,16 +187,19 @@ def register(subparsers) -> None:
     r.add_argument("--performance", required=True, help="take: Live Link Face .csv, .npz, .glb, OBJ-sequence folder")
     r.add_argument("--to", required=True, help="target style (one of the model's)")
     r.add_argument("--from", dest="source", help="the take's own style when known (else inferred)")
-    r.add_argument("--amount", type=float, default=1.0,
-                   help="0 keeps the take's style, 1 is the target, > 1 exaggerates (default 1)")
-    r.add_argument("--window", type=float, help="seconds over which an inferred style is held constant "
-                                                 "(default: the whole take)")
+    r.add_argument("--amount", type=AMOUNT, default=1.0,
+                   help=f"how far to go, {AMOUNT}: 0 keeps the take's style, 1 is the target (default), > 1 "
+                   "exaggerates, < 0 moves away from it; past about 2 the result usually leaves the training "
+                   "range (a warning says so)")
+    r.add_argument("--window", type=POSITIVE, help=f"seconds over which an inferred style is held constant, "
+                                                    f"{POSITIVE} (default: the whole take)")
     r.add_argument("--out", required=True, help="output: .csv (weights), .glb, .npz, or a folder (OBJ sequence)")
     r.add_argument("--rig", help="rig folder, for .glb / .npz / OBJ output of a weight take")
     r.add_argument("--rig-neutral", help="the rig folder's neutral OBJ when it is not named neutral*")
-    r.add_argument("--fps", type=float, help="frame rate of a take without times")
-    r.add_argument("--margin", type=float, default=0.5,
-                   help="warn when the result leaves the training range by more than this share of it")
+    r.add_argument("--fps", type=FPS, help=f"frame rate of a take without times, {FPS}")
+    r.add_argument("--margin", type=NON_NEGATIVE, default=0.5,
+                   help=f"warn when the result leaves the training range by more than this share of it, "
+                   f"{NON_NEGATIVE} (default 0.5)")
     r.set_defaults(func=cmd_restyle)
 
     s = subparsers.add_parser("style", help="style/content (emotion/speech) model tools")
@@ -186,22 +217,23 @@ def register(subparsers) -> None:
     f.add_argument("--reference", help="style whose timeline the others are aligned to (default: the first)")
     f.add_argument("--align", choices=["auto", "audio", "face"], default="auto", help="alignment features")
     f.add_argument("--audio-features", choices=["mfcc", "rplp"], default="mfcc", help="speech features")
-    f.add_argument("--window-s", type=float, help="Sakoe-Chiba band of the alignment, seconds")
-    f.add_argument("--variance", type=_auto_float, default="auto",
-                   help="retained PCA variance (default auto: cross-validated on the training frames)")
-    f.add_argument("--energy", type=_auto_float, default="auto",
-                   help="retained energy for the style/content dimensions (default auto)")
-    f.add_argument("--prior", type=_auto_float, default="auto",
-                   help="strength of the content prior (0: the thesis's least squares; default auto)")
-    f.add_argument("--content-dims", type=int, help="content dimensions J (default: from --energy)")
-    f.add_argument("--style-dims", type=int, help="style dimensions I (default: from --energy)")
-    f.add_argument("--bundle", type=int, default=1, help="frames per observation (n-frame bundles, default 1)")
+    f.add_argument("--window-s", type=POSITIVE, help=f"Sakoe-Chiba band of the alignment, seconds, {POSITIVE}")
+    f.add_argument("--variance", type=VARIANCE, default="auto",
+                   help=f"retained PCA variance, {VARIANCE} (default auto: cross-validated on the training frames)")
+    f.add_argument("--energy", type=ENERGY, default="auto",
+                   help=f"retained energy for the style/content dimensions, {ENERGY} (default auto)")
+    f.add_argument("--prior", type=PRIOR, default="auto",
+                   help=f"strength of the content prior, {PRIOR} (0: the thesis's least squares; default auto)")
+    f.add_argument("--content-dims", type=COUNT, help=f"content dimensions J, {COUNT} (default: from --energy)")
+    f.add_argument("--style-dims", type=COUNT, help=f"style dimensions I, {COUNT} (default: from --energy)")
+    f.add_argument("--bundle", type=COUNT, default=1,
+                   help=f"frames per observation (n-frame bundles), {COUNT} (default 1)")
     f.add_argument("--local", type=_local_arg, default="auto",
                    help="local correction: auto (default, cross-validated), 0 (off), K (mean residual of the K "
                         "nearest training frames), kernel:H:LAM (kernel ridge regression) or points:M:K "
                         "(point-local translation: each point's change from it and its M-1 neighbours, "
                         "affine plus the mean remainder of the K nearest training frames; point takes only)")
-    f.add_argument("--fps", type=float, help="frame rate of takes without times")
+    f.add_argument("--fps", type=FPS, help=f"frame rate of takes without times, {FPS}")
     f.add_argument("--out", required=True, help="output model .npz")
     f.set_defaults(func=cmd_style_fit)
 

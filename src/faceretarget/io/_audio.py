@@ -8,13 +8,15 @@ extra.  Several channels are averaged to one.
 
 from __future__ import annotations
 
+import io
 import os
+import struct
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, InvalidDataError
+from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
 from ..files import input_file
 
 __all__ = ["read_audio", "checked_audio", "write_wav"]
@@ -38,8 +40,15 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
     Raises
     ------
     InputFileError
-        Missing file, a file that is not a WAV (or an unsupported WAV encoding), or one without
-        samples; the message names the file.
+        Missing file, a file that is not a WAV (no RIFF/WAVE header or data chunk, or an unsupported
+        WAV encoding), one without samples or with NaN / infinite float samples; the message names
+        the file.
+
+    Warns
+    -----
+    DataWarning
+        A truncated file (a data chunk larger than the rest of the file): the samples it holds are
+        read.
     """
     from scipy.io import wavfile
 
@@ -51,30 +60,70 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
         if got is None:
             raise InputFileError(f"{path}: no audio stream could be decoded")
         return got[0], float(got[1])
+    source = _wav_source(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", wavfile.WavFileWarning)  # unknown chunks (LIST, bext...)
-            rate, data = wavfile.read(path)
-    except (ValueError, EOFError, OSError, TypeError, KeyError) as e:
-        raise InputFileError(f"{path}: cannot read as a WAV file ({e}); convert it to PCM WAV") from e
+            rate, data = wavfile.read(source)
+    except (ValueError, EOFError, OSError, TypeError, KeyError, IndexError, ZeroDivisionError, OverflowError,
+            MemoryError, NameError, struct.error) as e:  # NameError: scipy's UnboundLocalError on odd chunks
+        raise InputFileError(f"{path}: cannot read as a WAV file ({excerpt(e, 120)}); convert it to PCM WAV") from e
     data = np.asarray(data)
     if data.size == 0:
         raise InputFileError(f"{path}: the WAV file holds no samples")
+    if data.dtype.kind == "f" and not np.isfinite(data).all():
+        raise InputFileError(f"{path}: the WAV file holds non-finite samples")
     if data.dtype == np.uint8:
         x = (data.astype(np.float32) - 128.0) / 128.0
     elif data.dtype.kind == "i":
         x = data.astype(np.float32) / float(-np.iinfo(data.dtype).min)
     elif data.dtype.kind == "f":
-        x = data.astype(np.float32)
+        x = data.astype(np.float64)  # float64 samples beyond float32's range are clipped, not overflowed
     else:
         raise InputFileError(f"{path}: unsupported WAV sample type {data.dtype}")
-    if x.ndim == 2:
-        x = x.mean(axis=1, dtype=np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if x.ndim == 2:
+            x = x.mean(axis=1, dtype=x.dtype)
+        x = np.clip(x, -1.0, 1.0).astype(np.float32)
     if not np.isfinite(x).all():
         raise InputFileError(f"{path}: the WAV file holds non-finite samples")
     if not rate or rate <= 0:
         raise InputFileError(f"{path}: invalid sampling rate {rate}")
-    return np.clip(x, -1.0, 1.0), float(rate)
+    return x, float(rate)
+
+
+def _wav_source(path: Path):
+    """``path``, or the file's bytes with its data chunk cut to what the file holds when it is
+    truncated (with a warning): SciPy would allocate the size the header declares.
+
+    Raises :class:`InputFileError` for a file without a RIFF/WAVE header or without a data chunk.
+    """
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise InputFileError(f"{path}: cannot read ({e.strerror or e})") from e
+    if len(raw) < 12 or raw[:4] not in (b"RIFF", b"RIFX", b"RF64") or raw[8:12] != b"WAVE":
+        raise InputFileError(f"{path}: cannot read as a WAV file: no RIFF/WAVE header (it starts with "
+                             f"{excerpt(raw[:12])})")
+    if raw[:4] == b"RF64":
+        return path  # sizes are in the ds64 chunk; SciPy checks them
+    end = "<" if raw[:4] == b"RIFF" else ">"
+    pos = 12
+    while pos + 8 <= len(raw):
+        cid, n = struct.unpack_from(end + "4sI", raw, pos)
+        if cid == b"data":
+            have = len(raw) - pos - 8
+            if n <= have:
+                return path
+            warnings.warn(f"{path}: the data chunk declares {n} bytes but the file holds {have} after it; "
+                          "the file is truncated, its samples are read up to its end", DataWarning, stacklevel=3)
+            patched = bytearray(raw)
+            struct.pack_into(end + "I", patched, pos + 4, have)
+            struct.pack_into(end + "I", patched, 4, len(raw) - 8)
+            return io.BytesIO(bytes(patched))
+        pos += 8 + n + (n & 1)
+    raise InputFileError(f"{path}: cannot read as a WAV file: no data chunk (or a chunk size runs past the end "
+                         "of the file)")
 
 
 def checked_audio(path, audio, audio_rate) -> tuple[np.ndarray, int] | None:

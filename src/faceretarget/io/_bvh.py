@@ -27,13 +27,15 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import InputFileError, InvalidDataError
+from ..errors import InputFileError, InvalidDataError, excerpt
 from ..files import atomic_path, check_output_path, input_file, read_text
 from ..headpose import HeadPose
 
 __all__ = ["Bvh", "BvhJoint", "read_bvh", "write_bvh", "bvh_chain", "make_head_bvh"]
 
 _ROT = {"xrotation": "X", "yrotation": "Y", "zrotation": "Z"}
+#: Largest magnitude of a value read (no angle or length is near it; sums of larger ones could overflow).
+_MAX_VALUE = 1e15
 _POS = {"xposition": 0, "yposition": 1, "zposition": 2}
 
 
@@ -113,7 +115,7 @@ class Bvh:
         for i, j in enumerate(self.joints):
             if j.name == name:
                 return i
-        raise InvalidDataError(f"{self.source}: no joint '{name}' (joints: {', '.join(self.names[:40])}"
+        raise InvalidDataError(f"{self.source}: no joint '{name}' (joints: {', '.join(excerpt(n, bare=True) for n in self.names[:40])}"
                                f"{', ...' if len(self.joints) > 40 else ''})")
 
     def local_rotations(self, joint: str | int) -> np.ndarray:
@@ -181,9 +183,10 @@ def _num(path: Path, lineno: int, s: str) -> float:
     try:
         v = float(s)
     except ValueError:
-        raise InputFileError(f"{path}: line {lineno}: {s!r} is not a number") from None
-    if not np.isfinite(v):
-        raise InputFileError(f"{path}: line {lineno}: value {s!r} is not finite")
+        raise InputFileError(f"{path}: line {lineno}: {excerpt(s)} is not a number") from None
+    if not abs(v) <= _MAX_VALUE:
+        raise InputFileError(f"{path}: line {lineno}: value {excerpt(s)} is not finite" if not np.isfinite(v) else
+                             f"{path}: line {lineno}: value {excerpt(s)} is beyond +-{_MAX_VALUE:g}")
     return v
 
 
@@ -230,12 +233,16 @@ def _read_channels(path: Path, toks: list[tuple[str, int]], k: int, ln: int) -> 
     try:
         cnt = int(cnt_s)
     except ValueError:
-        raise InputFileError(f"{path}: line {ln}: channel count {cnt_s!r} is not an integer") from None
+        raise InputFileError(f"{path}: line {ln}: channel count {excerpt(cnt_s)} is not an integer") from None
+    if cnt < 0:  # a negative count stepped the parser backwards: it never ended
+        raise InputFileError(f"{path}: line {ln}: channel count {cnt} is negative")
     chans = []
     for j in range(cnt):
         c, cl = _token(path, toks, k + 2 + j, f"{cnt} channel names")
         if c.lower() not in _ROT and c.lower() not in _POS:
-            raise InputFileError(f"{path}: line {cl}: unknown channel {c!r}")
+            raise InputFileError(f"{path}: line {cl}: unknown channel {excerpt(c)}")
+        if c.lower() in (x.lower() for x in chans):  # 'Xrotation Xrotation': no Euler sequence
+            raise InputFileError(f"{path}: line {cl}: channel {c} is listed twice")
         chans.append(c)
     return cnt, tuple(chans)
 
@@ -267,6 +274,8 @@ def _parse_hierarchy(path: Path, toks: list[tuple[str, int]]) -> list[BvhJoint]:
             if u == "JOINT" and not stack:
                 raise InputFileError(f"{path}: line {ln}: JOINT outside of any ROOT")
             parent = -1 if u == "ROOT" else next((s for s in reversed(stack) if s >= 0), -1)
+            if not (name.isprintable() and len(name) <= 200):
+                raise InputFileError(f"{path}: line {ln}: joint name {excerpt(name)} is not a name")
             pending = (name, parent)
             k += 2
         elif u == "END":
@@ -296,7 +305,7 @@ def _parse_hierarchy(path: Path, toks: list[tuple[str, int]]) -> list[BvhJoint]:
             joints[stack[-1]].channels = chans
             k += 2 + cnt
         else:
-            raise InputFileError(f"{path}: line {ln}: unexpected {t!r} in the hierarchy")
+            raise InputFileError(f"{path}: line {ln}: unexpected {excerpt(t)} in the hierarchy")
     if stack:
         raise InputFileError(f"{path}: the hierarchy has {len(stack)} unclosed '{{'")
     if not joints:
@@ -314,7 +323,7 @@ def _motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int,
             key, _, val = s.partition(":")
             key = key.strip().lower()
             if key not in ("frames", "frame time"):
-                raise InputFileError(f"{path}: line {i + 1}: expected 'Frames:' and 'Frame Time:', got {s!r}")
+                raise InputFileError(f"{path}: line {i + 1}: expected 'Frames:' and 'Frame Time:', got {excerpt(s)}")
             header[key] = (val.strip(), i + 1)
         i += 1
     if len(header) < 2:
@@ -323,7 +332,9 @@ def _motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int,
         n_frames = int(header["frames"][0])
     except ValueError:
         raise InputFileError(f"{path}: line {header['frames'][1]}: frame count "
-                             f"{header['frames'][0]!r} is not an integer") from None
+                             f"{excerpt(header['frames'][0])} is not an integer") from None
+    if n_frames < 1:
+        raise InputFileError(f"{path}: line {header['frames'][1]}: frame count {n_frames} is not positive")
     frame_time = _num(path, header["frame time"][1], header["frame time"][0])
     if frame_time <= 0:
         raise InputFileError(f"{path}: line {header['frame time'][1]}: frame time must be positive")
@@ -340,7 +351,7 @@ def _motion_rows(path: Path, lines: list[str], start: int, n_frames: int, C: int
         flat = np.array(" ".join(r for _, r in rows_text).split(), dtype=np.float64)
     except ValueError:
         flat = None
-    if flat is None or flat.size != n_frames * C or not np.isfinite(flat).all():
+    if flat is None or flat.size != n_frames * C or not (np.abs(flat) <= _MAX_VALUE).all():
         for ln, r in rows_text:  # find the faulty row for the message
             parts = r.split()
             if len(parts) != C:
@@ -363,9 +374,9 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
     Raises
     ------
     InputFileError
-        Missing file, malformed hierarchy (naming the line), unknown channel names, a frame row with
-        the wrong number of values or a non-numeric value (naming the line), or fewer frames than
-        ``Frames:`` announces.
+        Missing file, malformed hierarchy (naming the line), unknown channel names or a negative
+        channel count, a frame row with the wrong number of values, a non-numeric, non-finite or
+        absurd (beyond +-1e15) value (naming the line), or fewer frames than ``Frames:`` announces.
     """
     path = input_file(path)
     text = read_text(path)

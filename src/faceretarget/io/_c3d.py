@@ -1,7 +1,10 @@
 """C3D optical motion capture files: labelled 3D marker trajectories.
 
-Read and written with `ezc3d <https://github.com/pyomeca/ezc3d>`_.  Only the point (marker) data
-is used; analog channels, force plates and events are ignored on read and not written.
+Written with `ezc3d <https://github.com/pyomeca/ezc3d>`_; read here, in Python, with every count
+and pointer of the header and parameter section checked against the file first (ezc3d trusts them
+and crashed or hung on fuzzed files), the point data giving the values ezc3d gives.  Only the point
+(marker) data are used; analog channels, force plates and events are skipped on read and not
+written.  Big-endian (MIPS) files are not supported.
 
 A C3D sample whose residual is negative is invalid (the marker was occluded); such samples become
 NaN.  Some systems instead write a gap as a point at exactly ``(0, 0, 0)``; with
@@ -14,14 +17,16 @@ a take cut out of a longer recording keeps its place in time; :func:`write_c3d` 
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError
+from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError, excerpt
 from ..files import atomic_path, check_output_path, input_file
 from ..optional import optional_import
 from ..performance import Performance
@@ -30,7 +35,7 @@ __all__ = ["read_c3d", "write_c3d"]
 
 
 def _ezc3d():
-    return optional_import("ezc3d", "reading and writing C3D files")
+    return optional_import("ezc3d", "writing C3D files")
 
 
 def _param(group: dict, name: str):
@@ -64,22 +69,182 @@ def _labels(point: dict, n: int) -> tuple[list[str], list[str]]:
     return labels, sorted(set(dup))
 
 
-def _declared_frames(path: Path) -> int | None:
-    """Frame count the raw C3D header declares (``last - first + 1``), or None when unreadable."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(512)
-            if len(head) < 512 or head[1] != 0x50 or head[0] < 1:
-                return None
-            f.seek((head[0] - 1) * 512)
-            ph = f.read(4)
-    except OSError:
-        return None
-    if len(ph) < 4:
-        return None
-    endian = ">" if ph[3] == 86 else "<"  # processor type 86 = MIPS (big-endian); Intel, DEC little
-    first, last = struct.unpack(endian + "HH", head[6:10])
-    return last - first + 1 if last >= first >= 1 else None
+# ------------------------------------------------------------------------------------------ reading
+# ezc3d trusts every count and pointer of a file: on fuzzed files a negative description length, an
+# empty POINT:SCALE, a point count larger than the file, an analog channel without a scale or a
+# ROTATION group of a truncated file made it crash (SIGSEGV) or loop for minutes.  So the reader is
+# this module's own: the header and parameter records are walked with every count checked against
+# the file, and the point data are one NumPy view of the frames the file really holds.  The values
+# are those ezc3d gives (its conventions for frame counts, rates, DEC floats and residuals).
+
+# parameters whose first value is used: present but empty is an error
+_FIRST_VALUE = (("POINT", "USED"), ("POINT", "FRAMES"), ("POINT", "RATE"), ("POINT", "SCALE"))
+
+
+@dataclass(frozen=True)
+class _C3d:
+    """What :func:`_parse_c3d` found: parameters and where the point data are."""
+
+    params: dict          # {(GROUP, NAME): list of numbers, or of strings for a char parameter}
+    dec: bool             # DEC (VAX) floats instead of IEEE
+    n_points: int
+    scale: float          # POINT:SCALE; negative: float data
+    frames: int | None    # frames the file declares (None: no usable count)
+    first_frame: int      # 0-based
+    rate: float           # POINT:RATE, else the header's rate
+    frame_bytes: int      # one frame: points and analog samples
+    data_start: int       # byte offset of frame 0
+    size: int             # file size in bytes
+
+
+def _dec_floats(b: np.ndarray) -> np.ndarray:
+    """DEC (VAX F) floats, as (..., 4) uint8, to float32 (ezc3d's conversion)."""
+    b = np.asarray(b, np.uint8)
+    e = np.where(b[..., 1] != 0, b[..., 1] - 1, 0).astype(np.uint8)
+    return np.ascontiguousarray(np.stack([b[..., 2], b[..., 3], b[..., 0], e], axis=-1)).view("<f4")[..., 0]
+
+
+def _floats(block: bytes, dec: bool) -> list[float]:
+    a = np.frombuffer(block, np.uint8).reshape(-1, 4)
+    with np.errstate(invalid="ignore"):  # a signalling NaN stays a NaN
+        return (_dec_floats(a) if dec else a.copy().view("<f4")[:, 0]).astype(np.float64).tolist()
+
+
+def _strings(block: bytes, dims: bytes) -> list[str]:
+    """A char parameter as ezc3d reads it: one string per column of ``dims[0]`` characters, NULs
+    dropped and trailing blanks removed."""
+    if not dims or dims[0] == 0:
+        return []
+    w = dims[0]
+    cols = [block[k:k + w].replace(b"\0", b"").decode("utf-8", "replace").rstrip() for k in range(0, len(block), w)]
+    return cols if len(dims) > 1 else ["".join(cols)]
+
+
+def _c3d_parameters(bad, raw, pos: int, dec: bool) -> dict[tuple[str, str], list]:
+    """``{(GROUP, NAME): values}`` of the parameter records from byte ``pos`` on, every count checked."""
+    n = len(raw)
+    groups: dict[int, str] = {}
+    params: list[tuple[int, str, list]] = []
+    for _ in range(65536):
+        if pos + 2 > n:
+            raise bad("the parameter section runs past the end of the file")
+        nchar, gid = struct.unpack_from("<bb", raw, pos)
+        if nchar == 0:
+            break
+        if gid == 0:
+            raise bad(f"parameter record at byte {pos} has group id 0")
+        name_end = pos + 2 + abs(nchar)
+        if name_end + 3 > n:
+            raise bad("the parameter section runs past the end of the file")
+        name = bytes(raw[pos + 2:name_end]).split(b"\0")[0].decode("ascii", "replace").strip().upper()
+        off = struct.unpack_from("<H", raw, name_end)[0]
+        q = name_end + 2
+        if gid > 0:
+            typ, nd = struct.unpack_from("<bb", raw, q) if q + 2 <= n else (0, 0)
+            if typ not in (-1, 1, 2, 4) or not 0 <= nd <= 7 or q + 2 + nd > n:
+                raise bad(f"parameter {name[:20]!r} at byte {pos} has data type {typ} with {nd} dimension(s)")
+            dims = bytes(raw[q + 2:q + 2 + nd])
+            count = math.prod(dims) if nd else (0 if typ == -1 else 1)
+            q += 2 + nd
+            if q + count * abs(typ) + 1 > n:
+                raise bad(f"parameter {name[:20]!r} at byte {pos} runs past the end of the file")
+            block = bytes(raw[q:q + count * abs(typ)])
+            q += count * abs(typ)
+            values = (_strings(block, dims) if typ == -1 else _floats(block, dec) if typ == 4
+                      else list(struct.unpack(f"<{count}{'b' if typ == 1 else 'h'}", block)))
+            params.append((gid, name, values))
+        dlen = struct.unpack_from("<b", raw, q)[0]
+        end = q + 1 + max(dlen, 0)
+        if end > n:
+            raise bad("the parameter section runs past the end of the file")
+        if gid < 0:
+            groups[-gid] = name
+        if off == 0:
+            break
+        pos = name_end + off
+    else:
+        raise bad("more than 65536 parameter records")
+    out = {(groups.get(g, ""), name): v for g, name, v in params}
+    for key in _FIRST_VALUE:
+        if key in out and not (out[key] and isinstance(out[key][0], int | float)):
+            raise bad(f"parameter {key[0]}:{key[1]} has no number")
+    return out
+
+
+def _parse_c3d(path: Path, raw) -> _C3d:
+    """The header and parameters of the C3D bytes ``raw``; :class:`InputFileError` naming the file for
+    anything that does not fit in it."""
+    def bad(why: str) -> InputFileError:
+        return InputFileError(f"{path}: cannot read as a C3D file ({why})")
+
+    size = len(raw)
+    if size < 512:
+        raise bad(f"{size} bytes, shorter than a C3D header")
+    if raw[1] != 0x50:
+        raise bad("no C3D header: its second byte is not 0x50")
+    base = (raw[0] - 1) * 512
+    if raw[0] < 2 or base + 4 > size:
+        raise bad(f"the parameter section (block {raw[0]}) is outside the file")
+    proc = raw[base + 3]
+    if proc not in (84, 85):
+        raise bad("big-endian (MIPS) files are not supported" if proc == 86 else f"processor type {proc}")
+    dec = proc == 85
+    p = _c3d_parameters(bad, raw, base + 4, dec)
+    first, last, _, = struct.unpack_from("<HHH", raw, 6)
+    head_scale, data_block = _floats(bytes(raw[12:16]), dec)[0], struct.unpack_from("<H", raw, 16)[0]
+    head_rate = _floats(bytes(raw[20:24]), dec)[0]
+
+    def value(group: str, name: str, default: float) -> float:
+        v = p.get((group, name))
+        return float(v[0]) if v and isinstance(v[0], int | float) else default
+
+    n_points = value("POINT", "USED", 0)
+    if not 0 < n_points < 2**31:
+        raise InputFileError(f"{path}: the C3D file holds no 3D point data (POINT:USED = {n_points:g})")
+    # frames as ezc3d counts them: 1-based header frames (0-based when the first is 0), or POINT:FRAMES
+    frames = (last - first + 1) if first else last + 1
+    declared = value("POINT", "FRAMES", 0)
+    if math.isfinite(declared) and int(declared) != 0:
+        frames = int(declared)
+    scale = value("POINT", "SCALE", -1.0)
+    point_rate = value("POINT", "RATE", 0.0)
+    rate = point_rate if point_rate != 0 else head_rate
+    # analog samples follow the points in every frame (read past, never used)
+    n_analog, sub = value("ANALOG", "USED", 0), 1.0
+    if math.isfinite(point_rate) and int(point_rate) != 0:
+        sub = value("ANALOG", "RATE", 0.0) / point_rate
+    if not (0 <= n_analog < 2**31 and math.isfinite(sub) and 0 <= sub < 2**31):
+        raise bad(f"{n_analog:g} analog channel(s) at {sub:g} sample(s) per frame")
+    frame_bytes = int(n_points) * (16 if scale < 0 else 8) + int(n_analog) * int(sub) * (4 if head_scale < 0 else 2)
+    data_start = (data_block - 1) * 512
+    if data_block < 2 or data_start + frame_bytes > size:
+        raise InputFileError(f"{path}: the C3D file holds no complete frame of {int(n_points)} 3D point(s) "
+                             f"(data block {data_block} of a {size}-byte file)")
+    return _C3d(p, dec, int(n_points), scale, frames if frames > 0 else None, first - 1 if first else 0,
+                rate, frame_bytes, data_start, size)
+
+
+def _c3d_points(c: _C3d, raw) -> tuple[np.ndarray, np.ndarray]:
+    """``(T, P, 3)`` positions and ``(T, P)`` residuals of the complete frames (NaN where the residual
+    is negative, as ezc3d gives them)."""
+    T = (c.size - c.data_start) // c.frame_bytes
+    if c.frames is not None:
+        T = min(T, c.frames)
+    P, word = c.n_points, 4 if c.scale < 0 else 2
+    rec = np.dtype({"names": ["p"], "formats": [(np.uint8, (P, 4 * word))], "itemsize": c.frame_bytes})
+    u8 = np.frombuffer(raw, rec, count=T, offset=c.data_start)["p"].reshape(T, P, 4, word)  # raw words
+    with np.errstate(invalid="ignore", over="ignore"):
+        if word == 4:
+            xyz = _dec_floats(u8[:, :, :3]) if c.dec else u8[:, :, :3].copy().view("<f4")[..., 0]
+            w = u8[:, :, 3].copy().view("<i2")                                      # (T, P, 2)
+            residual = w[..., 0 if c.dec else 1] * -c.scale
+        else:
+            xyz = u8[:, :, :3].copy().view("<i2")[..., 0] * c.scale
+            residual = u8[:, :, 3, 1].view(np.int8) * c.scale
+        xyz = xyz.astype(np.float64)
+        residual = np.asarray(residual, np.float64)
+        xyz[residual < 0] = np.nan
+    return xyz, residual
 
 
 def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Performance:
@@ -106,85 +271,63 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
     Raises
     ------
     InputFileError
-        Missing, unreadable or malformed file, a file without 3D points or frames, or one without a
-        positive point rate.
+        Missing, unreadable or malformed file (a count or pointer of the header or a parameter that
+        does not fit in the file), a big-endian (MIPS) file, a file without 3D points or frames, or
+        one without a positive point rate.
+    InvalidDataError
+        An infinite coordinate.
 
     Warns
     -----
     DataWarning
-        Markers that are missing in every frame (naming them), repeated labels, or a file holding
-        fewer frames than its header declares (a truncated file).
+        Markers that are missing in every frame (naming them), repeated labels, or a truncated file:
+        fewer frames than its header declares, or a size that is not a whole number of 512-byte
+        blocks.
     """
     path = input_file(path)
-    c = _open_c3d(path)
-    data = _point_data(path, c)
-    n_points, n_frames = int(data.shape[1]), int(data.shape[2])
-    point = c["parameters"]["POINT"]
-    rate = _point_rate(path, c, point)
-    units = _param(point, "UNITS")
-    unit = str(units[0]).strip() if units is not None and len(units) and str(units[0]).strip() else None
-    labels, dup = _labels(point, n_points)
-    if dup:
-        warnings.warn(f"{path}: repeated marker label(s) {', '.join(dup)}; later ones renamed with "
-                      "a _2, _3... suffix", DataWarning, stacklevel=2)
-
-    pts = _marker_points(path, c, data, labels, zero_is_missing)
-    declared = _declared_frames(path)
-    if declared is not None and n_frames < declared:
-        warnings.warn(f"{path}: holds {n_frames} frame(s) but its header declares {declared}; "
-                      "the file may be truncated", DataWarning, stacklevel=2)
-    first = int(c["header"]["points"]["first_frame"])
-    times = (first + np.arange(n_frames)) / rate
-    return Performance(times=times, fps=rate, points=pts, labels=labels, unit=unit, source=str(path))
-
-
-def _open_c3d(path: Path):
-    """The ``ezc3d.c3d`` of ``path`` (an :class:`InputFileError` when ezc3d cannot read it)."""
-    ezc3d = _ezc3d()
     try:
-        return ezc3d.c3d(str(path))
-    except (OSError, RuntimeError, ValueError, IndexError) as e:
-        raise InputFileError(f"{path}: cannot read as a C3D file "
-                             f"({str(e).strip() or type(e).__name__})") from e
+        with open(path, "rb") as f:
+            raw = f.read()
+    except OSError as e:
+        raise InputFileError(f"{path}: cannot read ({e.strerror or e})") from e
+    c = _parse_c3d(path, raw)
+    xyz, residual = _c3d_points(c, raw)
+    n_frames = len(xyz)
+    if not (np.isfinite(c.rate) and c.rate > 0):
+        raise InputFileError(f"{path}: the C3D file has no positive point rate (POINT:RATE = {c.rate:g})")
+    point = {name: {"value": v} for (g, name), v in c.params.items() if g == "POINT"}
+    units = _param(point, "UNITS")
+    unit = str(units[0]).strip() if units and isinstance(units[0], str) and units[0].strip() else None
+    labels, dup = _labels(point, c.n_points)
+    if dup:
+        warnings.warn(f"{path}: repeated marker label(s) {', '.join(excerpt(d, bare=True) for d in dup[:20])}"
+                      f"{' ...' if len(dup) > 20 else ''}; later ones renamed with "
+                      "a _2, _3... suffix", DataWarning, stacklevel=2)
+    pts = _marker_points(path, xyz, residual, labels, zero_is_missing)
+    if c.frames is not None and n_frames < c.frames:
+        warnings.warn(f"{path}: holds {n_frames} frame(s) but its header declares {c.frames}; "
+                      "the file may be truncated", DataWarning, stacklevel=2)
+    elif c.size % 512:
+        warnings.warn(f"{path}: {c.size} bytes, not a whole number of 512-byte C3D blocks; the file may be "
+                      f"truncated (all {n_frames} frame(s) were read)", DataWarning, stacklevel=2)
+    times = (c.first_frame + np.arange(n_frames)) / c.rate
+    return Performance(times=times, fps=c.rate, points=pts, labels=labels, unit=unit, source=str(path))
 
 
-def _point_data(path: Path, c) -> np.ndarray:
-    """The (4, P, T) point array of the file; an error when it holds no point or no frame."""
-    data = c["data"]["points"]
-    if data.ndim != 3 or data.shape[1] == 0 or data.shape[2] == 0:
-        n_p = data.shape[1] if data.ndim == 3 else 0
-        raise InputFileError(f"{path}: the C3D file holds no 3D point data ({n_p} points, "
-                             f"{data.shape[2] if data.ndim == 3 else 0} frames)")
-    return data
-
-
-def _point_rate(path: Path, c, point: dict) -> float:
-    """The point rate: the header's, else ``POINT:RATE``; it must be positive."""
-    rate = float(c["header"]["points"]["frame_rate"] or 0.0)
-    prate = _param(point, "RATE")
-    if not rate > 0 and prate is not None and len(prate):
-        rate = float(prate[0])
-    if not (np.isfinite(rate) and rate > 0):
-        raise InputFileError(f"{path}: the C3D file has no positive point rate (POINT:RATE = {rate})")
-    return rate
-
-
-def _marker_points(path: Path, c, data: np.ndarray, labels: list[str], zero_is_missing: bool) -> np.ndarray:
+def _marker_points(path: Path, xyz: np.ndarray, residual: np.ndarray, labels: list[str],
+                   zero_is_missing: bool) -> np.ndarray:
     """(T, P, 3) marker positions, NaN where missing (warns, for the caller, about never-seen markers)."""
-    n_points, n_frames = int(data.shape[1]), int(data.shape[2])
-    pts = np.ascontiguousarray(np.asarray(data[:3], dtype=np.float64).transpose(2, 1, 0))  # (T, P, 3)
-    missing = ~np.isfinite(pts).all(axis=2)
-    meta = c["data"]["meta_points"] if "meta_points" in c["data"].keys() else {}
-    res = meta.get("residuals")
-    if res is not None and np.shape(res) == (1, n_points, n_frames):
-        missing |= np.asarray(res[0]).T < 0
+    pts = xyz
+    missing = ~np.isfinite(pts).all(axis=2) & ~np.isinf(pts).any(axis=2)
+    missing |= residual < 0
     if zero_is_missing:
         missing |= (pts == 0.0).all(axis=2)
     pts[missing] = np.nan
     never = np.flatnonzero(missing.all(axis=0))
     if never.size:
-        warnings.warn(f"{path}: marker(s) missing in every frame: {', '.join(labels[i] for i in never)}",
-                      DataWarning, stacklevel=3)
+        shown = ", ".join(excerpt(labels[i], bare=True) for i in never[:20]) + (
+            f" and {never.size - 20} more" if never.size > 20 else "")
+        warnings.warn(f"{path}: marker(s) missing in every frame: {shown}", DataWarning, stacklevel=3)
     return pts
 
 

@@ -34,6 +34,7 @@ the head node sits at ``head_pivot + translation``).
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import struct
@@ -41,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, InvalidDataError
+from ..errors import FaceRetargetError, InputFileError, InvalidDataError, excerpt
 from ..files import atomic_path, check_output_path
 from ..headpose import HeadPose
 from ..mesh import Mesh
@@ -393,6 +394,23 @@ def write_glb_head(path: str | os.PathLike, times: np.ndarray, head: HeadPose, *
     return _write_glb_file(path, gltf, b)
 
 
+def _glb_reader(fn):
+    """A ``.glb`` reader whose malformed input (a JSON key, index or type that is not what glTF says,
+    an accessor outside the buffer) raises :class:`InputFileError` naming the file, never a KeyError."""
+    @functools.wraps(fn)
+    def read(path, *args, **kwargs):
+        try:
+            return fn(path, *args, **kwargs)
+        except FaceRetargetError as e:
+            if str(path) in str(e):
+                raise
+            raise InputFileError(f"{path}: {e}") from e
+        except (KeyError, IndexError, TypeError, ValueError, AttributeError, struct.error, OverflowError) as e:
+            raise InputFileError(f"{path}: malformed glTF ({type(e).__name__}: {excerpt(e, 80)})") from e
+    return read
+
+
+@_glb_reader
 def read_glb_head(path: str | os.PathLike, node: str = "head") -> tuple[np.ndarray, HeadPose]:
     """Read the rotation (and translation) keyframes of node ``node`` of a ``.glb``.
 
@@ -420,7 +438,22 @@ def read_glb_head(path: str | os.PathLike, node: str = "head") -> tuple[np.ndarr
         raise InputFileError(f"{path}: node '{node}' has no rotation animation")
     t, q = found["rotation"]
     tr = found["translation"][1] if "translation" in found else None
+    _check_keyframes(path, t, q, 4, "rotation")
+    if tr is not None:
+        _check_keyframes(path, found["translation"][0], tr, 3, "translation")
+        if len(tr) != len(q):
+            raise InputFileError(f"{path}: {len(tr)} translation and {len(q)} rotation keyframes")
     return t, HeadPose(q.reshape(-1, 4), tr, source=str(path))
+
+
+def _check_keyframes(path: Path, t: np.ndarray, v: np.ndarray, width: int, what: str) -> None:
+    """Keyframe times finite and increasing, ``width`` finite values per keyframe (glTF has no "missing")."""
+    if v.size != t.size * width or t.size == 0:
+        raise InputFileError(f"{path}: {what} output has {v.size} values for {t.size} keyframes")
+    if not (np.isfinite(t).all() and np.isfinite(v).all()):
+        raise InputFileError(f"{path}: {what} keyframes hold NaN or infinite values")
+    if (np.diff(t) <= 0).any():
+        raise InputFileError(f"{path}: {what} keyframe times do not increase")
 
 
 # ---------------------------------------------------------------------------------------- reading
@@ -440,7 +473,12 @@ def _load_glb(path: Path) -> tuple[dict, bytes]:
         n, kind = struct.unpack_from("<II", data, off)
         body = data[off + 8: off + 8 + n]
         if kind == _JSON:
-            gltf = json.loads(body.decode("utf-8"))
+            try:
+                gltf = json.loads(body.decode("utf-8"))
+            except ValueError as e:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+                raise InputFileError(f"{path}: the JSON chunk is not UTF-8 JSON ({excerpt(e, 80)})") from e
+            if not isinstance(gltf, dict):
+                raise InputFileError(f"{path}: the JSON chunk is not a glTF object")
         elif kind == _BIN:
             binchunk = body
         off += 8 + n
@@ -450,10 +488,14 @@ def _load_glb(path: Path) -> tuple[dict, bytes]:
 
 
 def _accessor(path: Path, gltf: dict, binchunk: bytes, i: int) -> np.ndarray:
+    if not isinstance(i, int) or i < 0:
+        raise InputFileError(f"{path}: accessor index {excerpt(i)} is not a glTF index")
     acc = gltf["accessors"][i]
     n = _NCOMP[acc["type"]]
     dt = np.dtype(_NP_OF[acc["componentType"]])
     count = acc["count"]
+    if not isinstance(count, int) or not 0 <= count <= 1 << 26:
+        raise InputFileError(f"{path}: accessor {i} has count {excerpt(count)}")
     if "bufferView" not in acc:
         return np.zeros((count, n), dt)
     view = gltf["bufferViews"][acc["bufferView"]]
@@ -461,16 +503,20 @@ def _accessor(path: Path, gltf: dict, binchunk: bytes, i: int) -> np.ndarray:
         raise InputFileError(f"{path}: external buffers are not supported")
     start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
     stride = view.get("byteStride", n * dt.itemsize)
-    if stride == n * dt.itemsize:
-        arr = np.frombuffer(binchunk, dt, count * n, start).reshape(count, n)
-    else:
-        rows = [np.frombuffer(binchunk, dt, n, start + r * stride) for r in range(count)]
-        arr = np.array(rows, dt).reshape(count, n)
-    if acc.get("normalized"):
+    if not (isinstance(start, int) and isinstance(stride, int) and start >= 0 and stride >= n * dt.itemsize
+            and start + max(count - 1, 0) * stride + n * dt.itemsize * (count > 0) <= len(binchunk)):
+        raise InputFileError(f"{path}: accessor {i} ({count} x {n} {dt}) lies outside the binary chunk "
+                             f"of {len(binchunk)} bytes")
+    arr = np.ndarray((count, n), dt, buffer=binchunk, offset=start, strides=(stride, dt.itemsize)).copy()
+    if dt.kind == "f":
+        with np.errstate(invalid="ignore"):  # a signalling NaN is reported by the callers' checks
+            arr = arr.astype(np.float64)
+    if acc.get("normalized") and dt.kind in "iu":
         arr = arr.astype(np.float64) / np.iinfo(dt).max
     return arr
 
 
+@_glb_reader
 def read_glb_weights(path: str | os.PathLike) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Read the morph-target weight animation of a ``.glb`` (the first ``"weights"`` channel).
 
@@ -497,10 +543,14 @@ def read_glb_weights(path: str | os.PathLike) -> tuple[list[str], np.ndarray, np
                 if w.size != t.size * K:
                     raise InputFileError(f"{path}: weight output has {w.size} values for {t.size} "
                                          f"keyframes of {K} targets")
-                return list(names), t, w.reshape(t.size, K)
+                _check_keyframes(path, t, w, K, "weight")
+                if not isinstance(names, list) or len(names) != K:
+                    raise InputFileError(f"{path}: mesh.extras.targetNames does not name the {K} morph targets")
+                return [str(n) for n in names], t, w.reshape(t.size, K)
     raise InputFileError(f"{path}: no morph-target weight animation found")
 
 
+@_glb_reader
 def read_glb_rig(path: str | os.PathLike) -> Rig:
     """Read the first mesh of a ``.glb`` with its morph targets as a :class:`Rig` (unit ``"m"``).
 
@@ -520,7 +570,10 @@ def read_glb_rig(path: str | os.PathLike) -> Rig:
     if mode == 0:                                       # a point set: vertices without faces
         idx = np.zeros((0, 3), dtype=np.int64)
     elif "indices" in prim:
-        idx = _accessor(path, gltf, binchunk, prim["indices"]).astype(np.int64).reshape(-1, 3)
+        idx = _accessor(path, gltf, binchunk, prim["indices"])
+        if idx.dtype.kind not in "iu":
+            raise InputFileError(f"{path}: triangle indices are {idx.dtype}, not integers")
+        idx = idx.astype(np.int64).reshape(-1, 3)
     else:
         idx = np.arange(len(pos)).reshape(-1, 3)
     uvs = fuv = None

@@ -23,18 +23,18 @@ from __future__ import annotations
 
 import os
 import warnings
-import zipfile
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import DataWarning, InputFileError, InvalidDataError
-from ..files import input_file
+from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
+from ..files import input_file, load_npz_arrays
 from ..headpose import HeadPose
 from ..performance import Performance
 from ..timebase import frame_times
 from ..units import normalize_unit, scale
+from ._arrays import npz_array, npz_scalar
 from ._audio import read_audio
 from ._bvh import Bvh, bvh_chain, read_bvh
 
@@ -69,7 +69,8 @@ def read_bvh_head(bvh: Bvh | str | os.PathLike, joints: tuple[str, ...] = ("Neck
     present = [j for j in joints if j in b.names]
     if not present or present[-1] != joints[-1]:
         raise InvalidDataError(f"{b.source}: no '{joints[-1]}' joint; head motion needs the chain "
-                               f"{' > '.join(joints)} (joints: {', '.join(b.names[:30])})")
+                               f"{' > '.join(joints)} (joints: "
+                               f"{', '.join(excerpt(n, bare=True) for n in b.names[:30])})")
     chain = [present[-1]]                     # the contiguous part of the chain that ends at the head
     for j in reversed(present[:-1]):
         if b.joints[b.index(chain[0])].parent == b.index(j):
@@ -102,21 +103,13 @@ def read_smplx_head(path: str | os.PathLike, neck_length: float = 0.10) -> Perfo
         upper spine); SMPL-X's canonical frame is +Y up, +Z forward, +X left, the package's.
     """
     path = input_file(path)
-    if not zipfile.is_zipfile(path):
-        raise InputFileError(f"{path}: not an .npz archive")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            if "poses" not in z.files:
-                raise InputFileError(f"{path}: no 'poses' array; expected SMPL-X parameters (poses (T, 165))")
-            poses = np.asarray(z["poses"], np.float64)
-            fps = 30.0
-            for k in ("mocap_frame_rate", "mocap_framerate", "fps", "frame_rate"):
-                if k in z.files:
-                    fps = float(np.asarray(z[k]).reshape(-1)[0])
-                    break
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise InputFileError(f"{path}: cannot read as .npz ({e})") from e
-    if poses.ndim != 2 or poses.shape[1] < 48:
+    z = load_npz_arrays(path)
+    if "poses" not in z:
+        raise InputFileError(f"{path}: no 'poses' array; expected SMPL-X parameters (poses (T, 165))")
+    poses = npz_array(path, z, "poses", "f")
+    key = next((k for k in ("mocap_frame_rate", "mocap_framerate", "fps", "frame_rate") if k in z), None)
+    fps = 30.0 if key is None else npz_scalar(path, z, key, "f")
+    if poses.ndim != 2 or poses.shape[1] < 48 or len(poses) == 0:
         raise InputFileError(f"{path}: 'poses' must be (T, 165) axis-angle, got {poses.shape}")
     if not np.isfinite(poses[:, 36:48]).all():
         f = int(np.flatnonzero(~np.isfinite(poses[:, 36:48]).all(axis=1))[0])

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataWarning, InputFileError, InvalidDataError, format_ranges
+from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt, format_ranges
 from ..files import atomic_path, check_output_path, input_file, read_text
 from ..headpose import HeadPose
 from ..names import ARKIT_NAMES, normalize_name, split_parent
@@ -206,7 +206,7 @@ def _header(path: Path, lines: list[str]) -> tuple[int, list[str], list[str], di
                              "(header 'Timecode,BlendShapeCount,EyeBlinkLeft,...')")
     header = [c.strip() for c in lines[first].split(",")]
     if header[0].lower() != "timecode":
-        raise InputFileError(f"{path}: line {first + 1}: header must start with 'Timecode', got {header[0]!r}; "
+        raise InputFileError(f"{path}: line {first + 1}: header must start with 'Timecode', got {excerpt(header[0])}; "
                              "is this a Live Link Face CSV?")
     skip = {"timecode", "blendshapecount"}
     other = set(HEAD_COLUMNS) | set(EYE_COLUMNS)
@@ -237,7 +237,7 @@ def _classify_rows(lines: list[str], first: int, ncol: int) -> _Rows:
             why[len(kind)] = f"has {n} columns, the header has {ncol}"
         elif tc is None:
             k = _JUNK
-            why[len(kind)] = f"timecode {cell0!r} is not HH:MM:SS:FF.fff"
+            why[len(kind)] = f"timecode {excerpt(cell0)} is not HH:MM:SS:FF.fff"
         lineno.append(i + 1)
         kind.append(k)
         tcs.append(tc)
@@ -279,7 +279,7 @@ def _parse_values(lines: list[str], rows: _Rows, header: list[str]) -> None:
         except ValueError:
             c, cell = next((c, cell) for c, cell in enumerate(cells[1:], 1) if not _is_number(cell))
             rows.kind[j] = _JUNK
-            rows.why[j] = f"column '{header[c]}' value {cell.strip()!r} is not a number"
+            rows.why[j] = f"column {excerpt(header[c])} value {excerpt(cell.strip())} is not a number"
 
 
 def _row_times(rows: _Rows, rate: int, lines: list[str]) -> np.ndarray:
@@ -295,7 +295,7 @@ def _row_times(rows: _Rows, rate: int, lines: list[str]) -> np.ndarray:
         if ff >= rate:
             cell0 = lines[int(rows.lineno[j]) - 1].split(",", 1)[0] if rows.kind[j] == _OK else ""
             rows.kind[j] = _JUNK
-            rows.why[j] = f"frame {ff:g} of timecode {cell0!r} is not below the timecode rate {rate}"
+            rows.why[j] = f"frame {ff:g} of timecode {excerpt(cell0)} is not below the timecode rate {rate}"
             continue
         t = h * 3600 + m * 60 + s + ff / rate + offset
         if prev_t is not None and t < prev_t and 0 < t + _DAY - prev_t < _MAX_GAP:

@@ -28,12 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataWarning, InputFileError, InvalidDataError
+from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
 from ..files import atomic_path, check_output_path, load_npz_arrays
 from ..mesh import Mesh
 from ..performance import Performance
 from ..rig import RigFrames
 from ..timebase import infer_fps
+from ._arrays import npz_array, npz_mesh, npz_scalar
 
 __all__ = ["write_npz", "read_npz_performance"]
 
@@ -139,31 +140,29 @@ def read_npz_performance(path: str | os.PathLike, fps: float | None = None) -> P
 
         return read_smplx_head(path)
     if "vertices" not in data and not ("weights" in data and "names" in data):
+        keys = [k if k.isprintable() and len(k) <= 20 else excerpt(k, 20) for k in sorted(data)]
         raise InputFileError(f"{path}: holds neither 'vertices' nor 'weights' + 'names' (keys: "
-                             f"{', '.join(sorted(data)) or 'none'})")
-    times = data.get("times")
-    if times is None and fps is None:
-        if "fps" in data:
-            fps = float(data["fps"])
-        else:
-            warnings.warn(f"{path}: no 'times' and no fps given; assuming 30 fps", DataWarning, stacklevel=2)
-            fps = 30.0
-    unit = str(data["unit"]) if "unit" in data else None
+                             f"{', '.join(keys[:10]) or 'none'}{' ...' if len(keys) > 10 else ''})")
     src = str(path)
     try:
+        times = npz_array(path, data, "times", "f", (0, 1))
+        if times is None and fps is None:
+            fps = npz_scalar(path, data, "fps", "f")
+            if fps is None:
+                warnings.warn(f"{path}: no 'times' and no fps given; assuming 30 fps", DataWarning, stacklevel=2)
+                fps = 30.0
+        unit = npz_scalar(path, data, "unit", "U")
         if "vertices" in data:
-            v = data["vertices"]
-            if v.ndim != 3 or v.shape[-1] != 3:
+            v = npz_array(path, data, "vertices", "f")
+            if v.ndim != 3 or v.shape[-1] != 3 or len(v) == 0:
                 raise InvalidDataError(f"{path}: 'vertices' must have shape (T, V, 3), got {v.shape}")
-            mesh = None
-            if "face_counts" in data and "face_indices" in data:
-                mesh = Mesh(v[0], data["face_counts"], data["face_indices"], data.get("uvs"),
-                            data.get("face_uv_indices"), name=path.name)
-            elif "faces" in data:
-                mesh = Mesh.from_triangles(v[0], data["faces"], name=path.name)
+            mesh = npz_mesh(path, data, v[0])
             return Performance.from_vertices(v, mesh, times=times, fps=fps, unit=unit, source=src)
-        names = [str(n) for n in np.asarray(data["names"]).reshape(-1)]
-        return Performance.from_weights(data["weights"], names, times=times, fps=fps, source=src)
+        names = [str(n) for n in npz_array(path, data, "names", "U", (0, 1)).reshape(-1)]
+        w = npz_array(path, data, "weights", "f", 2)
+        if len(w) == 0:
+            raise InputFileError(f"{path}: 'weights' has no frame (shape {w.shape})")
+        return Performance.from_weights(w, names, times=times, fps=fps, source=src)
     except InvalidDataError as e:
         msg = str(e)
         raise InvalidDataError(msg if msg.startswith(src) else f"{path}: {msg}") from e

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError, TopologyError
+from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError, TopologyError, excerpt
 from ..files import atomic_dir, atomic_path, check_output_path
 from ..mesh import Mesh
 from ..performance import Performance
@@ -80,13 +80,13 @@ def _bad_float_line(path: Path, sel: list[str], numbers: np.ndarray, ncoord: int
         body = line.split("#", 1)[0].split()[1:]
         if len(body) < ncoord:
             return InputFileError(
-                f"{path}:{lineno}: {what} needs {ncoord} numbers, got {len(body)}: {line.strip()!r}")
+                f"{path}:{lineno}: {what} needs {ncoord} numbers, got {len(body)}: {excerpt(line.strip())}")
         for tok in body[:ncoord]:
             try:
                 float(tok)
             except ValueError:
                 return InputFileError(
-                    f"{path}:{lineno}: {what} coordinate {tok!r} is not a number: {line.strip()!r}")
+                    f"{path}:{lineno}: {what} coordinate {excerpt(tok)} is not a number: {excerpt(line.strip())}")
     return InputFileError(f"{path}: cannot parse the {what} lines")
 
 
@@ -104,7 +104,7 @@ def _parse_floats(path: Path, sel: list[str], numbers: np.ndarray, ncoord: int, 
     if not finite.all():
         k = int(np.flatnonzero(~finite)[0])
         raise InputFileError(
-            f"{path}:{int(numbers[k])}: {what} {k + 1} has a non-finite coordinate: {sel[k].strip()!r}")
+            f"{path}:{int(numbers[k])}: {what} {k + 1} has a non-finite coordinate: {excerpt(sel[k].strip())}")
     return arr
 
 
@@ -145,9 +145,11 @@ def _parse_faces(path: Path, fl: list[str], numbers: np.ndarray, n_v_before: np.
                 try:
                     vi_l.append(int(parts[0]))
                     ti_l.append(int(parts[1]) if len(parts) > 1 and parts[1] else 0)
+                    if abs(vi_l[-1]) >= 2**62 or abs(ti_l[-1]) >= 2**62:  # no int64 holds it: no index
+                        raise ValueError
                 except ValueError:
                     raise InputFileError(
-                        f"{path}:{lineno}: face corner {tok!r} is not a vertex index") from None
+                        f"{path}:{lineno}: face corner {excerpt(tok)} is not a vertex index") from None
         vi = np.asarray(vi_l, np.int64)
         ti = np.asarray(ti_l, np.int64)
     face_of = np.repeat(np.arange(len(fl)), counts)
@@ -162,7 +164,7 @@ def _parse_faces(path: Path, fl: list[str], numbers: np.ndarray, n_v_before: np.
             c = int(np.flatnonzero(bad)[0])
             raise InputFileError(
                 f"{path}:{int(numbers[face_of[c]])}: face refers to {what} {int(idx[c])} but the file "
-                f"has {n_total} {what}s")
+                f"has {n_total} {'vertices' if what == 'vertex' else what + 's'}")
         return out
 
     vidx = resolve(vi, n_v_before, nv, "vertex")
@@ -418,7 +420,7 @@ def read_obj_sequence(folder: str | os.PathLike, fps: float | None = None) -> Pe
             times = np.array([float(s) for _, s in rows])
         except ValueError:
             n, s = next((n, s) for n, s in rows if not _is_number(s))
-            raise InputFileError(f"{tfile}:{n}: time {s!r} is not a number") from None
+            raise InputFileError(f"{tfile}:{n}: time {excerpt(s)} is not a number") from None
         if times.size != len(files):
             raise InputFileError(f"{tfile}: {times.size} times for {len(files)} frames")
         perf = Performance.from_vertices(verts, mesh, times=times, fps=fps, source=str(folder))

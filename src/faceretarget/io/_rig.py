@@ -50,7 +50,6 @@ from __future__ import annotations
 import fnmatch
 import os
 import warnings
-import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -63,11 +62,13 @@ from ..errors import (
     MissingShapeError,
     OutputError,
     TopologyError,
+    excerpt,
 )
-from ..files import atomic_dir, atomic_path, check_output_path
+from ..files import atomic_dir, atomic_path, check_output_path, load_npz_arrays, read_text
 from ..mesh import Mesh
 from ..rig import Rig
 from ..units import guess_unit, normalize_unit
+from ._arrays import npz_array, npz_mesh, npz_scalar
 from ._obj import read_obj, read_obj_vertices, write_obj
 
 __all__ = ["read_rig", "write_rig", "write_rig_npz", "read_rig_npz", "NEUTRAL_NAMES",
@@ -95,10 +96,7 @@ def read_key_weights(folder: Path, files: Sequence[str], who: str) -> tuple[np.n
     path = folder / KEY_WEIGHTS
     if not path.is_file():
         return None, None
-    try:
-        lines = [ln for ln in path.read_text(encoding="utf-8-sig").splitlines() if ln.strip()]
-    except OSError as e:
-        raise InputFileError(f"{path}: cannot read ({e.strerror or e})") from e
+    lines = [ln for ln in read_text(path, encoding="utf-8-sig").splitlines() if ln.strip()]
     if not lines or lines[0].split(",")[0].strip().lower() != "file":
         raise InputFileError(f"{path}: line 1 must be 'file,<base shape>,...'")
     names = [c.strip() for c in lines[0].split(",")[1:]]
@@ -128,16 +126,20 @@ def _is_neutral_name(stem: str) -> bool:
     return s in NEUTRAL_NAMES or s.endswith("_neutral")
 
 
-def _read_landmarks(path: Path, n_vertices: int) -> np.ndarray:
+def _is_index(token: str) -> bool:
     try:
-        toks = path.read_text(encoding="utf-8").split()
-    except OSError as e:
-        raise InputFileError(f"{path}: cannot read ({e.strerror or e})") from e
+        return abs(int(token)) < 2**62
+    except ValueError:
+        return False
+
+
+def _read_landmarks(path: Path, n_vertices: int) -> np.ndarray:
+    toks = read_text(path).split()
     try:
         lm = np.array([int(t) for t in toks], dtype=np.int64)
-    except ValueError:
-        bad = next(t for t in toks if not t.lstrip("-").isdigit())
-        raise InputFileError(f"{path}: landmark {bad!r} is not an integer vertex index") from None
+    except (ValueError, OverflowError):
+        bad = next(t for t in toks if not _is_index(t))
+        raise InputFileError(f"{path}: landmark {excerpt(bad)} is not an integer vertex index") from None
     if lm.size == 0:
         raise InputFileError(f"{path}: no landmark indices found")
     out = (lm < 0) | (lm >= n_vertices)
@@ -361,12 +363,8 @@ def read_rig_npz(path: str | os.PathLike) -> Rig:
     path = Path(path)
     if not path.is_file():
         raise InputFileError(f"{path}: rig file not found")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise InputFileError(f"{path}: not a readable .npz file ({e})") from e
-    fmt = str(data.get("format", ""))
+    data = load_npz_arrays(path)
+    fmt = npz_scalar(path, data, "format", "U") if "format" in data else ""
     if not fmt.startswith("faceretarget.rig/"):
         raise InputFileError(f"{path}: not a faceretarget rig cache (no 'format' = '{RIG_NPZ_FORMAT}')")
     missing = [k for k in ("neutral", "face_counts", "face_indices", "names", "deltas", "unit")
@@ -374,14 +372,14 @@ def read_rig_npz(path: str | os.PathLike) -> Rig:
     if missing:
         raise InputFileError(f"{path}: rig cache lacks {', '.join(missing)}")
     try:
-        mesh = Mesh(data["neutral"], data["face_counts"], data["face_indices"], data.get("uvs"),
-                    data.get("face_uv_indices"), name=path.name)
-        src = data.get("source_names")
-        bn = data.get("basis_names")
-        return Rig(mesh, [str(n) for n in data["names"]], data["deltas"], unit=str(data["unit"]),
-                   landmarks=data.get("landmarks"),
+        mesh = npz_mesh(path, data, npz_array(path, data, "neutral", "f", 2))
+        src = npz_array(path, data, "source_names", "U", 1)
+        bn = npz_array(path, data, "basis_names", "U", 1)
+        return Rig(mesh, [str(n) for n in npz_array(path, data, "names", "U", 1)],
+                   npz_array(path, data, "deltas", "f", 3), unit=npz_scalar(path, data, "unit", "U"),
+                   landmarks=npz_array(path, data, "landmarks", "i", 1),
                    source_names=None if src is None else [str(n) for n in src],
-                   name=str(data.get("name", path.stem)), basis=data.get("basis"),
+                   name=npz_scalar(path, data, "name", "U") or path.stem, basis=npz_array(path, data, "basis", "f", 2),
                    basis_names=None if bn is None else [str(n) for n in bn])
     except (InvalidDataError, TopologyError) as e:
         raise InputFileError(f"{path}: {e}") from e

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError, OutputError
+from ..errors import InputFileError, OutputError, excerpt
 from ..optional import optional_import
 
 __all__ = ["VideoInfo", "probe_video", "iter_frames", "read_video_audio", "write_video"]
@@ -59,16 +59,24 @@ def _open(path: Path):
     if not path.is_file():
         raise InputFileError(f"{path}: not a file")
     try:
-        return av.open(str(path))
-    except av.FFmpegError as e:
-        raise InputFileError(f"{path}: not a readable video file ({e.strerror or e})") from e
+        return av.open(str(path), metadata_errors="replace")
+    except (av.FFmpegError, ValueError) as e:
+        why = excerpt(getattr(e, "strerror", None) or e, 120)
+        raise InputFileError(f"{path}: not a readable video file ({why})") from e
 
 
 def _video_stream(c, path: Path):
-    if not c.streams.video:
+    v = c.streams.video[0] if c.streams.video else None
+    if v is None or v.codec_context is None or not (v.codec_context.width > 0 and v.codec_context.height > 0):
         c.close()
-        raise InputFileError(f"{path}: holds no video stream")
-    return c.streams.video[0]
+        raise InputFileError(f"{path}: holds no video stream" if v is None else
+                             f"{path}: its video stream cannot be decoded (unknown codec or no frame size)")
+    return v
+
+
+def _rate(v) -> Fraction:
+    """The stream's frame rate: average, else guessed, else 30 (a broken header's 0 or negative ignored)."""
+    return next((r for r in (v.average_rate, v.guessed_rate) if r is not None and r > 0), Fraction(30))
 
 
 def probe_video(path: str | os.PathLike) -> VideoInfo:
@@ -83,9 +91,10 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
     c = _open(path)
     try:
         v = _video_stream(c, path)
-        rate = v.average_rate or v.guessed_rate or Fraction(30)
+        rate = _rate(v)
         dur = float(v.duration * v.time_base) if v.duration is not None and v.time_base else (
             c.duration / 1e6 if c.duration else 0.0)
+        dur = dur if np.isfinite(dur) and dur > 0 else 0.0  # unknown
         a = c.streams.audio[0] if c.streams.audio else None
         return VideoInfo(path, int(v.codec_context.width), int(v.codec_context.height), float(rate),
                          int(v.frames or 0), float(dur), str(v.codec_context.name), a is not None,
@@ -126,7 +135,7 @@ def iter_frames(path: str | os.PathLike, max_frames: int | None = None,
     try:
         v = _video_stream(c, path)
         v.thread_type = "AUTO"
-        rate = float(v.average_rate or v.guessed_rate or 30)
+        rate = float(_rate(v))
         t0 = None
         prev = -np.inf
         it = c.decode(v)
@@ -135,17 +144,25 @@ def iter_frames(path: str | os.PathLike, max_frames: int | None = None,
                 frame = next(it)
             except StopIteration:
                 break
-            except av.FFmpegError as e:
-                raise InputFileError(f"{path}: frame {i}: cannot decode ({e.strerror or e})") from e
-            t = frame.time if frame.time is not None else i / rate
-            t0 = t if t0 is None else t0
-            t = float(t - t0)
+            except (av.FFmpegError, ValueError) as e:
+                why = excerpt(getattr(e, "strerror", None) or e, 120)
+                raise InputFileError(f"{path}: frame {i}: cannot decode ({why})") from e
+            t = frame.time
+            if t is None or not np.isfinite(t):  # no timestamp: the nominal rate
+                t = prev + 1.0 / rate if i else 0.0
+            else:
+                t0 = t if t0 is None else t0
+                t = float(t - t0)
             if t <= prev:  # broken timestamps: fall back to the nominal rate
                 t = prev + 1.0 / rate
             if duration is not None and t >= duration - 1e-9:
                 break
             prev = t
-            yield i, t, frame.to_ndarray(format="rgb24")
+            try:
+                rgb = frame.to_ndarray(format="rgb24")
+            except (av.FFmpegError, ValueError) as e:
+                raise InputFileError(f"{path}: frame {i}: cannot convert to RGB ({excerpt(e, 120)})") from e
+            yield i, t, rgb
             i += 1
     finally:
         c.close()

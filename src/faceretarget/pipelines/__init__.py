@@ -32,7 +32,14 @@ from ._animate import (
     parse_emotion,
     tracked_take,
 )
-from ._capture import capture_take, encode_appearance, fit_appearance, tracked_videos
+from ._capture import (
+    APPEARANCE_BYTES,
+    appearance_memory,
+    capture_take,
+    encode_appearance,
+    fit_appearance,
+    tracked_videos,
+)
 from ._demo import run_demo
 from ._head import build_head_database
 from ._keys import SELECTION_ALIASES, KeyGeometry, KeySelection, compose_keys, key_geometry, select_keys
@@ -43,8 +50,10 @@ from ._style import fit_style, read_style_take
 from ._transfer import (
     CHUNK_FRAMES,
     HEAD_CHOICES,
+    MAX_TEMPORAL,
     Transfer,
     arkit_curves,
+    check_result_path,
     clone_take,
     face_and_head_formats,
     result_head,
@@ -56,9 +65,9 @@ from ._transfer import (
 __all__ = [
     "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
-    "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES",
+    "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES", "check_result_path", "MAX_TEMPORAL",
     "select_keys", "compose_keys", "key_geometry", "KeySelection", "KeyGeometry", "SELECTION_ALIASES",
     "write_animation_preview", "TakeSampler",
     "run_live", "LiveSession", "LiveStats", "LiveFrame", "LiveServer", "character_glb", "LIVE_LIMITS",
-    "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "fit_style", "read_style_take", "build_head_database", "run_demo",
+    "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "appearance_memory", "APPEARANCE_BYTES", "fit_style", "read_style_take", "build_head_database", "run_demo",
 ]

