@@ -14,6 +14,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -32,32 +33,18 @@ from faceretarget.io import (
 )
 from faceretarget.names import normalize_name
 
-REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).parent))
+from _browser import CHROMIUM, PUPPETEER_DIR, REPO, THREE_DIR, browser_missing  # noqa: E402
+
 SCRIPT = REPO / "tests" / "browser" / "run_three.mjs"
-NODE_MODULES = REPO / ".tools" / "node_modules"
-THREE_DIR = Path(os.environ.get("THREE_DIR", NODE_MODULES / "three"))
-PUPPETEER_DIR = Path(os.environ.get("PUPPETEER_CORE_DIR", NODE_MODULES / "puppeteer-core"))
-CHROMIUM = Path(os.environ.get("CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium")
 FRAMES = slice(450, 750)  # 10 s of S07-001 (at 30 fps) whose weights reach 0.94
 WEIGHT_TOL = 1e-6  # float32 storage
 ANGLE_TOL = 1e-5  # radians
 
 
-def _missing() -> str | None:
-    if shutil.which("node") is None:
-        return "node not found: cannot run the three.js browser check (install nodejs)"
-    if not (THREE_DIR / "package.json").is_file():
-        return f"three.js not installed at {THREE_DIR}: run `make tools browser`"
-    if not (PUPPETEER_DIR / "package.json").is_file():
-        return f"puppeteer-core not installed at {PUPPETEER_DIR}: run `make tools browser`"
-    if not CHROMIUM.is_file():
-        return f"Chromium not found at {CHROMIUM}: run `make tools browser` (or set CHROMIUM)"
-    return None
-
-
 @pytest.fixture(scope="module")
 def node() -> str:
-    reason = _missing()
+    reason = browser_missing("the three.js browser check", three=True)
     if reason:
         if os.environ.get("FACERETARGET_REQUIRE_BROWSER", "") not in ("", "0"):
             pytest.fail(reason)

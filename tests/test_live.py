@@ -45,8 +45,9 @@ REPO = Path(__file__).resolve().parents[1]
 WEB = REPO / "src" / "faceretarget" / "data" / "web"
 HARNESS = REPO / "tests" / "browser" / "run_live.mjs"
 NODE_MODULES = REPO / ".tools" / "node_modules"
-PUPPETEER_DIR = Path(os.environ.get("PUPPETEER_CORE_DIR", NODE_MODULES / "puppeteer-core"))
-CHROMIUM = Path(os.environ.get("CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium")
+sys.path.insert(0, str(Path(__file__).parent))
+from _browser import CHROMIUM, PUPPETEER_DIR, browser_missing  # noqa: E402
+
 VIDEO = "WDA_AOC_000.mp4"
 THREE_VERSION = "0.187.0"
 
@@ -488,19 +489,9 @@ def test_cli_live_stops_cleanly_on_ctrl_c(video, data_dir):
 
 
 # ---------------------------------------------------------------------- the page in headless Chromium
-def _browser_missing() -> str | None:
-    if shutil.which("node") is None:
-        return "node not found: cannot run the live page in Chromium (install nodejs)"
-    if not (PUPPETEER_DIR / "package.json").is_file():
-        return f"puppeteer-core not installed at {PUPPETEER_DIR}: run `make tools browser`"
-    if not CHROMIUM.is_file():
-        return f"Chromium not found at {CHROMIUM}: run `make tools browser` (or set CHROMIUM)"
-    return None
-
-
 @pytest.fixture(scope="module")
 def node() -> str:
-    reason = _browser_missing()
+    reason = browser_missing("the live page in Chromium")
     if reason:
         if any(os.environ.get(v, "") not in ("", "0") for v in ("FACERETARGET_REQUIRE_BROWSER", "FACERETARGET_REQUIRE_DATA")):
             pytest.fail(reason)

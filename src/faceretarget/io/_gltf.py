@@ -303,8 +303,10 @@ def _write_glb_file(path: Path, gltf: dict, b: _Builder) -> Path:
     return path
 
 
-def _head_keys(path: Path, b: _Builder, T: int, head: HeadPose, pivot) -> dict:
-    """Check head keyframes and store them: accessor ids of rotation (and translation)."""
+def _head_arrays(path: Path, head: HeadPose, T: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """A writer's head pose, checked: quaternions ``(T, 4)`` x, y, z, w with w >= 0 and consecutive
+    keys on the same hemisphere (so linear/slerp interpolation takes the short way), and the
+    translation ``(T, 3)`` metres or None (glTF, USD)."""
     if not isinstance(head, HeadPose):
         raise InvalidDataError(f"{path}: head must be a HeadPose, got {type(head).__name__}")
     if head.n_frames != T:
@@ -313,17 +315,24 @@ def _head_keys(path: Path, b: _Builder, T: int, head: HeadPose, pivot) -> dict:
         f = int(np.flatnonzero(~head.valid)[0])
         raise InvalidDataError(f"{path}: frame {f} has no head pose (fill or drop it first)")
     q = head.as_quat()
-    translation = head.translation
-    q = q * np.where(q[:, 3:] < 0, -1.0, 1.0)  # same rotation, w >= 0
-    # consecutive keys on the same hemisphere, so LINEAR (slerp) takes the short way
+    q = q * np.where(q[:, 3:] < 0, -1.0, 1.0)
     flip = np.cumprod(np.where(np.r_[1.0, np.sign((q[1:] * q[:-1]).sum(axis=1))] < 0, -1.0, 1.0))
     q = q * flip[:, None]
+    tr = None
+    if head.translation is not None:
+        tr = np.asarray(head.translation, dtype=np.float64)
+        if not np.isfinite(tr).all():
+            f = int(np.flatnonzero(~np.isfinite(tr).all(axis=1))[0])
+            raise InvalidDataError(f"{path}: frame {f} head translation is not finite")
+    return q, tr
+
+
+def _head_keys(path: Path, b: _Builder, T: int, head: HeadPose, pivot) -> dict:
+    """Check head keyframes and store them: accessor ids of rotation (and translation)."""
+    q, tr = _head_arrays(path, head, T)
     pv = np.asarray(pivot, dtype=np.float64).reshape(3)
     keys = {"rotation": b.accessor(q.astype(np.float32), "VEC4", minmax=False), "pivot": pv}
-    if translation is not None:
-        tr = np.asarray(translation, dtype=np.float64)
-        if tr.shape != (T, 3) or not np.isfinite(tr).all():
-            raise InvalidDataError(f"{path}: head translation must be finite ({T}, 3), got {tr.shape}")
+    if tr is not None:
         keys["translation"] = b.accessor((tr + pv).astype(np.float32), "VEC3", minmax=False)
     return keys
 

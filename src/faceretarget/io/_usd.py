@@ -71,7 +71,7 @@ from ..optional import optional_import
 from ..rig import Rig, RigFrames
 from ..timebase import check_times, infer_fps
 from ._audio import checked_audio, write_wav
-from ._gltf import _checked_weights
+from ._gltf import _checked_weights, _head_arrays
 
 __all__ = ["write_usd", "USD_FORMATS", "usd_prim_names"]
 
@@ -128,28 +128,6 @@ def _nice_fps(fps: float) -> float:
         if cand > 0 and abs(fps - cand) <= 1e-6 * fps:
             return float(cand)
     return float(fps)
-
-
-def _head_arrays(path: Path, head: HeadPose, T: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """Quaternions ``(T, 4)`` x, y, z, w on one hemisphere frame to frame, and translation or None."""
-    if not isinstance(head, HeadPose):
-        raise InvalidDataError(f"{path}: head must be a HeadPose, got {type(head).__name__}")
-    if head.n_frames != T:
-        raise InvalidDataError(f"{path}: the head pose has {head.n_frames} frames for {T} times")
-    if not head.valid.all():
-        f = int(np.flatnonzero(~head.valid)[0])
-        raise InvalidDataError(f"{path}: frame {f} has no head pose (fill or drop it first)")
-    q = head.as_quat()
-    q = q * np.where(q[:, 3:] < 0, -1.0, 1.0)
-    flip = np.cumprod(np.where(np.r_[1.0, np.sign((q[1:] * q[:-1]).sum(axis=1))] < 0, -1.0, 1.0))
-    q = q * flip[:, None]
-    tr = None
-    if head.translation is not None:
-        tr = np.asarray(head.translation, dtype=np.float64)
-        if not np.isfinite(tr).all():
-            f = int(np.flatnonzero(~np.isfinite(tr).all(axis=1))[0])
-            raise InvalidDataError(f"{path}: frame {f} head translation is not finite")
-    return q, tr
 
 
 def write_usd(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.ndarray,

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..capture import Capture, face_points
+from ..capture import Capture, face_points, mouth_opening
 from ..errors import InvalidDataError
 from ..headpose import HeadPose
 from ..names import is_arkit
@@ -385,7 +385,7 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
     times = take.times
     if by_landmarks:
         prior = None if take.weights is None else character.map_weights(take.names, take.weights, warn=False)
-        sol = (solver or LandmarkSolver()).fit(character, _neutral_of(ftake))
+        sol = (solver or LandmarkSolver()).fit(character, neutral_face(ftake.points))   # the face take's rest face
 
         def solve(points: np.ndarray) -> np.ndarray:
             return sol.transform(points, prior, times).weights
@@ -425,8 +425,8 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
         W = blend
         timings["emotion"] = time.perf_counter() - t0
 
-    tracked_mouth = _mouth(take.points)
-    character_mouth = (_mouth(play.evaluate(W, play.landmarks)) if play.landmarks is not None
+    tracked_mouth = mouth_opening(take.points)
+    character_mouth = (mouth_opening(play.evaluate(W, play.landmarks)) if play.landmarks is not None
                        and len(play.landmarks) == 68 else np.full(len(W), np.nan))
 
     # ---- head (on the take's frames), then new speech: re-timed by DTW of the audio
@@ -460,17 +460,6 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
         timings["preview"] = time.perf_counter() - t0
     log(res.summary())
     return res
-
-
-def _neutral_of(ftake: Performance) -> np.ndarray:
-    """The normalised neutral of a face take (its quietest frames: lips together)."""
-    return neutral_face(ftake.points)
-
-
-def _mouth(points68: np.ndarray) -> np.ndarray:
-    from ..capture import mouth_opening
-
-    return mouth_opening(points68)
 
 
 def _load_style(style):

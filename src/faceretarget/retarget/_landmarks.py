@@ -238,7 +238,10 @@ class LandmarkSolver(Model):
     def displacements(self, points: np.ndarray, expression: np.ndarray | None = None) -> np.ndarray:
         """The frames' landmark motion on the character, ``s R (x_t - x_0)``: (T, 68, 3) in its units
         (``expression``: as :meth:`align`)."""
-        aligned, _ = self.align(points, expression)
+        return self._on_character(self.align(points, expression)[0])
+
+    def _on_character(self, aligned: np.ndarray) -> np.ndarray:
+        """Aligned frames' motion from the neutral, mapped onto the character: ``s R (x_t - x_0)``."""
         return self.scale_ * np.einsum("tpj,ij->tpi", aligned - self.neutral_, self.rotation_)
 
     def transform(self, points: np.ndarray, prior: np.ndarray | None = None, times=None, *,
@@ -265,20 +268,22 @@ class LandmarkSolver(Model):
         A = np.vstack([self.keys_, np.diag(self.prior_weights_)])
         lo, hi = self.range_
         expr = None
-        for _ in range(1 + self.refine):
-            F = self.displacements(P, expr).reshape(-1, 68 * 3)
+        for it in range(1 + self.refine):
+            aligned, scale = self.align(P, expr)
+            F = self._on_character(aligned).reshape(-1, 68 * 3)
             if self.denoise and smooth and T >= 16:
                 F = denoise_take(F, None if times is None else np.asarray(times, dtype=np.float64))[0]
             F = F * self.row_weights_
             B = np.hstack([F, Q * self.prior_weights_])
             W = solve_bounded(A, B, lo, hi, smooth=self.smooth_ if smooth and T > 1 else 0.0)
+            if it == self.refine:
+                break
             # the solved face's own motion of the points, back in the actor's neutral frame
             expr = np.einsum("tpi,ij->tpj", (W @ self.deltas_.T).reshape(T, 68, 3),
                              self.rotation_) / self.scale_
         res = np.sqrt(((W @ self.keys_.T - F) ** 2).mean(axis=1))
-        _, s = self.align(P, expr)
         return LandmarkResult(weights=W, names=list(self.names_), times=None if times is None else np.asarray(times),
-                              residual=res, head_scale=s)
+                              residual=res, head_scale=scale)
 
 
 def neutral_face(points: np.ndarray, scores: np.ndarray | None = None, share: float = 0.1) -> np.ndarray:
