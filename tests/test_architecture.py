@@ -3,7 +3,7 @@ functions alike).
 
 core (data model, errors, units, time, head pose, files, model protocol)
   -> numerics (shared solvers and signal tools) -> render (pictures) -> io (every file format)
-  -> methods (cloning, retarget, style, headmotion, capture; none imports another)
+  -> targets (what a character's keys are: meshes, controls, skeletons, drawings) -> methods (cloning, retarget, style, headmotion, capture; none imports another)
   -> evaluation (metrics, datasets) -> applications (pipelines) -> cli
 
 A module may import only from its own layer or below; a private module (``pkg._mod``) only from
@@ -23,7 +23,7 @@ ROOT = "faceretarget"
 
 CORE = {"__init__", "errors", "units", "timebase", "names", "mesh", "rig", "headpose", "performance", "files",
         "base", "optional"}
-LAYERS = {**{m: 0 for m in CORE}, "numerics": 1, "render": 2, "io": 3,
+LAYERS = {**{m: 0 for m in CORE}, "numerics": 1, "render": 2, "io": 3, "targets": 3.5,
           "cloning": 4, "retarget": 4, "style": 4, "headmotion": 4, "capture": 4,
           "metrics": 5, "datasets": 5, "pipelines": 6, "cli": 7}
 METHODS = {"cloning", "retarget", "style", "headmotion", "capture"}

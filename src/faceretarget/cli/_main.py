@@ -54,8 +54,9 @@ def cmd_clone(args, log) -> int:
         return _clone(args, log)
 
 
-def _head_choice(value: str, out: Path):
-    """``--head auto|off|FILE`` checked before any work: the file exists and ``out`` can hold a head."""
+def _head_choice(value: str, out: Path, target=None):
+    """``--head auto|off|FILE`` checked before any work: the file exists and ``out`` can hold a head (as
+    ``target`` writes it, when the target keys are controls, a skeleton or drawings)."""
     from ..errors import InputFileError, OutputError
     from ..io import HEAD_READ_FORMATS, holds_head
     from ..pipelines import face_and_head_formats
@@ -67,14 +68,30 @@ def _head_choice(value: str, out: Path):
         raise InputFileError(f"{head}: head-motion file not found (--head takes auto, off or a file)")
     if head.suffix.lower() not in HEAD_READ_FORMATS:
         raise InputFileError(f"{head}: unknown head-motion format '{head.suffix}' (use {', '.join(HEAD_READ_FORMATS)})")
-    if not holds_head(out):
+    if not (target.holds_head(out) if target is not None and target.kind != "mesh" else holds_head(out)):
         ok = ", ".join(face_and_head_formats())
         raise OutputError(f"{out}: this format cannot hold head motion from {head}; write one that can ({ok}) "
                           "or drop --head")
     return head
 
 
-def _clone_keys(args, perf, source_rig, log):
+def _target(args, log):
+    """``--target-keys`` as a Target when it is not mesh keyshapes (a control table, a BVH / glTF
+    skeleton, a folder of drawings), else None (the mesh route as before)."""
+    from ..targets import read_target, target_kind
+
+    if not args.target_keys or target_kind(args.target_keys) == "mesh":
+        if getattr(args, "target_frames", None):
+            raise InvalidDataError("--target-frames applies to skeleton target keys (.bvh, .glb)")
+        return None
+    rig = _rig(args.target_rig, args.target_neutral, None, "--target-neutral") if args.target_rig else None
+    tgt = read_target(args.target_keys, rig=rig, frames=args.target_frames, ranges=args.control_ranges)
+    if rig is not None and tgt.kind != "controls":
+        raise InvalidDataError(f"--target-rig applies to control-table target keys, not to {tgt.kind} keys")
+    return tgt
+
+
+def _clone_keys(args, perf, source_rig, log, target=None):
     """The key-model pair of ``clone``: two folders paired by file name, or a standard set of two rigs."""
     from ..cloning import keymodel_pair
     from ..io import read_performance
@@ -83,7 +100,8 @@ def _clone_keys(args, perf, source_rig, log):
         if not (args.source_keys and args.target_keys):
             raise InvalidDataError("give both --source-keys and --target-keys")
         sk = _rig(args.source_keys, args.source_neutral, args.source_landmarks, "--source-neutral")
-        tk = _rig(args.target_keys, args.target_neutral, args.target_landmarks, "--target-neutral")
+        tk = target if target is not None else _rig(args.target_keys, args.target_neutral, args.target_landmarks,
+                                                       "--target-neutral")
         log(f"key-models: {sk.n_shapes} pairs from {args.source_keys} and {args.target_keys}")
         return sk, tk
     if not (args.source_rig and args.target_rig):
@@ -116,20 +134,23 @@ def _weight_range(words: list[str]):
 
 def _clone(args, log) -> int:
     out = check_out(args.out, [args.performance, args.source_keys, args.target_keys, args.source_rig,
-                               args.target_rig, args.keys_from, None if args.head in ("auto", "off") else args.head])
+                               args.target_rig, args.keys_from, args.target_frames,
+                               None if args.head in ("auto", "off") else args.head])
     # the heavy imports after the quick checks
     from ..io import read_performance
     from ..pipelines import check_result_path, clone_take, write_result
 
-    check_result_path(out, bake=args.bake)                 # before any work: format, folder, --bake
-    head = _head_choice(args.head, out)
+    target = _target(args, log)                            # controls, skeleton or drawings: their own formats
+    check_result_path(out, bake=args.bake, target=target)  # before any work: format, folder, --bake
+    head = _head_choice(args.head, out, target)
     weight_range = _weight_range(args.weight_range)
     perf = read_performance(args.performance, fps=args.fps)
     source_rig = _rig(args.source_rig, args.source_neutral,
                       args.source_landmarks if not (args.source_keys or args.target_keys) else None,
                       "--source-neutral")
-    sk, tk = _clone_keys(args, perf, source_rig, log)
-    check_result_path(out, keys=tk, bake=args.bake)        # a .csv needs ARKit keys: known before the solve
+    sk, tk = _clone_keys(args, perf, source_rig, log, target)
+    if target is None:
+        check_result_path(out, keys=tk, bake=args.bake)    # a .csv needs ARKit keys: known before the solve
     job = clone_take(perf, sk, tk, source_rig=source_rig, method=args.method, features=args.features,
                      weight_range=weight_range, log=log)
     write_result(out, job, head=head, bake=args.bake, log=log)
@@ -153,6 +174,10 @@ def _subset(text: str | None):
 
 def cmd_keys_select(args, log) -> int:
     out = check_out_folder(args.out, [args.performance, args.source_rig])     # before any work
+    template = None
+    if args.controls_template:
+        template = check_out(args.controls_template, [args.performance, args.source_rig, args.template_rig],
+                             exts=(".csv",), option="--controls-template")
     from ..io import read_performance, write_keyshapes
     from ..performance import Performance
     from ..pipelines import select_keys
@@ -172,6 +197,17 @@ def cmd_keys_select(args, log) -> int:
     extra = ", key_weights.csv" if sel.basis is not None else ""
     log(f"wrote {out}: {len(sel.frames)} keyshapes, neutral.obj, keyshapes.txt{extra} and contact_sheet.png; model "
         "the target counterparts under the same file names (frame_*.obj) beside the target's neutral.obj")
+    if template is not None:
+        from ..io import keyshape_filename, write_control_template
+        from ..names import ARKIT_NAMES
+
+        controls = list(_rig(args.template_rig, flag="--template-rig").names) if args.template_rig else list(ARKIT_NAMES)
+        keys = [keyshape_filename(f)[:-4] for f in sel.frames]
+        write_control_template(template, keys, controls)
+        log(f"wrote {template}: a control table to fill, one row per keyshape ({len(keys)}), one column per control "
+            f"({len(controls)}), range 0:1; pose the target with its sliders for each keyshape and type the values "
+            "(an empty cell is a slider left at rest), then retarget with --target-keys "
+            f"{template.name}")
     return 0
 
 
@@ -182,15 +218,16 @@ def cmd_retarget(args, log) -> int:
 
 def _retarget(args, log) -> int:
     out = check_out(args.out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions,
-                               None if args.head in ("auto", "off") else args.head])
+                               args.target_rig, args.target_frames, None if args.head in ("auto", "off") else args.head])
     # the heavy imports after the quick checks
     from ..cloning import keymodel_pair
     from ..io import is_keyshape_folder, read_keys, read_performance
     from ..pipelines import check_result_path, retarget_take, write_result
     from ..retarget import load_regions
 
-    check_result_path(out, bake=args.bake)                 # before any work: format, folder, --bake
-    head = _head_choice(args.head, out)
+    target = _target(args, log)                            # controls, skeleton or drawings: their own formats
+    check_result_path(out, bake=args.bake, target=target)  # before any work: format, folder, --bake
+    head = _head_choice(args.head, out, target)
     for opt, v in (("--temporal", args.temporal), ("--l1", args.l1)):
         if v and args.solver != "nnls":
             raise InvalidDataError(f"{opt} {v:g} applies to --solver nnls only (the default 'signed' solve has no "
@@ -201,14 +238,19 @@ def _retarget(args, log) -> int:
     with neutral_option("--source-neutral"):
         sk, labels = read_keys(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks,
                                rig=rig)
-    with neutral_option("--target-neutral"):
-        tk, _ = read_keys(args.target_keys, neutral=args.target_neutral, landmarks=args.target_landmarks)
-    if not is_keyshape_folder(args.source_keys) and not is_keyshape_folder(args.target_keys):
+    if target is not None:
+        tk = target
+    else:
+        with neutral_option("--target-neutral"):
+            tk, _ = read_keys(args.target_keys, neutral=args.target_neutral, landmarks=args.target_landmarks)
+    if target is None and not is_keyshape_folder(args.source_keys) and not is_keyshape_folder(args.target_keys):
         # two ARKit-style rigs: pair their shapes through the ARKit names (split halves, aliases)
         rig = sk if rig is None else rig
         sk, tk, _ = keymodel_pair(sk, tk, "arkit")
-    log(f"keyshapes: {sk.n_shapes} source from {args.source_keys}, {tk.n_shapes} target from {args.target_keys}")
-    check_result_path(out, keys=tk, bake=args.bake)        # a .csv needs ARKit keys: known before the solve
+    log(f"keyshapes: {sk.n_shapes} source from {args.source_keys}, "
+        f"{tk.n_keys if target is not None else tk.n_shapes} target from {args.target_keys}")
+    if target is None:
+        check_result_path(out, keys=tk, bake=args.bake)    # a .csv needs ARKit keys: known before the solve
     regions = None
     if args.regions:
         regions = args.regions if args.regions in ("upper-lower", "default") else load_regions(args.regions)
@@ -235,6 +277,13 @@ _HEAD_HELP = ("head motion written with the face (.glb head node, .csv head colu
               "to the take's times")
 
 
+_FRAMES_HELP = ("skeleton target keys: which frames are the key poses: a .json {key: frame} (\"neutral\": the rest "
+                "pose, default frame 0), a .csv of key,frame rows, or a .txt/.json list of key names for frames 1, 2, ...")
+_CLIP_HELP = ("control targets: controls outside their declared ranges are written as solved (report, the default: "
+              "the faces of a mesh target of the same keys), clipped (clip), or replaced by the nearest in-range "
+              "controls in the rig's shapes (project); the share outside is reported either way")
+
+
 def _register_clone(sub) -> None:
     """``faceretarget clone``."""
     c = sub.add_parser("clone", help="clone a performance onto another character (Pyun et al. 2003)",
@@ -246,9 +295,14 @@ def _register_clone(sub) -> None:
     c.add_argument("--head", default="auto", metavar="auto|off|FILE", help=_HEAD_HELP)
     c.add_argument("--bake", action="store_true", help=_BAKE_HELP)
     c.add_argument("--source-keys", help="folder of source key-model OBJs (neutral + expressions)")
-    c.add_argument("--target-keys", help="folder of target key-model OBJs with the same file names")
+    c.add_argument("--target-keys", help="folder of target key-model OBJs with the same file names, or target keys "
+                   "in the target's own parameters: a control table (.csv/.json), a BVH or glTF skin (with "
+                   "--target-frames), a folder of SVG drawings or 2-D point sets (docs/targets.md)")
     c.add_argument("--source-rig", help="source ARKit-style rig folder (also plays a weight take)")
-    c.add_argument("--target-rig", help="target ARKit-style rig folder")
+    c.add_argument("--target-rig", help="target ARKit-style rig folder (with a control table: the rig whose shapes "
+                   "the controls drive, for .glb/.usd/.blend output)")
+    c.add_argument("--target-frames", help=_FRAMES_HELP)
+    c.add_argument("--control-ranges", default="report", choices=["report", "clip", "project"], help=_CLIP_HELP)
     c.add_argument("--keys", default="combined84",
                    help="key set for rigs: combined84, emotions6, visemes13, arkit, rom-K (default combined84)")
     c.add_argument("--keys-from", help="range-of-motion weight take for rom-K")
@@ -292,6 +346,10 @@ def _register_keys(sub) -> None:
     ks.add_argument("--rigid-subset", help="comma-separated markers that move with the skull (default automatic)")
     ks.add_argument("--no-align", action="store_true", help="keep the markers' rigid head motion")
     ks.add_argument("--fps", type=FPS, help=f"frame rate of an OBJ sequence without times.txt, {FPS}")
+    ks.add_argument("--controls-template", help="also write an empty control table (.csv) for a target posed with its "
+                    "own sliders: one row per keyshape, one column per control (docs/targets.md)")
+    ks.add_argument("--template-rig", help="with --controls-template: the target rig whose shape names are the "
+                    "columns (default the 52 ARKit names)")
     ks.set_defaults(func=cmd_keys_select)
 
 
@@ -303,9 +361,17 @@ def _register_retarget(sub) -> None:
                        "see 'keys select') or ARKit-style rig folders paired by shape name.")
     r.add_argument("--performance", required=True, help="take: .c3d, .csv (with --source-rig), .npz, OBJ folder")
     r.add_argument("--source-keys", required=True, help="source keyshape folder")
-    r.add_argument("--target-keys", required=True, help="target keyshape folder (same file or shape names)")
+    r.add_argument("--target-keys", required=True, help="target keyshape folder (same file or shape names), or "
+                   "target keys in the target's own parameters: a control table (.csv/.json, rows named like the "
+                   "source keyshapes), a BVH or glTF skin (with --target-frames), a folder of SVG drawings or 2-D "
+                   "point sets (neutral.svg + one per key; docs/targets.md)")
     r.add_argument("--out", required=True, help="output: .glb, .csv (Live Link Face; keys ARKit-named or defined "
-                   "by ARKit weights), .npz or a folder (OBJ sequence)")
+                   "by ARKit weights), .npz or a folder (OBJ sequence); control targets .csv/.json curves (and the "
+                   "rig's formats with --target-rig), skeletons .bvh/.glb, drawings .svg/.png/.mp4/.npz or a folder")
+    r.add_argument("--target-rig", help="with a control table: the target rig whose shapes the controls drive "
+                   "(.glb/.usd/.blend output and the solve in the rig's geometry)")
+    r.add_argument("--target-frames", help=_FRAMES_HELP)
+    r.add_argument("--control-ranges", default="report", choices=["report", "clip", "project"], help=_CLIP_HELP)
     r.add_argument("--head", default="auto", metavar="auto|off|FILE", help=_HEAD_HELP)
     r.add_argument("--bake", action="store_true", help=_BAKE_HELP)
     r.add_argument("--source-rig", help="rig a weight take drives")

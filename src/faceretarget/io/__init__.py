@@ -1,6 +1,7 @@
 """Every file format: rigs and meshes (OBJ, glTF), takes (Live Link Face CSV, C3D, ``.npz``, OBJ
 sequences, glTF weight animation), head motion (BVH, SMPL-X, glTF head node, Live Link Face head
-columns), audio (WAV), video (any container ffmpeg reads, through PyAV), keyshape folders.
+columns), audio (WAV), video (any container ffmpeg reads, through PyAV), keyshape folders; retargeting
+targets that are not meshes: control tables, BVH / glTF skeleton poses, SVG drawings and 2-D point sets.
 
 :func:`read_performance` and :func:`write_animation` choose the format from the path through one
 extension registry (:data:`READERS`, :data:`WRITERS`); each format's module documents its layout.
@@ -14,9 +15,29 @@ it could not write.
 from ..files import atomic_dir, atomic_path, check_output_path, input_file, load_npz_arrays, save_npz_arrays
 from ._audio import read_audio
 from ._blender import blender_timebase, write_blend, write_fbx
-from ._bvh import Bvh, BvhJoint, bvh_chain, make_head_bvh, read_bvh, write_bvh
+from ._bvh import (
+    Bvh,
+    BvhJoint,
+    bvh_chain,
+    bvh_pose,
+    bvh_with_pose,
+    bvh_world_positions,
+    make_head_bvh,
+    read_bvh,
+    read_key_frames,
+    write_bvh,
+)
 from ._c3d import read_c3d, write_c3d
+from ._controls import (
+    CONTROL_TABLE_FORMATS,
+    ControlTable,
+    read_control_table,
+    write_control_curves,
+    write_control_table,
+    write_control_template,
+)
 from ._gltf import glb_vertex_order, read_glb_head, read_glb_rig, read_glb_weights, write_glb, write_glb_head
+from ._gltf_skin import GlbSkeleton, read_glb_skeleton, write_glb_skeleton
 from ._head import (
     HEAD_READ_FORMATS,
     read_bvh_head,
@@ -60,6 +81,18 @@ from ._registry import (
     write_head_motion,
 )
 from ._rig import read_rig, read_rig_npz, write_rig, write_rig_npz
+from ._svg import (
+    DRAWING_FORMATS,
+    POINT_SET_FORMATS,
+    Drawing,
+    read_point_set,
+    read_svg_animation,
+    read_svg_drawing,
+    render_drawing,
+    write_drawing_preview,
+    write_svg_animation,
+    write_svg_frames,
+)
 from ._usd import USD_FORMATS, usd_prim_names, write_usd
 from ._video import VideoInfo, iter_frames, probe_video, read_video_audio, write_video
 
@@ -77,7 +110,12 @@ __all__ = [
     "register_reader", "register_writer", "Animation", "holds_head",
     "read_c3d", "write_c3d",
     "read_audio",
-    "Bvh", "BvhJoint", "bvh_chain", "make_head_bvh", "read_bvh", "write_bvh",
+    "Bvh", "BvhJoint", "bvh_chain", "make_head_bvh", "read_bvh", "write_bvh", "bvh_pose", "bvh_world_positions",
+    "bvh_with_pose", "read_key_frames", "GlbSkeleton", "write_glb_skeleton", "read_glb_skeleton",
+    "ControlTable", "read_control_table", "write_control_template", "write_control_table",
+    "write_control_curves", "CONTROL_TABLE_FORMATS",
+    "Drawing", "read_svg_drawing", "read_point_set", "write_svg_animation", "write_svg_frames", "read_svg_animation",
+    "render_drawing", "write_drawing_preview", "DRAWING_FORMATS", "POINT_SET_FORMATS",
     "write_head_motion", "HEAD_FORMATS", "HEAD_READ_FORMATS", "read_head_motion", "read_head_take",
     "read_bvh_head", "read_smplx_head", "read_marker_head",
     "write_keyshapes", "read_keyshapes", "read_marker_labels", "is_keyshape_folder", "keyshape_filename", "read_keys",

@@ -31,7 +31,8 @@ from ..errors import InputFileError, InvalidDataError, excerpt
 from ..files import atomic_path, check_output_path, input_file, read_text
 from ..headpose import HeadPose
 
-__all__ = ["Bvh", "BvhJoint", "read_bvh", "write_bvh", "bvh_chain", "make_head_bvh"]
+__all__ = ["Bvh", "BvhJoint", "read_bvh", "write_bvh", "bvh_chain", "make_head_bvh", "bvh_pose", "bvh_world_positions",
+           "bvh_with_pose", "read_key_frames"]
 
 _ROT = {"xrotation": "X", "yrotation": "Y", "zrotation": "Z"}
 #: Largest magnitude of a value read (no angle or length is near it; sums of larger ones could overflow).
@@ -465,3 +466,191 @@ def make_head_bvh(head: HeadPose, fps: float, joint: str = "Head",
         motion = np.concatenate([tr, r], axis=1)
     j = BvhJoint(joint, -1, np.zeros(3), chans, np.asarray(end_site, np.float64))
     return Bvh([j], 1.0 / float(fps), motion, source=joint)
+
+
+# ------------------------------------------------------------------------------------ poses (skeletal keys)
+def bvh_pose(bvh: Bvh) -> tuple[np.ndarray, np.ndarray]:
+    """Every joint's local rotation and position channels per frame.
+
+    Returns
+    -------
+    rotations : (T, J, 4) float
+        Local rotations as unit quaternions ``x, y, z, w`` (identity for a joint without rotation
+        channels), composed in each joint's own channel order.
+    positions : (T, J, 3) float
+        The position channels' values in the file's length unit (0 where a joint has none); a joint
+        sits at ``offset + position`` in its parent's frame.
+    """
+    T, J = bvh.n_frames, len(bvh.joints)
+    rot = np.empty((T, J, 4))
+    pos = np.zeros((T, J, 3))
+    for i, j in enumerate(bvh.joints):
+        rot[:, i] = Rotation.from_matrix(bvh.local_rotations(i)).as_quat()
+        for k, c in enumerate(j.channels):
+            if c.lower() in _POS:
+                pos[:, i, _POS[c.lower()]] = bvh.motion[:, bvh._start[i] + k]
+    return rot, pos
+
+
+def bvh_world_positions(bvh: Bvh, rotations: np.ndarray | None = None,
+                        positions: np.ndarray | None = None) -> np.ndarray:
+    """World positions of every joint by forward kinematics (the skeleton's root frame is the world).
+
+    Parameters
+    ----------
+    bvh : Bvh
+        The hierarchy (offsets); its own motion unless ``rotations`` / ``positions`` are given.
+    rotations : (T, J, 4) float, optional
+        Local rotations (quaternions ``x, y, z, w``), as :func:`bvh_pose` gives them.
+    positions : (T, J, 3) float, optional
+        Position channel values.
+
+    Returns
+    -------
+    (T, J, 3) float
+        In the file's length unit.
+    """
+    if rotations is None or positions is None:
+        r0, p0 = bvh_pose(bvh)
+        rotations = r0 if rotations is None else rotations
+        positions = p0 if positions is None else positions
+    q = np.asarray(rotations, dtype=np.float64)
+    pos = np.asarray(positions, dtype=np.float64)
+    T, J = q.shape[:2]
+    if q.shape != (T, len(bvh.joints), 4) or pos.shape != (T, J, 3):
+        raise InvalidDataError(f"{bvh.source}: rotations must be (T, {len(bvh.joints)}, 4) and positions (T, "
+                               f"{len(bvh.joints)}, 3), got {q.shape} and {pos.shape}")
+    local = Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(T, J, 3, 3)
+    world_R = np.empty((T, J, 3, 3))
+    world_p = np.empty((T, J, 3))
+    for i, j in enumerate(bvh.joints):
+        t = np.asarray(j.offset, dtype=np.float64) + pos[:, i]
+        if j.parent < 0:
+            world_R[:, i] = local[:, i]
+            world_p[:, i] = t
+        else:
+            world_p[:, i] = world_p[:, j.parent] + np.einsum("tij,tj->ti", world_R[:, j.parent], t)
+            world_R[:, i] = world_R[:, j.parent] @ local[:, i]
+    return world_p
+
+
+def bvh_with_pose(bvh: Bvh, rotations: np.ndarray, positions: np.ndarray, frame_time: float | None = None,
+                  source: str | None = None) -> Bvh:
+    """A :class:`Bvh` of ``bvh``'s hierarchy and channels whose motion is the given pose per frame.
+
+    Each joint's rotation becomes Euler angles (degrees) in the joint's own channel order; a joint
+    without rotation channels must keep the identity (its rotation is not written).
+
+    Parameters
+    ----------
+    bvh : Bvh
+        The hierarchy and channel layout.
+    rotations : (T, J, 4) float
+        Local rotations, quaternions ``x, y, z, w``.
+    positions : (T, J, 3) float
+        Position channel values (only the axes a joint has channels for are written).
+    frame_time : float, optional
+        Seconds per frame (default ``bvh``'s).
+    """
+    import warnings
+
+    q = np.asarray(rotations, dtype=np.float64)
+    pos = np.asarray(positions, dtype=np.float64)
+    T, J = q.shape[0], len(bvh.joints)
+    if q.shape != (T, J, 4) or pos.shape != (T, J, 3):
+        raise InvalidDataError(f"{bvh.source}: rotations must be (T, {J}, 4) and positions (T, {J}, 3), "
+                               f"got {q.shape} and {pos.shape}")
+    C = sum(len(j.channels) for j in bvh.joints)
+    motion = np.zeros((T, C))
+    for i, j in enumerate(bvh.joints):
+        rot = [(k, _ROT[c.lower()]) for k, c in enumerate(j.channels) if c.lower() in _ROT]
+        if rot:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)        # gimbal lock: any of the equal angle sets
+                ang = Rotation.from_quat(q[:, i]).as_euler("".join(a for _, a in rot), degrees=True)
+            for n, (k, _) in enumerate(rot):
+                motion[:, bvh._start[i] + k] = ang[:, n]
+        for k, c in enumerate(j.channels):
+            if c.lower() in _POS:
+                motion[:, bvh._start[i] + k] = pos[:, i, _POS[c.lower()]]
+    return Bvh([BvhJoint(j.name, j.parent, np.asarray(j.offset).copy(), tuple(j.channels),
+                         None if j.end_site is None else np.asarray(j.end_site).copy()) for j in bvh.joints],
+               bvh.frame_time if frame_time is None else float(frame_time), motion, source=source or bvh.source)
+
+
+def read_key_frames(path: str | os.PathLike) -> tuple[dict[str, int], int | None]:
+    """Which frames of a pose file (BVH, glTF skin) are which keys.
+
+    ``.json``: an object ``{"neutral": 0, "frame_00123": 57, ...}`` (key name -> frame) or a list of
+    key names, entry ``i`` naming frame ``i``; ``.csv``: rows ``key,frame`` (a header line is
+    skipped); ``.txt``: one key name per line, line ``i`` naming frame ``i``.  The key ``neutral``
+    names the rest pose; a list without one starts at frame 1 after the rest pose in frame 0.
+
+    Returns
+    -------
+    frames : dict of str to int
+        Key name -> frame (0-based).
+    neutral : int or None
+        The rest frame when the file names one (a list without ``neutral``: 0).
+
+    Raises
+    ------
+    InputFileError
+        Unreadable, a frame that is not a non-negative integer, or a key named twice (naming the line).
+    """
+    import json
+
+    path = input_file(path)
+    ext = path.suffix.lower()
+    text = read_text(path)
+    pairs: list[tuple[str, object, str]] = []            # (name, frame, where)
+    listed: list[tuple[str, str]] | None = None
+    if ext == ".json":
+        try:
+            doc = json.loads(text)
+        except ValueError as e:
+            raise InputFileError(f"{path}: not JSON ({excerpt(e, 80)})") from None
+        if isinstance(doc, dict):
+            pairs = [(str(k), v, f"key '{excerpt(k, bare=True)}'") for k, v in doc.items()]
+        elif isinstance(doc, list) and all(isinstance(v, str) for v in doc):
+            listed = [(v, f"entry {i}") for i, v in enumerate(doc)]
+        else:
+            raise InputFileError(f"{path}: expected an object {{key: frame}} or a list of key names")
+    elif ext == ".csv":
+        for n, line in enumerate(text.splitlines(), 1):
+            s = line.strip()
+            if not s:
+                continue
+            parts = [p.strip() for p in s.split(",")]
+            if len(parts) != 2:
+                raise InputFileError(f"{path}: line {n}: expected 'key,frame', got {excerpt(s)}")
+            if n == 1 and not parts[1].lstrip("-").isdigit():
+                continue                                    # a header
+            pairs.append((parts[0], parts[1], f"line {n}"))
+    elif ext == ".txt":
+        listed = [(s.strip(), f"line {n}") for n, s in enumerate(text.splitlines(), 1) if s.strip()]
+    else:
+        raise InputFileError(f"{path}: unknown key-frame format '{ext}' (use .json, .csv or .txt)")
+    if listed is not None:
+        names = [n for n, _ in listed]
+        start = 0 if "neutral" in names else 1
+        pairs = [(n, i + start, w) for i, (n, w) in enumerate(listed)]
+        if start == 1:
+            pairs.append(("neutral", 0, "the rest pose"))
+    frames: dict[str, int] = {}
+    for name, v, where in pairs:
+        if not name or not name.isprintable() or len(name) > 200:
+            raise InputFileError(f"{path}: {where}: {excerpt(name)} is not a key name")
+        try:
+            f = int(v) if not isinstance(v, bool) and (isinstance(v, int) or str(v).strip().isdigit()) else None
+        except (TypeError, ValueError):
+            f = None
+        if f is None or f < 0:
+            raise InputFileError(f"{path}: {where}: frame {excerpt(v)} is not a frame number (0, 1, 2, ...)")
+        if name in frames:
+            raise InputFileError(f"{path}: {where}: key '{excerpt(name, bare=True)}' is named twice")
+        frames[name] = f
+    neutral = frames.pop("neutral", None)
+    if not frames:
+        raise InputFileError(f"{path}: names no key frame")
+    return frames, neutral

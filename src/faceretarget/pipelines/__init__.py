@@ -59,6 +59,7 @@ from ._transfer import (
     result_head,
     retarget_take,
     source_geometry,
+    target_weights,
     write_result,
 )
 
@@ -66,6 +67,7 @@ __all__ = [
     "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
     "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES", "check_result_path", "MAX_TEMPORAL",
+    "target_weights",
     "select_keys", "compose_keys", "key_geometry", "KeySelection", "KeyGeometry", "SELECTION_ALIASES",
     "write_animation_preview", "TakeSampler",
     "run_live", "LiveSession", "LiveStats", "LiveFrame", "LiveServer", "character_glb", "LIVE_LIMITS",

@@ -334,8 +334,11 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
     speech : path-like, optional
         New speech of the same text: the animation is re-timed to it by DTW of the audio and
         carries it as its soundtrack (and it drives ``head="speech"``).
-    source_keys, target_keys : Rig, optional
-        Keyshape pairs for a character not driven by its own shapes.
+    source_keys : Rig, optional
+    target_keys : Rig or Target, optional
+        Keyshape pairs for a character not driven by its own shapes; a
+        :class:`~faceretarget.targets.Target` (control table, skeleton, drawings) is written in its
+        own parameters and formats (no preview).
     solver : LandmarkSolver, optional
         Unfitted, with its parameters (default ``LandmarkSolver()``).
     """
@@ -393,6 +396,7 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
         names = list(character.names)
         W = solve(ftake.points)
         play = character
+        own = None
     else:
         from ._transfer import retarget_take
 
@@ -403,7 +407,11 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
         names = list(tr.result.names)
         W = tr.result.weights
         play = tr.target_keys
+        own = tr.target if tr.target is not None and tr.target.kind != "mesh" else None
     timings["solve"] = time.perf_counter() - t0
+    if preview is not None and own is not None:
+        raise InvalidDataError(f"{preview}: a preview plays a mesh character; a {own.kind} target writes its own "
+                               "pictures (out: .png / .mp4 for drawings)")
     how = "its own shapes from the landmarks" if by_landmarks else "keyshape pairs"
     log(f"solved {len(W)} frames on {character.name} ({how}) in {timings['solve']:.2f} s")
 
@@ -447,7 +455,11 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
                         timings=timings, alpha=alpha, emotions=emotions)
     if out is not None:
         t0 = time.perf_counter()
-        res.outputs.append(_write(out, play, res, bake, log))
+        if own is not None:                       # controls, skeleton, drawings: the target writes itself
+            res.outputs.append(own.write(out, res.weights[:, own.key_order(names)], res.times, log=log))
+            log(f"wrote {out} ({len(res.times)} frames of the {own.kind} target)")
+        else:
+            res.outputs.append(_write(out, play, res, bake, log))
         timings["write"] = time.perf_counter() - t0
     if preview is not None:
         t0 = time.perf_counter()

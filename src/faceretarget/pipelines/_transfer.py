@@ -26,10 +26,11 @@ from ..names import ARKIT_NAMES, normalize_name, split_parent
 from ..performance import Performance
 from ..retarget import BlendshapeRetargeter, RetargetResult, check_consistency
 from ..rig import Rig
+from ..targets import Target
 
 __all__ = ["CHUNK_FRAMES", "source_geometry", "clone_take", "retarget_take", "write_result", "Transfer",
            "result_head", "arkit_curves", "HEAD_CHOICES", "face_and_head_formats", "check_result_path",
-           "MAX_TEMPORAL"]
+           "MAX_TEMPORAL", "target_weights"]
 
 #: The ``head`` choices of :func:`write_result` besides a head-motion file, a take or a pose.
 HEAD_CHOICES = ("auto", "off")
@@ -104,19 +105,31 @@ def _apply(model: ExpressionCloner | BlendshapeRetargeter, take: Performance, so
 class Transfer:
     """A take cloned or retargeted: the fitted model, its result, the seconds it took, and the target
     keys as given (``keys``: before a retargeter splits them by region; their
-    :attr:`~faceretarget.rig.Rig.basis` turns key weights into ARKit curves, :func:`arkit_curves`)."""
+    :attr:`~faceretarget.rig.Rig.basis` turns key weights into ARKit curves, :func:`arkit_curves`);
+    ``target``: the :class:`~faceretarget.targets.Target` the keys were given as (``keys`` is then its
+    :attr:`~faceretarget.targets.Target.solve_keys`), None for a plain Rig."""
 
     model: ExpressionCloner | BlendshapeRetargeter
     result: CloneResult | RetargetResult
     seconds: float
     keys: Rig | None = None
+    target: Target | None = None
 
     @property
     def target_keys(self) -> Rig:
         return self.model.target_keys_
 
 
-def clone_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_rig: Rig | None = None,
+def _target_of(target_keys: Rig | Target, source_keys: Rig, log: Callable[..., None]) -> tuple[Target | None, Rig]:
+    """A Target's solve keys (its keys checked against the source keyshapes), or a Rig as it is."""
+    if isinstance(target_keys, Target):
+        target_keys.check_keys(source_keys.names, source_keys.name)
+        log(target_keys.describe())
+        return target_keys, target_keys.solve_keys
+    return None, target_keys
+
+
+def clone_take(take: Performance, source_keys: Rig, target_keys: Rig | Target, *, source_rig: Rig | None = None,
                method: str = "temporal", features="landmarks", weight_range="auto",
                log: Callable[..., None] = _quiet) -> Transfer:
     """Clone a take onto the target key-models (Pyun et al. 2003; :class:`~faceretarget.cloning.ExpressionCloner`).
@@ -125,14 +138,18 @@ def clone_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_
     ----------
     take : Performance
         Points or vertices of the source face, or weights on ``source_rig``.
-    source_keys, target_keys : Rig
-        Key-model pairs (by name).
+    source_keys : Rig
+    target_keys : Rig or Target
+        Key-model pairs (by name); a :class:`~faceretarget.targets.Target` (control table, skeleton,
+        drawing) is solved in its :attr:`~faceretarget.targets.Target.solve_keys` and written by
+        :func:`write_result` in its own parameters.
     source_rig : Rig, optional
         The rig a weight take drives (default ``source_keys`` when they share its topology).
     weight_range : "auto", (lo, hi) or None
         Range of the weights (:class:`~faceretarget.cloning.ExpressionCloner`).
     """
     t0 = time.perf_counter()
+    target, target_keys = _target_of(target_keys, source_keys, log)
     cloner = ExpressionCloner(method, features=features, weight_range=weight_range).fit(source_keys, target_keys)
     log(_range_line(cloner.weight_range_))
     rig = source_rig if source_rig is not None else (source_keys if take.kind == "weights" else None)
@@ -142,14 +159,14 @@ def clone_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_
     dt = time.perf_counter() - t0
     log(f"cloned {take.n_frames} frames with '{method}' in {dt:.2f} s; frames outside the key-models "
         f"(>35% unexplained): {(res.outside > 0.35).mean():.1%}")
-    return Transfer(cloner, res, dt, target_keys)
+    return Transfer(cloner, res, dt, target_keys, target)
 
 
 def _range_line(r) -> str:
     return "weights unconstrained" if r is None else f"weights kept in [{r[0]:g}, {r[1]:g}]"
 
 
-def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, source_labels: Sequence[str] = (),
+def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig | Target, *, source_labels: Sequence[str] = (),
                   source_rig: Rig | None = None, check: bool = False, log: Callable[..., None] = _quiet,
                   temporal: float | None = None, **params) -> Transfer:
     """Retarget a take through keyshape pairs (Chuang Ch. 3; :class:`~faceretarget.retarget.BlendshapeRetargeter`).
@@ -158,8 +175,9 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, sour
     ----------
     take : Performance
         Markers, landmarks or vertices of the source face, or weights on ``source_rig``.
-    source_keys, target_keys : Rig
-        Keyshape pairs (by name).
+    source_keys : Rig
+    target_keys : Rig or Target
+        Keyshape pairs (by name); a :class:`~faceretarget.targets.Target` as in :func:`clone_take`.
     source_labels : sequence of str
         Marker labels of the source keyshapes (to match a marker take by label).
     check : bool
@@ -189,6 +207,7 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, sour
         if temporal > 0 and params.get("solver", "signed") != "nnls":
             raise InvalidDataError("temporal smoothness inside the solve applies to the 'nnls' solver only "
                                    "(--solver nnls); smooth the curves of 'signed' with a filter (--smooth)")
+    target, target_keys = _target_of(target_keys, source_keys, log)
     if check:
         log(check_consistency(source_keys, target_keys).table())
     rt = BlendshapeRetargeter(**params).fit(source_keys, target_keys, source_labels=list(source_labels))
@@ -204,7 +223,7 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig, *, sour
         log(f"weight filter level {rt.filter_level}: removed {100 * res.extremes_removed:.1f} % of the extremes")
     dt = time.perf_counter() - t0
     log(f"retargeted {take.n_frames} frames with '{rt.solver}' in {dt:.2f} s")
-    return Transfer(rt, res, dt, target_keys)
+    return Transfer(rt, res, dt, target_keys, target)
 
 
 def _is_arkit(name: str) -> bool:
@@ -255,6 +274,24 @@ def arkit_curves(transfer: Transfer, *, path: str | os.PathLike = "result",
     raise OutputError(f"{path}: a Live Link Face CSV holds ARKit curves, but the target keys '{keys.name}' "
                       f"('{bad}', ...) are neither ARKit shapes nor defined by ARKit weight vectors; write "
                       ".glb, .npz or .blend instead")
+
+
+def _own_target(transfer: Transfer) -> Target | None:
+    """The transfer's target when it writes itself (controls, skeleton, drawing), None for meshes."""
+    t = transfer.target
+    return t if t is not None and t.kind != "mesh" else None
+
+
+def target_weights(transfer: Transfer) -> np.ndarray:
+    """The result's weights per key of :attr:`Transfer.target` ``(T, K)``, in its key order (a
+    retarget's region weights folded back per key first,
+    :meth:`~faceretarget.retarget.BlendshapeRetargeter.key_weights`)."""
+    if transfer.target is None:
+        raise InvalidDataError("the transfer has no Target (its keys were a Rig)")
+    W, names = transfer.result.weights, list(transfer.result.names)
+    if isinstance(transfer.model, BlendshapeRetargeter):
+        W, names = transfer.model.key_weights(W), list(transfer.model.names_)
+    return W[:, transfer.target.key_order(names)]
 
 
 def _resample_head(motion: Performance, times: np.ndarray, timecode: float | None, what: str) -> HeadPose:
@@ -324,7 +361,8 @@ def result_head(transfer: Transfer, head="auto") -> tuple[HeadPose | None, bool]
     raise InvalidDataError(f"head must be 'auto', 'off', a head-motion file, a take or a HeadPose, got {head!r}")
 
 
-def check_result_path(path: str | os.PathLike, *, keys: Rig | None = None, bake: bool = False) -> Path:
+def check_result_path(path: str | os.PathLike, *, keys: Rig | None = None, bake: bool = False,
+                      target: Target | None = None) -> Path:
     """Raise before any work when :func:`write_result` could not write ``path``; returns it as a Path.
 
     Parameters
@@ -336,6 +374,9 @@ def check_result_path(path: str | os.PathLike, *, keys: Rig | None = None, bake:
         (:func:`arkit_curves`).
     bake : bool
         ``write_result(bake=True)``: USD output only.
+    target : Target, optional
+        A target that writes itself (controls, skeleton, drawing): its formats
+        (:meth:`~faceretarget.targets.Target.check_output`) instead of the animation writers'.
 
     Raises
     ------
@@ -344,6 +385,10 @@ def check_result_path(path: str | os.PathLike, *, keys: Rig | None = None, bake:
         target keys a Live Link Face CSV cannot hold, or a folder that is missing or read-only.
     """
     path = Path(path)
+    if target is not None and target.kind != "mesh":
+        if bake:
+            raise OutputError(f"{path}: baking applies to USD output of mesh targets")
+        return target.check_output(path)
     holds_head(path)                                # unknown extension -> OutputError
     if bake and path.suffix.lower() not in _BAKES:
         raise OutputError(f"{path}: baking applies to USD output ({', '.join(sorted(_BAKES))}); an OBJ "
@@ -389,9 +434,10 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
         Unknown format, an explicit head for a format without one, a ``.csv`` of keys without an
         ARKit definition; nothing is written.
     """
-    path = check_result_path(path, bake=bake)
+    own = _own_target(transfer)
+    path = check_result_path(path, bake=bake, target=own)
     res, model = transfer.result, transfer.model
-    has_head = holds_head(path)
+    has_head = own.holds_head(path) if own is not None else holds_head(path)
     pose, explicit = result_head(transfer, head)
     if pose is not None and not has_head:
         if explicit:
@@ -402,6 +448,12 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
         pose = None
     clock = dict(timecode=res.timecode, timecode_rate=res.timecode_rate,
                  curves=res.curves, curve_names=list(res.curve_names) if res.curves is not None else None)
+    if own is not None:
+        extra = dict(clock, audio=res.audio, audio_rate=res.audio_rate) if own.kind == "controls" else {}
+        out = own.write(path, target_weights(transfer), res.times, head=pose, log=log, **extra)
+        log(f"wrote {path} ({len(res.times)} frames of the {own.kind} target, {own.n_keys} keys"
+            f"{', head motion' if pose is not None else ''})")
+        return out
     if path.suffix.lower() == ".csv":
         W, names = arkit_curves(transfer, path=path, log=log)
         out = write_animation(path, weights=W, names=names, times=res.times, head=pose, **clock)
