@@ -182,6 +182,15 @@ CASES: tuple[Case, ...] = (
     _c("restyle-out-ext", _RESTYLE + " --out {out}/rs.txt", ".txt"),
     _c("restyle-out-is-input", _RESTYLE + " --out {take}", "input"),
     _c("restyle-existing-out", _RESTYLE + " --amount 4 --out {out}/old.csv", "--amount", existing="{out}/old.csv"),
+    _c("restyle-video-missing-appearance", "restyle --video {video} --appearance {d}/nope.npz --to angry "
+       "--out {out}/rv.mp4", "nope.npz"),
+    _c("restyle-video-no-appearance", "restyle --video {video} --to angry --out {out}/rv.mp4", "--appearance"),
+    _c("restyle-video-and-take", _RESTYLE + " --video {video} --out {out}/rv.mp4", "not allowed"),
+    _c("restyle-video-out-ext", "restyle --video {video} --appearance {model} --to angry --out {out}/rv.csv", ".csv"),
+    _c("restyle-video-out-is-input", "restyle --video {video} --appearance {model} --to angry --out {video}", "input"),
+    _c("restyle-video-feather", "restyle --video {video} --appearance {model} --to angry --feather 2 "
+       "--out {out}/rv.mp4", "--feather"),
+    _c("appearance-fit-one-take", "appearance fit --take neutral={video} --out {out}/app.npz", "at least 2 styles"),
     # ---- headmotion build / synth
     _c("build-pause-negative", _BUILD + " --pause -1 --out {out}/db.npz", "--pause"),
     _c("build-pause-long", _BUILD + " --pause 6 --out {out}/db.npz", "--pause"),

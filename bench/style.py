@@ -218,7 +218,7 @@ def p3_metrics(pred, gt, p3) -> dict[str, float]:
     return {k: round(float(v), 4) for k, v in m.items()}
 
 
-def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dict:
+def run_p3(data: Path, content: str, train_frac: float, out: Path | None, curve: tuple = ()) -> dict:
     """P3 on one content take; plots under ``out`` (None: none)."""
     t0 = time.perf_counter()
     rig = read_rig(data / "ict-face")
@@ -368,9 +368,26 @@ def run_p3(data: Path, content: str, train_frac: float, out: Path | None) -> dic
         f"J = {Jd}); from random starts: "
         + ", ".join(f"{k.split(',')[0]},{k.split(',')[1]} {len(v) - 1}" for k, v in conv.items() if "random" in k))
 
+    # ---------------------------------------------------------------- training length (learning curve)
+    lengths = {}
+    for n in [c for c in curve if c <= split]:
+        sl = slice(split - n, split)                      # the n training frames nearest the test part
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            mc = StyleModel().fit_frames({s: aligned[s][sl] for s in TRAIN_STYLES})
+            kc = mc.known(x_in, "neutral", "angry", warn=False).frames
+        bc = x_in + (aligned["angry"][sl] - aligned["neutral"][sl]).mean(0)
+        e_m = p3_metrics(kc, gt["angry"][te], p3)["rel_motion_pct"]
+        e_b = p3_metrics(bc, gt["angry"][te], p3)["rel_motion_pct"]
+        lengths[int(n)] = {"seconds_of_training": round(n / 30.0, 2), "known": e_m, "baseline": e_b,
+                           "ratio": e_m / e_b, "fit_s": round(time.perf_counter() - t0, 2)}
+        log(f"  training length {n} frames ({n / 30:.1f} s): known {e_m:.2f} baseline {e_b:.2f} ratio {e_m / e_b:.2f}")
+
     d = results[DEFAULT]
     sel = m_def.selection_
     summary = {
+        "training_length": lengths,
         "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in chosen.items()},
         "cv": None if sel is None else {"folds": sel.folds, "gap": sel.gap,
                                          "best_stage1": sorted([r for r in sel.table if r["stage"] == 1],
@@ -553,6 +570,8 @@ def main(argv=None) -> int:
                     help="livelinkface take(s) for the P3 content, comma-separated; the first is the headline "
                          "(and gets the plots)")
     ap.add_argument("--train", type=float, default=0.6, help="share of the timeline used for training")
+    ap.add_argument("--curve", default="", help="training lengths in frames for the learning curve of the known "
+                    "task on the first content take, comma-separated (e.g. 100,200,400,800; default none)")
     args = ap.parse_args(argv)
     data, out = Path(args.data), Path(args.out)
     if not data.is_dir():
@@ -560,7 +579,9 @@ def main(argv=None) -> int:
         return 2
     t0 = time.perf_counter()
     contents = [c.strip() for c in args.content.split(",") if c.strip()]
-    p3_all = [run_p3(data, c, args.train, out if i == 0 else None) for i, c in enumerate(contents)]
+    curve = tuple(int(c) for c in args.curve.split(",") if c.strip())
+    p3_all = [run_p3(data, c, args.train, out if i == 0 else None, curve if i == 0 else ())
+              for i, c in enumerate(contents)]
     p3 = p3_all[0]
     p4 = run_p4(data, out)
     total = time.perf_counter() - t0

@@ -102,6 +102,7 @@ def _cases() -> list[Case]:
     from faceretarget.cloning import CardinalBasis, ExpressionCloner, FeaturePCA, NohNeumannCloner
     from faceretarget.headmotion import HeadMotionDatabase
     from faceretarget.numerics import RigidAligner
+    from faceretarget.pipelines import AppearanceStyleModel
     from faceretarget.retarget import BlendshapeRetargeter, LandmarkSolver, Regions, default_regions
     from faceretarget.style import (
         AsymmetricBilinearModel,
@@ -164,6 +165,10 @@ def _cases() -> list[Case]:
     cases.append(Case("AppearanceModel", lambda: AppearanceModel(1.0, 0.9, width=40, points=np.arange(12)),
                       lambda m: m.fit(*_appearance_data()),
                       lambda m: m.transform(*_appearance_data(seed=1))))
+    cases.append(Case("AppearanceStyleModel",
+                      lambda: AppearanceStyleModel({"variance": 0.999, "energy": 0.999, "prior": 1.0, "local": 0}),
+                      lambda m: m.fit_aligned(*_appearance_style_data()[:2]),
+                      lambda m: m.transform(_appearance_style_data()[2], "s1", source="s0")))
     return cases
 
 
@@ -188,6 +193,15 @@ def _appearance_data(seed=0):
     lm = base + rng.normal(0, 1, (12, 12, 2))
     frames = rng.integers(0, 255, (12, 64, 64, 3)).astype(np.uint8)
     return frames, lm
+
+
+def _appearance_style_data():
+    """An appearance model, aligned configuration vectors of three styles, and vectors to restyle."""
+    from faceretarget.capture import AppearanceModel
+
+    app = AppearanceModel(1.0, 0.9, width=40, points=np.arange(12)).fit(*_appearance_data())
+    frames = _style_frames(D=len(app.names_))
+    return app, frames, frames["s0"][:20] + 0.01
 
 
 CASES = _cases()

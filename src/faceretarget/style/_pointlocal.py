@@ -110,7 +110,7 @@ def _nearest(prep: _Prep, Uq: np.ndarray, k: int) -> np.ndarray:
     k = int(min(k, n))
     out = np.empty(Uq.shape[:2] + (k,), np.int64)
     for v in range(len(Uq)):
-        _, ii = cKDTree(prep.U[v]).query(Uq[v], k=k)
+        _, ii = cKDTree(prep.U[v]).query(Uq[v], k=k, workers=-1)
         out[v] = np.asarray(ii).reshape(Uq.shape[1], k)
     return out
 
