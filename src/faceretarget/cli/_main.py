@@ -1,5 +1,5 @@
 """Command line: ``faceretarget animate | clone | retarget | keys compose | keys select | capture | appearance |
-style fit | restyle | headmotion build | headmotion synth | live | demo``.
+style fit | restyle | headmotion build | headmotion synth | live | batch | demo``.
 
 Every error a user can act on is printed as one line (``faceretarget: error: ...``) naming the file,
 shape or frame, and the exit code is non-zero (2 for bad input, 1 otherwise).  Outputs are written to a
@@ -416,6 +416,7 @@ def build_parser() -> argparse.ArgumentParser:
     _register_keys(sub)
     _register_retarget(sub)
     from ._animate import register as _register_animate
+    from ._batch import register as _register_batch
     from ._capture import register as _register_capture
     from ._headmotion import register as _register_headmotion
     from ._live import register as _register_live
@@ -426,6 +427,7 @@ def build_parser() -> argparse.ArgumentParser:
     _register_style(sub)
     _register_headmotion(sub)
     _register_live(sub)
+    _register_batch(sub)
 
     _register_demo(sub)
     return p

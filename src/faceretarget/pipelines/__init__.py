@@ -21,6 +21,8 @@
                                  frame onto a character in a local three.js page (``live``)
 :mod:`._liveserver`              :class:`LiveServer`: the page's HTTP server and WebSocket (stdlib)
 :mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
+:mod:`._batch`, :mod:`._jobs`     :func:`run_batch`: a jobs file (:func:`read_jobs`) of takes x characters on
+                                 Dask, each model fitted once, resumable from its manifest (``batch``)
 ================================ ================================================================
 """
 
@@ -35,6 +37,7 @@ from ._animate import (
     parse_emotion,
     tracked_take,
 )
+from ._batch import BatchSummary, ClusterError, JobOutcome, local_cluster, read_manifest, run_batch
 from ._capture import (
     APPEARANCE_BYTES,
     appearance_memory,
@@ -45,6 +48,7 @@ from ._capture import (
 )
 from ._demo import run_demo
 from ._head import build_head_database
+from ._jobs import JOB_OPTIONS, OPERATIONS, BatchSpec, Job, read_jobs
 from ._keys import SELECTION_ALIASES, KeyGeometry, KeySelection, compose_keys, key_geometry, select_keys
 from ._live import LIVE_LIMITS, LiveFrame, LiveSession, LiveStats, character_glb, run_live
 from ._liveserver import LiveServer
@@ -86,4 +90,6 @@ __all__ = [
     "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "appearance_memory", "APPEARANCE_BYTES", "fit_style", "read_style_take", "build_head_database", "run_demo",
     "AppearanceStyleModel", "RestyledVideo", "fit_appearance_style", "restyle_video", "write_face_video",
     "composited_frames", "align_vector_takes",
+    "run_batch", "read_jobs", "read_manifest", "local_cluster", "BatchSpec", "BatchSummary", "Job", "JobOutcome", "ClusterError",
+    "OPERATIONS", "JOB_OPTIONS",
 ]
