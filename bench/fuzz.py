@@ -74,7 +74,8 @@ MAX_MESSAGE = 300
 #: Seconds one case may take (``FACERETARGET_FUZZ_TIMEOUT`` in the tests).
 TIMEOUT = 2.0
 
-READER_NAMES = ("obj", "rig", "livelinkface", "c3d", "bvh", "wav", "npz_take", "npz_rig", "glb", "video")
+READER_NAMES = ("obj", "rig", "livelinkface", "c3d", "bvh", "wav", "npz_take", "npz_rig", "glb", "video",
+                "control_table", "svg")
 
 
 # ------------------------------------------------------------------------------------------- draws
@@ -529,6 +530,36 @@ def _check_perf_nan_points(p) -> str | None:
     return check_performance(p, nan_points=True)
 
 
+def _read_controls(path):
+    from faceretarget.io import read_control_table
+
+    return read_control_table(path)
+
+
+def _check_controls(t) -> str | None:
+    K, M = len(t.keys), len(t.controls)
+    if np.shape(t.values) != (K, M) or any(np.shape(a) != (M,) for a in (t.lo, t.hi, t.neutral)):
+        return f"control table shapes {np.shape(t.values)} for {K} keys x {M} controls"
+    return _first(_finite(t.values, "values"), _finite(t.lo, "lo"), _finite(t.hi, "hi"),
+                  _finite(t.neutral, "neutral"), None if np.all(t.lo <= t.hi) else "a range with lo > hi")
+
+
+def _read_svg(path):
+    from faceretarget.io import read_svg_drawing
+
+    return read_svg_drawing(path)
+
+
+def _check_svg(d) -> str | None:
+    pts = np.asarray(d.points)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) == 0:
+        return f"drawing points of shape {pts.shape}"
+    idx = np.asarray(d.index)
+    if idx.size and (idx.min() < 0 or idx.max() >= len(pts)):
+        return "a command slot points outside the drawing's points"
+    return _finite(pts, "points")
+
+
 def readers() -> dict[str, Reader]:
     """Every reader under test (without seeds: :func:`make_seeds`)."""
     return {r.name: r for r in (
@@ -542,6 +573,8 @@ def readers() -> dict[str, Reader]:
         Reader("npz_rig", ".npz", "npz", _read_npz_rig, check_rig),
         Reader("glb", ".glb", "glb", _read_glb, _check_glb),
         Reader("video", ".mp4", "binary", _read_video, _check_video),
+        Reader("control_table", ".csv", "csv", _read_controls, _check_controls),
+        Reader("svg", ".svg", "text", _read_svg, _check_svg),
     )}
 
 
@@ -695,6 +728,17 @@ def make_seeds(folder: Path, data_dir: Path | None = None) -> dict[str, list]:
     glb = write_animation(folder / "anim.glb", rig=rig, weights=rng.uniform(0, 1, (6, 2)),
                           times=np.arange(6) / 30.0, head=_head(6))
     seeds["glb"] = [glb.read_bytes()]
+
+    from faceretarget.datasets import drawn_face_svgs
+    from faceretarget.io import ControlTable, write_control_table
+
+    ct = ControlTable(["frame_00002", "frame_00030", "smile"], ["jawOpen", "mouthSmileLeft", "browInnerUp"],
+                      [[0.4, 0.0, 0.1], [0.0, 0.8, 0.0], [0.05, 0.6, 0.25]], [0, 0, -1], [1, 1, 1], [0, 0, 0.0])
+    hand_ct = (b"key,jawOpen,mouthSmileLeft,browInnerUp\r\nmin,0,0,-1\r\nmax,1,1,1\r\n"
+               b"frame_00002,0.42,,0.1\r\nframe_00030,,0.8,\r\n")
+    seeds["control_table"] = [write_control_table(folder / "controls.csv", ct).read_bytes(), hand_ct]
+    neutral_svg, key_svgs = drawn_face_svgs(["jawOpen"])
+    seeds["svg"] = [neutral_svg.encode(), key_svgs["jawOpen"].encode()]
 
     frames = [np.full((32, 32, 3), 60 * i, np.uint8) + np.arange(32, dtype=np.uint8)[None, :, None] for i in range(3)]
     try:

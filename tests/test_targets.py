@@ -316,3 +316,15 @@ def test_mesh_targets_are_one_kind_of_target(arkit_rig):
         as_target(pts).check_keys(["b"])
     with pytest.raises(InvalidDataError):
         ControlTarget(ControlTable(["a"], ["x"], [[1.0]], [0.0], [1.0], [0.0]), ranges="wrap")
+
+
+def test_an_unfilled_control_table_is_an_error_and_rest_keys_a_warning():
+    from faceretarget.errors import DataWarning, InvalidDataError
+
+    blank = ControlTable(["a", "b"], ["x", "y"], np.zeros((2, 2)), [0.0, 0.0], [1.0, 1.0], [0.0, 0.0], "t.csv")
+    with pytest.raises(InvalidDataError, match="t.csv: no key is posed"):
+        ControlTarget(blank)
+    half = ControlTable(["a", "b"], ["x", "y"], [[0.5, 0.0], [0.0, 0.0]], [0.0, 0.0], [1.0, 1.0], [0.0, 0.0], "t.csv")
+    with pytest.warns(DataWarning, match="1 of 2 key.* left at rest \\(b\\)"):
+        t = ControlTarget(half)
+    assert np.allclose(t.params(np.array([[1.0, 1.0]])), [[0.5, 0.0]])

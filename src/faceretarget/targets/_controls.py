@@ -108,6 +108,15 @@ class ControlTarget(Target):
         self.arkit = all(_is_arkit(c) for c in self.controls)
         C = table.values - table.neutral                          # (K, M) key offsets
         self._offsets = C
+        posed = np.abs(C).max(axis=1) > 0
+        if not posed.any():
+            raise InvalidDataError(f"{table.source}: no key is posed (every row is empty or at the neutral "
+                                   "controls): pose the target for each keyshape and type its slider values")
+        if not posed.all():
+            rest = [k for k, p in zip(table.keys, posed, strict=True) if not p]
+            warnings.warn(f"{table.source}: {len(rest)} of {len(posed)} key(s) left at rest ({', '.join(rest[:6])}"
+                          f"{' ...' if len(rest) > 6 else ''}): those keyshapes will not move the target",
+                          DataWarning, stacklevel=2)
         if rig is not None:
             M = len(self.controls)
             drive = rig.map_weights(self.controls, np.eye(M), source=table.source, warn=False)  # (M, K_rig)
