@@ -328,3 +328,23 @@ def test_an_unfilled_control_table_is_an_error_and_rest_keys_a_warning():
     with pytest.warns(DataWarning, match="1 of 2 key.* left at rest \\(b\\)"):
         t = ControlTarget(half)
     assert np.allclose(t.params(np.array([[1.0, 1.0]])), [[0.5, 0.0]])
+
+
+def test_a_whole_arkit_rig_drives_a_drawing_of_some_of_its_shapes(arkit_rig, take, tmp_path):
+    from faceretarget.targets import read_target
+
+    face = tmp_path / "face"
+    names = ["jawOpen", "eyeBlinkLeft", "mouthSmileLeft"]
+    write_drawn_face(face, names)
+    lines = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        job = retarget_take(take.slice(0, 120), arkit_rig, read_target(face), source_rig=arkit_rig, log=lines.append)
+        # the same solve with the three shapes given explicitly
+        ref = retarget_take(take.slice(0, 120), arkit_rig.subset(names), read_target(face), source_rig=arkit_rig)
+    assert any(f"the 3 of {arkit_rig.n_shapes} shapes" in ln for ln in lines)
+    np.testing.assert_allclose(target_weights(job), target_weights(ref), atol=1e-12)
+    # source keyshapes that are not a rig's ARKit shapes must all be posed: a missing key is an error
+    odd = Rig(arkit_rig.neutral, ["frame_1", "frame_2", "jawOpen"], arkit_rig.deltas[:3], arkit_rig.unit)
+    with pytest.raises(MissingShapeError, match="no key for source keyshape"):
+        retarget_take(take.slice(0, 10), odd, read_target(face), source_rig=arkit_rig)

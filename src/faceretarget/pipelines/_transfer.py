@@ -120,13 +120,25 @@ class Transfer:
         return self.model.target_keys_
 
 
-def _target_of(target_keys: Rig | Target, source_keys: Rig, log: Callable[..., None]) -> tuple[Target | None, Rig]:
-    """A Target's solve keys (its keys checked against the source keyshapes), or a Rig as it is."""
+def _target_of(target_keys: Rig | Target, source_keys: Rig,
+               log: Callable[..., None]) -> tuple[Target | None, Rig, Rig]:
+    """``(target, its solve keys, source keys)``: a Target's keys checked against the source keyshapes,
+    or a Rig as it is.  Source keys that are an ARKit-style rig's own shapes (``--source-keys`` a rig
+    folder) are cut to the shapes the target poses (a drawing of 15 ARKit keys driven by a 52-shape
+    rig), with a log line; any other unmatched source keyshape is an error (a missing or misspelt key)."""
     if isinstance(target_keys, Target):
+        if target_keys.kind != "mesh":
+            posed = set(target_keys.names)
+            keep = [n for n in source_keys.names if normalize_name(n) in posed]
+            arkit = sum(_is_arkit(n) for n in source_keys.names) >= 0.8 * len(source_keys.names)
+            if arkit and keep and len(keep) < len(source_keys.names):
+                log(f"solving with the {len(keep)} of {len(source_keys.names)} shapes of {source_keys.name} that "
+                    f"{target_keys.name} poses")
+                source_keys = source_keys.subset(keep)
         target_keys.check_keys(source_keys.names, source_keys.name)
         log(target_keys.describe())
-        return target_keys, target_keys.solve_keys
-    return None, target_keys
+        return target_keys, target_keys.solve_keys, source_keys
+    return None, target_keys, source_keys
 
 
 def clone_take(take: Performance, source_keys: Rig, target_keys: Rig | Target, *, source_rig: Rig | None = None,
@@ -149,7 +161,9 @@ def clone_take(take: Performance, source_keys: Rig, target_keys: Rig | Target, *
         Range of the weights (:class:`~faceretarget.cloning.ExpressionCloner`).
     """
     t0 = time.perf_counter()
-    target, target_keys = _target_of(target_keys, source_keys, log)
+    if source_rig is None and take.kind == "weights":
+        source_rig = source_keys                    # the take drives every shape, whatever the target poses
+    target, target_keys, source_keys = _target_of(target_keys, source_keys, log)
     cloner = ExpressionCloner(method, features=features, weight_range=weight_range).fit(source_keys, target_keys)
     log(_range_line(cloner.weight_range_))
     rig = source_rig if source_rig is not None else (source_keys if take.kind == "weights" else None)
@@ -207,7 +221,9 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig | Target
         if temporal > 0 and params.get("solver", "signed") != "nnls":
             raise InvalidDataError("temporal smoothness inside the solve applies to the 'nnls' solver only "
                                    "(--solver nnls); smooth the curves of 'signed' with a filter (--smooth)")
-    target, target_keys = _target_of(target_keys, source_keys, log)
+    if source_rig is None and take.kind == "weights" and isinstance(target_keys, Target) and target_keys.kind != "mesh":
+        source_rig = source_keys                    # the take drives every shape, whatever the target poses
+    target, target_keys, source_keys = _target_of(target_keys, source_keys, log)
     if check:
         log(check_consistency(source_keys, target_keys).table())
     rt = BlendshapeRetargeter(**params).fit(source_keys, target_keys, source_labels=list(source_labels))
