@@ -399,3 +399,28 @@ def test_quick_start_plays_in_blender_against_ground_truth(B, data_dir, ict_rig,
     assert out["rom40", ".glb"][1] > 0                        # the glTF importer's [0, 1] sliders clamp
     rel, clamped, _ = out["arkit", ".glb"]
     assert rel < 0.01 and clamped == 0
+
+
+def test_skeleton_target_plays_in_blender_bvh_and_gltf_importers(B, data_dir, tmp_path):
+    """A skeletal retarget (issue 16): the .bvh and the skinned .glb, as Blender's own importers pose
+    the armature, put every joint where our rotation blend does and keep every bone's length."""
+    from faceretarget.targets import bone_lengths, read_target
+
+    t = read_target(data_dir / "headmotion" / "beat_2_scott_0_1_1.bvh",
+                    frames={"neutral": 0, "a": 100, "b": 400, "c": 800})
+    W = np.random.default_rng(1).uniform(-0.5, 1.5, (20, 3))
+    times = np.arange(20) / 30
+    ours = (t.world_positions(W) * 0.01) @ B.AXES.T          # cm -> m, our axes -> Blender's
+    L0 = t.rest_bone_lengths() * 0.01
+    for ext in (".bvh", ".glb"):
+        path = t.write(tmp_path / f"skeleton{ext}", W, times)
+        scene = B.load_scene(path)
+        arm = next(o for o in B.bpy.context.scene.objects if o.type == "ARMATURE")
+        got = []
+        for f in scene.frames_for(times):
+            B.bpy.context.scene.frame_set(int(np.floor(f)), subframe=float(f - np.floor(f)))
+            got.append([list(arm.matrix_world @ arm.pose.bones[n].head) for n in t.joint_names])
+        got = np.array(got)
+        err, dev = np.abs(got - ours).max(), np.abs(bone_lengths(got, t.parents) - L0).max()
+        print(f"\nskeleton {ext} in Blender: joints within {err:.1e} m of ours, bone lengths within {dev:.1e} m")
+        assert err < 1e-5 and dev < 1e-5
