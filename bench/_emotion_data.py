@@ -81,19 +81,26 @@ def find_clips(data: Path) -> dict[str, dict[str, Clip]]:
     return out
 
 
-def cached_capture(clip: Clip, cache: Path, log=print):
-    """The clip's :class:`~faceretarget.capture.Capture` (tracked once, then read from ``cache``)."""
+def cached_capture(clip: Clip | Path, cache: Path | None, log=print, tag: str = "", **capture):
+    """The clip's :class:`~faceretarget.capture.Capture` (tracked once, then read from ``cache``).
+
+    ``capture`` goes to :func:`~faceretarget.pipelines.capture_take` (default: raw scores, so an
+    emotion's resting offset is kept); ``tag`` tells differently processed captures apart in the cache.
+    """
     from faceretarget.capture import Capture
     from faceretarget.pipelines import capture_take
 
-    st = clip.video.stat()
-    key = f"{clip.video.stem}.{st.st_size}.{int(st.st_mtime)}.npz"
-    path = Path(cache) / key
-    if path.is_file():
-        return Capture.read_npz(path)
-    cap = capture_take(clip.video, log=log)   # raw scores: an emotion's resting offset kept
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cap.write_npz(path)
+    video = clip.video if isinstance(clip, Clip) else Path(clip)
+    path = None
+    if cache is not None:
+        st = video.stat()
+        path = Path(cache) / f"{video.stem}.{st.st_size}.{int(st.st_mtime)}{tag}.npz"
+        if path.is_file():
+            return Capture.read_npz(path)
+    cap = capture_take(video, log=log, **capture)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cap.write_npz(path)
     return cap
 
 

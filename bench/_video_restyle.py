@@ -44,7 +44,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _emotion_data import find_clips  # noqa: E402  (bench/_emotion_data.py, same folder)
+from _emotion_data import cached_capture, find_clips  # noqa: E402  (bench/_emotion_data.py, same folder)
 from _plot import font as _font  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "emotion-video"
@@ -58,20 +58,7 @@ def _quiet(*_a) -> None:
 
 def capture_clip(video: Path, cache: Path | None, log=_quiet):
     """The clip's capture without smoothing (the appearance model's setting), cached under ``cache``."""
-    from faceretarget.capture import Capture
-    from faceretarget.pipelines import capture_take
-
-    path = None
-    if cache is not None:
-        st = video.stat()
-        path = Path(cache) / f"{video.stem}.{st.st_size}.{int(st.st_mtime)}.raw-n5.npz"
-        if path.is_file():
-            return Capture.read_npz(path)
-    cap = capture_take(video, audio=False, neutral_percentile=5.0, smooth=None, log=log)
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        cap.write_npz(path)
-    return cap
+    return cached_capture(video, cache, log, tag=".raw-n5", audio=False, neutral_percentile=5.0, smooth=None)
 
 
 def _frames(video: Path, cap) -> np.ndarray:

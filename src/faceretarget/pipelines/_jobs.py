@@ -127,22 +127,22 @@ def _weight_range(v, root: Path):
     raise _Bad(f"expected \"auto\", \"none\" or [LO, HI] with LO < HI, got {v!r}")
 
 
-def _head_transfer(v, root: Path):
-    if v in ("auto", "off"):
-        return v
-    try:
-        return _file(v, root)
-    except _Bad:
-        raise _Bad(f"expected \"auto\", \"off\" or a head-motion file, got {v!r}") from None
+def _word_or_file(words: tuple[str, ...], what: str):
+    """A validator: one of ``words`` as it is, else an existing file (``what`` names it in the error)."""
+    def check(v, root: Path):
+        if v in words:
+            return v
+        try:
+            return _file(v, root)
+        except _Bad:
+            raise _Bad(f"expected {quoted} or {what}, got {v!r}") from None
+
+    quoted = ", ".join('"' + w + '"' for w in words)
+    return check
 
 
-def _regions(v, root: Path):
-    if v in ("upper-lower", "default"):
-        return v
-    try:
-        return _file(v, root)
-    except _Bad:
-        raise _Bad(f"expected \"upper-lower\", \"default\" or a regions JSON file, got {v!r}") from None
+_head_transfer = _word_or_file(("auto", "off"), "a head-motion file")
+_regions = _word_or_file(("upper-lower", "default"), "a regions JSON file")
 
 
 def _names(v, root: Path):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import MissingShapeError, OutputError
+from ..errors import InvalidDataError, MissingShapeError, OutputError
 from ..files import check_output_path
 from ..headpose import HeadPose
 from ..names import normalize_name
@@ -55,6 +55,16 @@ class Target(ABC):
     @property
     def n_keys(self) -> int:
         return len(self.names)
+
+    #: What a key is called in messages ("keys", "key drawings", "key poses").
+    key_word: str = "keys"
+
+    def _weights(self, weights) -> np.ndarray:
+        """Key weights as a ``(T, K)`` float array, the columns checked against the keys."""
+        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+        if W.shape[1] != self.n_keys:
+            raise InvalidDataError(f"{self.name}: {W.shape[1]} weight columns for {self.n_keys} {self.key_word}")
+        return W
 
     @property
     @abstractmethod

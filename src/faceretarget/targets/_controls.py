@@ -157,9 +157,7 @@ class ControlTarget(Target):
 
     def solved(self, weights: np.ndarray) -> np.ndarray:
         """Control curves ``(T, M)`` as solved: ``c0 + W @ (C - c0)``."""
-        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
-        if W.shape[1] != self.n_keys:
-            raise InvalidDataError(f"{self.name}: {W.shape[1]} weight columns for {self.n_keys} keys")
+        W = self._weights(weights)
         return self.table.neutral + W @ self._offsets
 
     def params(self, weights: np.ndarray) -> np.ndarray:

@@ -38,6 +38,7 @@ class DrawingTarget(Target):
     """
 
     kind = "drawing"
+    key_word = "key drawings"
     formats = (".svg", "folder", ".png", ".mp4", ".npz")
 
     def __init__(self, neutral: Drawing, keys: Mapping[str, Drawing], *, source: str | None = None) -> None:
@@ -69,9 +70,7 @@ class DrawingTarget(Target):
 
     def params(self, weights: np.ndarray) -> np.ndarray:
         """The drawing's points per frame ``(T, N, 2)`` (SVG user units, +y down)."""
-        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
-        if W.shape[1] != self.n_keys:
-            raise InvalidDataError(f"{self.name}: {W.shape[1]} weight columns for {self.n_keys} key drawings")
+        W = self._weights(weights)
         return self.neutral.points + np.einsum("tk,knc->tnc", W, self.offsets)
 
     def write(self, path: str | os.PathLike, weights: np.ndarray, times: np.ndarray, *, head=None,

@@ -61,6 +61,7 @@ class SkeletonTarget(Target):
     """
 
     kind = "skeleton"
+    key_word = "key poses"
     formats = (".bvh", ".glb")
 
     def __init__(self, skeleton: Bvh, frames: Mapping[str, int], neutral_frame: int = 0, *, unit: str = "cm",
@@ -112,9 +113,7 @@ class SkeletonTarget(Target):
 
     def params(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Local rotations ``(T, J, 4)`` (quaternions x, y, z, w) and position channels ``(T, J, 3)``."""
-        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
-        if W.shape[1] != self.n_keys:
-            raise InvalidDataError(f"{self.name}: {W.shape[1]} weight columns for {self.n_keys} key poses")
+        W = self._weights(weights)
         q = blend_rotations(self.rest_rotations, self.key_rotations, W)
         pos = np.broadcast_to(self.rest_positions, (len(W),) + self.rest_positions.shape).copy()
         r = self._roots
@@ -129,7 +128,7 @@ class SkeletonTarget(Target):
     def vertex_blend(self, weights: np.ndarray) -> np.ndarray:
         """World joint positions ``(T, J, 3)`` of the control-vertex blend ``P0 + sum_k w_k (P_k - P0)``
         (for comparison: bones do not keep their lengths)."""
-        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+        W = self._weights(weights)
         return self.rest_world + np.einsum("tk,kjc->tjc", W, self.key_world - self.rest_world)
 
     def rest_bone_lengths(self) -> np.ndarray:
