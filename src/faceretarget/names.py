@@ -27,6 +27,9 @@ __all__ = [
     "normalize_name",
     "split_parent",
     "is_arkit",
+    "JOINT_ROLES",
+    "joint_role",
+    "find_joints",
 ]
 
 #: The 52 ARKit blendshape names in the order Live Link Face writes them.
@@ -166,3 +169,144 @@ def split_parent(name: str) -> str | None:
 def is_arkit(name: str) -> bool:
     """True when ``name`` is one of the 52 ARKit shape names (already normalised)."""
     return name in _ARKIT_SET
+
+
+# ------------------------------------------------------------------------------------------ joints
+#: The skeleton joints a face animation uses, by role.
+JOINT_ROLES: tuple[str, ...] = ("head", "neck", "jaw", "leftEye", "rightEye")
+
+#: Exporters' namespaces and prefixes before a joint's own name: Mixamo (``mixamorig:Head``), 3ds Max
+#: Biped (``Bip01 Head``, ``Bip001_Head``), VRoid (``J_Bip_C_Head``, ``J_Adj_L_FaceEye``), Rigify
+#: (``DEF-``, ``ORG-``), Character Creator (``CC_Base_``), Reallusion (``RL_``), Auto-Rig Pro (``c_``).
+_JOINT_PREFIX = re.compile(
+    r"^(?:mixamorig\d*|bip\d*|j_bip_[clr]|j_adj_[clr]|j_sec_[clr]|def|org|mch|cc_base|rl|c|b|bn|bone|jnt|"
+    r"joint|armature|rig|skel(?:eton)?|root)(?:[_\- .:]+|(?=(?-i:[A-Z])))", re.IGNORECASE)
+_JOINT_SUFFIX = re.compile(r"(?:[_\- .]+(?:jnt|joint|bind|bnd|bone|m|x|c|def|sk|skin))+$", re.IGNORECASE)
+#: Words that make a joint an end, helper or twist rather than the joint itself.
+_JOINT_NOT = re.compile(r"(?:end|top|tip|nub|twist|roll|target|ik|pole|ctrl|control|helper|null|socket|"
+                        r"nose|lid|brow|lash|mouth|lip|teeth|tongue|ear|hair)", re.IGNORECASE)
+_EYE = re.compile(r"^(?:face)?eye(?:ball)?(?:root)?$", re.IGNORECASE)
+#: Rigify's metarig names its neck and head ``spine.004`` .. ``spine.006``.
+_RIGIFY = {"spine.006": "head", "spine.004": "neck"}
+
+
+def _joint_words(name: str) -> tuple[str, str | None]:
+    """A joint name without namespace, exporter prefix and suffix, as ``(core, side)``: ``core``
+    lower-case with separators removed, ``side`` ``"left"`` / ``"right"`` / None."""
+    s = re.split(r"[:|/]", name.strip())[-1]
+    side = None
+    m = re.match(r"^j_(?:bip|adj|sec)_([lr])_", s, re.IGNORECASE)      # VRoid: J_Adj_L_FaceEye
+    if m:
+        side = "left" if m.group(1).lower() == "l" else "right"
+    for _ in range(3):
+        t = _JOINT_PREFIX.sub("", s, count=1)
+        if t == s or not t:
+            break
+        s = t
+    s = _JOINT_SUFFIX.sub("", s) or s
+    m = (re.match(r"^(?P<pre>left|right|l|r)[_\- .]+(?P<rest>.+)$", s, re.IGNORECASE)
+         or re.match(r"^(?P<pre>Left|Right|left|right|l|r|L|R)(?P<rest>[A-Z].*)$", s))
+    if m:
+        side, s = m.group("pre").lower(), m.group("rest")
+    else:
+        m = (re.match(r"^(?P<rest>.+?)[_\- .]*(?P<post>left|right)$", s, re.IGNORECASE)
+             or re.match(r"^(?P<rest>.+?)[_\- .]+(?P<post>l|r)$", s, re.IGNORECASE)
+             or re.match(r"^(?P<rest>.+?[a-z])(?P<post>L|R)$", s))            # "EyeL", camel-glued
+        if m:
+            side, s = m.group("post").lower(), m.group("rest")
+    if side in ("l", "r"):
+        side = {"l": "left", "r": "right"}[side]
+    return re.sub(r"[_\- .]+", "", s).lower(), side
+
+
+def joint_role(name: str) -> str | None:
+    """The face role of a skeleton joint from its name: one of :data:`JOINT_ROLES`, or None.
+
+    Namespaces, exporters' prefixes and suffixes are looked through; ends, tips, twist and helper
+    joints are never a role.
+
+    Examples
+    --------
+    >>> [joint_role(n) for n in ("mixamorig:Head", "Bip01 Head", "J_Bip_C_Head", "DEF-neck", "HeadTop_End")]
+    ['head', 'head', 'head', 'neck', None]
+    >>> [joint_role(n) for n in ("RightEye", "J_Adj_L_FaceEye", "CC_Base_R_Eye", "eye.L", "neck_01", "Jaw")]
+    ['rightEye', 'leftEye', 'rightEye', 'leftEye', 'neck', 'jaw']
+    """
+    if not isinstance(name, str) or not name.strip():
+        return None
+    base = re.split(r"[:|/]", name.strip())[-1]
+    low = re.sub(r"^(?:def|org)[-_]", "", base, flags=re.IGNORECASE).lower()
+    if low in _RIGIFY:
+        return _RIGIFY[low]
+    core, side = _joint_words(name)
+    if not core or _JOINT_NOT.search(core):
+        return None
+    if side is None and core in ("head", "neck", "neck0", "neck00", "neck01", "neck1", "jaw", "jawroot",
+                                 "lowerjaw", "jawbone", "mandible"):
+        return {"head": "head", "jaw": "jaw", "jawroot": "jaw", "lowerjaw": "jaw", "jawbone": "jaw",
+                "mandible": "jaw"}.get(core, "neck")
+    if _EYE.match(core):
+        if side is None:
+            return None
+        return "leftEye" if side == "left" else "rightEye"
+    return None
+
+
+def find_joints(names, parents=None) -> dict[str, int]:
+    """Which joint plays each face role (:data:`JOINT_ROLES`) in a skeleton.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Joint (or node) names.
+    parents : sequence of int, optional
+        Each joint's parent index (-1 for a root).  With it, a role claimed by several joints goes to
+        the one nearest the root (the first neck of a neck chain, the head rather than a copy below
+        it), and a neck is taken only when it is an ancestor of the head.
+
+    Returns
+    -------
+    dict
+        ``{role: index}`` for the roles found.
+
+    Examples
+    --------
+    >>> find_joints(["Hips", "Spine", "Neck", "Neck1", "Head", "HeadTop_End", "LeftEye"], [-1, 0, 1, 2, 3, 4, 4])
+    {'neck': 2, 'head': 4, 'leftEye': 6}
+    """
+    names = list(names)
+    depth = None
+    if parents is not None:
+        parents = [int(p) for p in parents]
+        depth = []
+        for i in range(len(names)):
+            d, p, seen = 0, parents[i], set()
+            while p >= 0 and p not in seen and p < len(names):
+                seen.add(p)
+                d, p = d + 1, parents[p]
+            depth.append(d)
+    found: dict[str, list[int]] = {}
+    for i, n in enumerate(names):
+        r = joint_role(n)
+        if r is not None:
+            found.setdefault(r, []).append(i)
+    out: dict[str, int] = {}
+    for role in ("neck", "head", "jaw", "leftEye", "rightEye"):
+        cands = found.get(role, [])
+        if not cands:
+            continue
+        if depth is not None:
+            cands = sorted(cands, key=lambda i: (depth[i], i))
+        out[role] = cands[0]
+    if parents is not None and "neck" in out and "head" in out:
+        anc, p = set(), parents[out["head"]]
+        while p >= 0 and p not in anc and p < len(names):
+            anc.add(p)
+            p = parents[p]
+        if out["neck"] not in anc:
+            chain = [i for i in found.get("neck", []) if i in anc]
+            if chain:
+                out["neck"] = min(chain, key=lambda i: (depth[i], i))
+            else:
+                del out["neck"]
+    return out
