@@ -28,6 +28,7 @@ __all__ = [
     "OutputError",
     "NotFittedError",
     "MissingDependencyError",
+    "FaceNotFoundError",
     "FaceRetargetWarning",
     "DataWarning",
     "FitWarning",
@@ -75,6 +76,15 @@ class NotFittedError(FaceRetargetError, AttributeError):
 
 class MissingDependencyError(FaceRetargetError, ImportError):
     """An optional package is not installed; the message names the extra that brings it."""
+
+
+class FaceNotFoundError(FaceRetargetError, ValueError):
+    """No face where one is needed: the landmarker found none on a character's renders (``views``
+    says what was tried) or in a video."""
+
+    def __init__(self, message: str, *, views: list | None = None):
+        super().__init__(message)
+        self.views = list(views or [])
 
 
 class FaceRetargetWarning(UserWarning):

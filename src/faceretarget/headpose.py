@@ -49,7 +49,7 @@ from scipy.spatial.transform import Rotation
 
 from .errors import InvalidDataError
 
-__all__ = ["HeadPose", "LIVELINKFACE_SIGNS", "mirror_yxz"]
+__all__ = ["continuous_quaternions", "HeadPose", "LIVELINKFACE_SIGNS", "mirror_yxz"]
 
 #: Live Link Face's ``HeadYaw, HeadPitch, HeadRoll`` are the intrinsic Y-X-Z angles with pitch negated.
 LIVELINKFACE_SIGNS = np.array([1.0, -1.0, 1.0])
@@ -323,3 +323,12 @@ class HeadPose:
         R = A @ self.as_matrix() @ A.T
         tr = None if self.translation is None else self.translation @ A.T
         return HeadPose.from_matrix(R, tr, source=self.source)
+
+
+def continuous_quaternions(q: np.ndarray) -> np.ndarray:
+    """Quaternions ``(T, 4)`` (x, y, z, w) with w >= 0 at the first key and every key on the same
+    hemisphere as the one before, so linear or spherical interpolation between keys takes the short way."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
+    q = q * np.where(q[:, 3:] < 0, -1.0, 1.0)
+    flip = np.cumprod(np.where(np.r_[1.0, np.sign((q[1:] * q[:-1]).sum(axis=1))] < 0, -1.0, 1.0))
+    return q * flip[:, None]

@@ -100,6 +100,11 @@ def normalize_name(name: str) -> str:
     low = raw.lower()
     if low in _ARKIT_LOWER:
         return _ARKIT_LOWER[low]
+    ix = _INDEXED.match(raw)                            # a numbered set: "AK_25_JawOpen", "SR_21_Jaw_Open"
+    if ix:
+        inner = normalize_name(ix.group("rest"))
+        if inner in _ARKIT_SET:
+            return inner
     m = _SIDE_SUFFIX.match(raw)
     if m and m.group("base") and (_PREFIX.match(raw) or any(c in raw for c in ".:|/")):
         bare = _without_affixes(raw)
@@ -128,6 +133,8 @@ def normalize_name(name: str) -> str:
 
 #: Prefixes exporters put before a shape name ("blendshape_JawOpen", "BS_jawOpen", "ARKit_jawOpen").
 _PREFIX = re.compile(r"^(?:blend[_ ]?shapes?|bs|arkit|morphs?|shapes?|face|mt)[._:\- ]*", re.IGNORECASE)
+#: A numbered set's prefix before the shape name ("AK_25_JawOpen", "SR_21_Jaw_Open", "A25_JawOpen").
+_INDEXED = re.compile(r"^[A-Za-z]{1,3}_?\d{1,3}[_ .\-]+(?P<rest>[A-Za-z].*)$")
 #: Suffixes likewise ("jawOpen_weight", "jawOpen.value").
 _SUFFIX = re.compile(r"[._\- ]*(?:weights?|value|amount|bs)$", re.IGNORECASE)
 
@@ -142,6 +149,10 @@ def _without_affixes(raw: str) -> str | None:
     stripped = _SUFFIX.sub("", _PREFIX.sub("", raw))
     if stripped and stripped != raw:
         cands.append(stripped)
+    for c in list(cands) + [raw]:                       # a numbered set's index: "AK_25_JawOpen", "A25_JawOpen"
+        m = _INDEXED.match(c)
+        if m:
+            cands.append(m.group("rest"))
     for c in cands:
         if c and c != raw:
             n = normalize_name(c)

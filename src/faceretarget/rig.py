@@ -45,6 +45,11 @@ class Rig:
         :meth:`subset` and by the rig files (``.npz``, ``key_weights.csv`` in OBJ folders).
     basis_names : list of str, optional
         The ``M`` base shape names (normalised to ARKit camelCase); given with ``basis``.
+    keep_names : bool
+        Keep ``names`` exactly as given (a character file's own shape names, written back as they
+        are) instead of normalising them; they must then be unique as given.  Lookups by any
+        spelling (:meth:`index`, :meth:`map_weights`) still work through the normalised names that
+        are unique (:attr:`normalized_names`).
     """
 
     neutral: Mesh
@@ -56,10 +61,11 @@ class Rig:
     name: str = "rig"
     basis: np.ndarray | None = None
     basis_names: list[str] | None = None
+    keep_names: bool = False
     _index: dict[str, int] = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self.names = [normalize_name(n) for n in self.names]
+        self.names = [str(n) for n in self.names] if self.keep_names else [normalize_name(n) for n in self.names]
         d = np.asarray(self.deltas, dtype=np.float64)
         V = self.neutral.n_vertices
         if d.ndim != 3 or d.shape[1:] != (V, 3) or d.shape[0] != len(self.names):
@@ -76,8 +82,13 @@ class Rig:
                 src = self.source_names or self.names
                 raise InvalidDataError(
                     f"{self.name}: shapes '{src[seen[n]]}' and '{src[i]}' both normalise to '{n}'"
-                )
+                    if not self.keep_names else f"{self.name}: two shapes are named '{n}'")
             seen[n] = i
+        if self.keep_names:                     # any spelling finds a shape whose normalised name is unique
+            norm = [normalize_name(n) for n in self.names]
+            for i, n in enumerate(norm):
+                if norm.count(n) == 1:
+                    seen.setdefault(n, i)
         self._index = seen
         self.unit = normalize_unit(self.unit, what=self.name)
         if self.landmarks is not None:
@@ -118,15 +129,22 @@ class Rig:
     def mm_per_unit(self) -> float:
         return UNIT_TO_MM[self.unit]
 
+    @property
+    def normalized_names(self) -> list[str]:
+        """The shape names normalised to ARKit camelCase (:attr:`names` unless ``keep_names``)."""
+        return self.names if not self.keep_names else [normalize_name(n) for n in self.names]
+
     def index(self, name: str) -> int:
         """Column of a shape by any spelling of its name."""
+        if self.keep_names and name in self._index:
+            return self._index[name]
         n = normalize_name(name)
         if n not in self._index:
             raise MissingShapeError(f"{self.name}: no key shape named '{name}'")
         return self._index[n]
 
     def __contains__(self, name: str) -> bool:
-        return normalize_name(name) in self._index
+        return (self.keep_names and name in self._index) or normalize_name(name) in self._index
 
     def shape_mesh(self, name: str, weight: float = 1.0) -> Mesh:
         """The key shape ``name`` at ``weight`` as a full mesh."""
@@ -226,7 +244,7 @@ class Rig:
         idx = [self.index(n) for n in names]
         return Rig(self.neutral, [self.names[i] for i in idx], self.deltas[idx], self.unit,
                    self.landmarks, None, self.name, None if self.basis is None else self.basis[idx],
-                   self.basis_names)
+                   self.basis_names, keep_names=self.keep_names)
 
     def to_basis(self, weights: np.ndarray, names: list[str] | None = None) -> np.ndarray:
         """Key weights as weights of the base shapes (:attr:`basis`): ``W @ basis``.

@@ -19,6 +19,14 @@
 // stdout: one JSON object {three, browser, clip: {name, duration, tracks}, face, names, times,
 // influences: [[...] per time], head: {node, quaternion: [[x,y,z,w] per time],
 // position: [[x,y,z] per time]} | null}.
+//
+// Characters (a user's .glb / .vrm with the animation written back): the loader always has three.js's
+// MeshoptDecoder (EXT_meshopt_compression); --clip NAME plays the clip of that name; --morphs all adds
+// "morphs": {node name: [[influences] per time]} for every node whose meshes have morph targets (a
+// multi-primitive mesh's primitives are three.js child meshes: the first one's influences); --world
+// N1,N2 adds "world": {node: [[x,y,z,w] world quaternion per time]}; --vrm loads through three-vrm's
+// VRMLoaderPlugin ($THREE_VRM_DIR, else .tools/node_modules/@pixiv/three-vrm) and calls vrm.update(0)
+// after each setTime, as an app does, so what the VRM runtime shows is what is read.
 // Exit status: 0 on success, 2 on bad arguments or missing tools, 3 when loading or playing fails,
 // 4 on timeout (default 60 s).
 import { createServer } from "node:http";
@@ -42,6 +50,10 @@ let times = null;
 let timeoutS = 60;
 let faceName = null;
 let headName = "head";
+let clipName = null;
+let morphsAll = false;
+let worldNodes = [];
+let vrm = false;
 for (let i = 0; i < args.length; i++) {
   const a = args[i];
   const next = () => {
@@ -59,6 +71,10 @@ for (let i = 0; i < args.length; i++) {
   } else if (a === "--timeout") timeoutS = Number(next());
   else if (a === "--face") faceName = next();
   else if (a === "--head") headName = next();
+  else if (a === "--clip") clipName = next();
+  else if (a === "--morphs") morphsAll = next() === "all";
+  else if (a === "--world") worldNodes = next().split(",").filter((s) => s !== "");
+  else if (a === "--vrm") vrm = true;
   else if (a.startsWith("--")) fail(2, `unknown option ${a}`);
   else if (glb === null) glb = resolve(a);
   else fail(2, `unexpected argument ${a}`);
@@ -79,6 +95,10 @@ const puppeteerDir = resolve(process.env.PUPPETEER_CORE_DIR || resolve(repo, ".t
 if (!existsSync(resolve(puppeteerDir, "package.json"))) {
   fail(2, `puppeteer-core not found at ${puppeteerDir} (run \`make tools\`)`);
 }
+const vrmDir = resolve(process.env.THREE_VRM_DIR || resolve(repo, ".tools", "node_modules", "@pixiv", "three-vrm"));
+if (vrm && !existsSync(resolve(vrmDir, "lib", "three-vrm.module.js"))) {
+  fail(2, `three-vrm not found at ${vrmDir} (run \`make tools\`)`);
+}
 const chromium = process.env.CHROMIUM || "/usr/bin/chromium";
 if (!existsSync(chromium)) fail(2, `Chromium not found at ${chromium} (run \`make browser\` or set CHROMIUM)`);
 
@@ -86,17 +106,27 @@ if (!existsSync(chromium)) fail(2, `Chromium not found at ${chromium} (run \`mak
 const PAGE = `<!doctype html>
 <html><head><meta charset="utf-8"><title>faceretarget three.js check</title>
 <script type="importmap">
-{"imports": {"three": "/three/build/three.module.js", "three/addons/": "/three/examples/jsm/"}}
+{"imports": {"three": "/three/build/three.module.js", "three/addons/": "/three/examples/jsm/",
+ "@pixiv/three-vrm": "/vrm/lib/three-vrm.module.js"}}
 </script>
 <script type="module">
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
+import { MeshoptDecoder } from "three/addons/libs/meshopt_decoder.module.js";
 
-window.playGlb = async (url, times, faceName, headName) => {
-  const gltf = await new GLTFLoader().loadAsync(url);
+window.playGlb = async (url, times, faceName, headName, opts) => {
+  const loader = new GLTFLoader();
+  loader.setMeshoptDecoder(MeshoptDecoder);
+  if (opts.vrm) {
+    const { VRMLoaderPlugin } = await import("@pixiv/three-vrm");
+    loader.register((parser) => new VRMLoaderPlugin(parser));
+  }
+  const gltf = await loader.loadAsync(url);
   const scene = gltf.scene;
+  const theVrm = gltf.userData.vrm || null;
   if (!gltf.animations.length) throw new Error(url + ": no animation");
-  const clip = gltf.animations[0];
+  const clip = opts.clip ? gltf.animations.find((c) => c.name === opts.clip) : gltf.animations[0];
+  if (!clip) throw new Error(url + ": no clip named " + opts.clip);
   let face = null;
   if (faceName) {
     face = scene.getObjectByName(faceName) || null;
@@ -120,9 +150,34 @@ window.playGlb = async (url, times, faceName, headName) => {
       tracks: clip.tracks.map((t) => t.name) },
     face: face ? face.name : null, names, times, influences: [],
     head: head ? { node: head.name, quaternion: [], position: [] } : null };
+  const morphObjs = {};
+  if (opts.morphsAll) {
+    out.morphs = {};
+    scene.traverse((o) => {
+      if (!o.morphTargetInfluences) return;
+      // a multi-primitive glTF mesh is a Group (the node) of meshes, one per primitive
+      const node = o.isMesh && o.parent && o.parent.isGroup && !o.parent.isScene && o.parent.name &&
+        o.geometry && o.parent.children.every((c) => c.isMesh) ? o.parent.name : o.name;
+      if (!(node in morphObjs)) { morphObjs[node] = o; out.morphs[node] = []; }
+    });
+  }
+  const worldObjs = {};
+  if (opts.world.length) {
+    out.world = {};
+    for (const n of opts.world) {
+      const o = scene.getObjectByName(n);
+      if (!o) throw new Error(url + ": no object named " + n);
+      worldObjs[n] = o;
+      out.world[n] = [];
+    }
+  }
   for (const t of times) {
     action.reset().play();
     mixer.setTime(t);
+    if (theVrm) theVrm.update(0);
+    scene.updateMatrixWorld(true);
+    for (const [n, o] of Object.entries(morphObjs)) out.morphs[n].push(Array.from(o.morphTargetInfluences));
+    for (const [n, o] of Object.entries(worldObjs)) out.world[n].push(o.getWorldQuaternion(new THREE.Quaternion()).toArray());
     if (face) out.influences.push(Array.from(face.morphTargetInfluences));
     if (head) {
       out.head.quaternion.push(head.quaternion.toArray());
@@ -136,9 +191,10 @@ window.threeReady = true;
 
 // ------------------------------------------------------------------------------ static server
 const TYPES = { ".js": "text/javascript", ".mjs": "text/javascript", ".html": "text/html",
-  ".glb": "model/gltf-binary", ".json": "application/json" };
+  ".glb": "model/gltf-binary", ".vrm": "model/gltf-binary", ".json": "application/json",
+  ".wasm": "application/wasm" };
 const glbDir = dirname(glb);
-const roots = { "/three/": threeDir, "/glb/": glbDir };
+const roots = { "/three/": threeDir, "/glb/": glbDir, "/vrm/": vrmDir };
 
 function serveFile(res, root, rel) {
   const p = resolve(root, decodeURIComponent(rel));
@@ -216,7 +272,9 @@ try {
   await page.goto(`http://127.0.0.1:${port}/`);
   await page.waitForFunction(() => window.threeReady === true);
   const url = `/glb/${encodeURIComponent(basename(glb))}`;
-  const out = await page.evaluate((u, ts, f, h) => window.playGlb(u, ts, f, h), url, times, faceName, headName);
+  const opts = { clip: clipName, morphsAll, world: worldNodes, vrm };
+  const out = await page.evaluate((u, ts, f, h, o) => window.playGlb(u, ts, f, h, o), url, times, faceName,
+    headName, opts);
   out.browser = await browser.version();
   clearTimeout(timer);
   await cleanup();

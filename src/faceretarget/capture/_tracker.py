@@ -102,6 +102,12 @@ class FaceTracker:
         ``.task`` file (see :func:`find_model`).
     min_detection, min_presence, min_tracking : float
         MediaPipe's confidence thresholds (defaults 0.5).
+    images : bool
+        Independent still images (MediaPipe's IMAGE mode: every call detects afresh, ``t`` is ignored)
+        instead of a video's frames in time order.
+    num_faces : int
+        How many faces to look for (:attr:`faces_found` says how many were seen in the last call;
+        the first is returned).
 
     Attributes
     ----------
@@ -113,13 +119,14 @@ class FaceTracker:
     """
 
     def __init__(self, model: str | os.PathLike | None = None, *, min_detection: float = 0.5,
-                 min_presence: float = 0.5, min_tracking: float = 0.5):
+                 min_presence: float = 0.5, min_tracking: float = 0.5, images: bool = False, num_faces: int = 1):
         mp, vision, BaseOptions = _mediapipe()
         self.model_path = find_model(model)
         self._mp = mp
+        self._images = bool(images)
         opts = vision.FaceLandmarkerOptions(
             base_options=BaseOptions(model_asset_path=str(self.model_path)),
-            running_mode=vision.RunningMode.VIDEO, num_faces=1,
+            running_mode=vision.RunningMode.IMAGE if images else vision.RunningMode.VIDEO, num_faces=num_faces,
             min_face_detection_confidence=min_detection, min_face_presence_confidence=min_presence,
             min_tracking_confidence=min_tracking,
             output_face_blendshapes=True, output_facial_transformation_matrixes=True)
@@ -134,6 +141,7 @@ class FaceTracker:
         self.names: list[str] = []
         self.raw_names: list[str] = []
         self.seconds = 0.0
+        self.faces_found = 0
 
     def close(self) -> None:
         if getattr(self, "_lm", None) is not None:
@@ -176,12 +184,14 @@ class FaceTracker:
         self._last_ms = ms
         t0 = time.perf_counter()
         img = self._mp.Image(image_format=self._mp.ImageFormat.SRGB, data=np.ascontiguousarray(rgb))
+        detect = self._lm.detect if self._images else (lambda im: self._lm.detect_for_video(im, ms))
         if self._first:
             self._first = False
             with _native_stderr_silenced():  # the first inference logs its delegate choices
-                r = self._lm.detect_for_video(img, ms)
+                r = detect(img)
         else:
-            r = self._lm.detect_for_video(img, ms)
+            r = detect(img)
+        self.faces_found = len(r.face_landmarks)
         if not r.face_landmarks:
             self.seconds += time.perf_counter() - t0
             return None

@@ -28,6 +28,8 @@ from ._bvh import (
     write_bvh,
 )
 from ._c3d import read_c3d, write_c3d
+from ._character import CHARACTER_EXTENSIONS, character_from_rig, is_character_file, read_character
+from ._character_write import WRITE_BACK, write_character_animation, writes_back
 from ._controls import (
     CONTROL_TABLE_FORMATS,
     ControlTable,
@@ -37,6 +39,7 @@ from ._controls import (
     write_control_template,
 )
 from ._gltf import glb_vertex_order, read_glb_head, read_glb_rig, read_glb_weights, write_glb, write_glb_head
+from ._gltf_scene import GltfDocument, read_gltf_character
 from ._gltf_skin import GlbSkeleton, read_glb_skeleton, write_glb_skeleton
 from ._head import (
     HEAD_READ_FORMATS,
@@ -97,6 +100,8 @@ from ._usd import USD_FORMATS, usd_prim_names, write_usd
 from ._video import VideoInfo, iter_frames, probe_video, read_video_audio, write_video
 
 __all__ = [
+    "read_character", "character_from_rig", "is_character_file", "CHARACTER_EXTENSIONS", "read_gltf_character",
+    "GltfDocument", "write_character_animation", "writes_back", "WRITE_BACK",
     "read_obj", "read_obj_vertices", "write_obj", "read_obj_sequence", "write_obj_sequence",
     "read_rig", "write_rig", "write_rig_npz", "read_rig_npz",
     "read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo",

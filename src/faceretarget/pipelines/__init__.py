@@ -46,6 +46,15 @@ from ._capture import (
     fit_appearance,
     tracked_videos,
 )
+from ._character import (
+    CharacterReport,
+    DriveRig,
+    drive_rig,
+    inspect_character,
+    landmark_cache_path,
+    load_character,
+    read_landmark_file,
+)
 from ._demo import run_demo
 from ._head import build_head_database
 from ._jobs import JOB_OPTIONS, OPERATIONS, BatchSpec, Job, read_jobs
@@ -80,6 +89,13 @@ from ._transfer import (
 )
 
 __all__ = [
+    "load_character",
+    "drive_rig",
+    "DriveRig",
+    "inspect_character",
+    "CharacterReport",
+    "landmark_cache_path",
+    "read_landmark_file",
     "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
     "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES", "check_result_path", "MAX_TEMPORAL",

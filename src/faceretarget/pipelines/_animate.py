@@ -99,6 +99,7 @@ class AnimateResult:
     outputs: list = field(default_factory=list)
     alpha: np.ndarray | None = None
     emotions: list = field(default_factory=list)
+    drive: object = None
 
     @property
     def mouth_corr(self) -> float:
@@ -119,9 +120,11 @@ class AnimateResult:
 
 
 def drives_by_landmarks(character: Rig) -> bool:
-    """Whether ``character`` is driven by its own shapes (68 landmarks and ARKit-named shapes)."""
-    return (character.landmarks is not None and len(character.landmarks) == 68
-            and sum(is_arkit(n) for n in character.names) >= _MIN_ARKIT)
+    """Whether ``character`` is driven by its own shapes: its 68 landmarks and either ARKit-named shapes
+    (a rig folder) or shapes chosen from a character file (:func:`~faceretarget.pipelines.drive_rig`,
+    any names)."""
+    return (character.landmarks is not None and len(character.landmarks) == 68 and character.n_shapes > 0
+            and (character.keep_names or sum(is_arkit(n) for n in character.names) >= _MIN_ARKIT))
 
 
 # --------------------------------------------------------------------------------------- face takes
@@ -295,7 +298,7 @@ def _speech_head(db_path, audio, rate, times, amplitude: float, log) -> HeadPose
 
 
 # --------------------------------------------------------------------------------------- animate
-def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os.PathLike | None = None,
+def animate(video: str | os.PathLike | Capture, character, *, out: str | os.PathLike | None = None,
             preview: str | os.PathLike | None = None, preview_video: str | os.PathLike | None = None,
             head: str = "video",
             head_db: str | os.PathLike | None = None, head_amplitude: float = 1.0,
@@ -303,7 +306,9 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
             source_keys: Rig | None = None, target_keys: Rig | None = None,
             solver: LandmarkSolver | None = None, max_frames: int | None = None,
             landmarker: str | os.PathLike | None = None, preview_size: int = 512, preview_backend: str = "auto",
-            bake: bool = False, progress: bool = False, log: Callable[..., None] = _quiet) -> AnimateResult:
+            bake: bool = False, progress: bool = False, shapes: str = "auto",
+            landmarks: str | os.PathLike | None = None, mesh: str | None = None, neck_share: float = 0.0,
+            log: Callable[..., None] = _quiet) -> AnimateResult:
     """Animate ``character`` from a video of an actor (Chuang Ch. 5's system), optionally writing
     the animation (face and head, with the soundtrack where the format holds one) and a preview.
 
@@ -312,12 +317,18 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
     video : path-like, Capture or Performance
         Any video FFmpeg reads, a capture already made (:func:`capture_take`), or a tracked take of
         the 68 face points, with the tracker's scores as weights when it has them (:func:`tracked_take`).
-    character : Rig
-        ARKit-named shapes and 68 landmarks (driven by its own shapes), or any rig with
-        ``source_keys`` / ``target_keys``.
+    character : path-like, Character or Rig
+        A character file (``.glb``/``.gltf``/``.vrm``, ``.fbx``, ``.blend``, ``.usd*``) or a
+        :class:`~faceretarget.character.Character` read from one: its own shapes, whatever their names,
+        drive its face from the landmarks (found on a render and cached; ``landmarks``, ``mesh``,
+        ``shapes``).  Or a :class:`~faceretarget.rig.Rig` (a folder of OBJ files): ARKit-named shapes and
+        68 landmarks, or any rig with ``source_keys`` / ``target_keys``.
     out : path-like, optional
-        ``.glb``, ``.usd``/``.usda``/``.usdc``, ``.blend``, ``.fbx``, ``.csv`` (Live Link Face) or any
-        format :func:`~faceretarget.io.write_animation` writes.
+        For a character file, the same format as its input writes the animation back into a copy of
+        that file (:func:`~faceretarget.io.write_character_animation`: every node, mesh, material,
+        texture and existing animation kept); otherwise ``.glb``, ``.usd``/``.usda``/``.usdc``,
+        ``.blend``, ``.fbx``, ``.csv`` (Live Link Face) or any format
+        :func:`~faceretarget.io.write_animation` writes.
     preview : path-like, optional
         ``.mp4``: the video and the character side by side, with the audio.
     preview_video : path-like, optional
@@ -341,6 +352,15 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
         own parameters and formats (no preview).
     solver : LandmarkSolver, optional
         Unfitted, with its parameters (default ``LandmarkSolver()``).
+    shapes : str
+        For a character file: which of its shapes drive (``auto``, ``arkit``, ``visemes``, ``all`` or
+        names; :func:`~faceretarget.character.choose_shapes`).
+    landmarks : path-like, optional
+        For a character file: its 68 landmarks (overrides the search and the cache).
+    mesh : str, optional
+        For a character file with several heads: the face mesh to drive.
+    neck_share : float
+        For a character file with a neck joint: the share of the head's rotation the neck takes (0..1).
     """
     from ._capture import capture_take
 
@@ -352,6 +372,18 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
     if head == "speech" and head_db is None:
         raise InvalidDataError("head motion from speech needs a head-motion database (--head-db DB.npz, "
                                "made by 'faceretarget headmotion build')")
+    drive = None
+    if not isinstance(character, Rig):
+        from ._character import drive_rig, load_character
+
+        t0 = time.perf_counter()
+        loaded = load_character(character, landmarks=landmarks, mesh=mesh, log=log)
+        drive = drive_rig(loaded, shapes)
+        timings["character"] = time.perf_counter() - t0
+        log(f"{loaded.name}: {drive.summary}")
+        character = drive.rig
+    if not (np.isfinite(neck_share) and 0.0 <= neck_share <= 1.0):
+        raise InvalidDataError(f"neck share must be in [0, 1], got {neck_share}")
     by_landmarks = drives_by_landmarks(character)
     if not by_landmarks and (source_keys is None or target_keys is None):
         raise InvalidDataError(
@@ -452,12 +484,18 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
 
     res = AnimateResult(weights=W, names=names, times=times, head=pose, audio=audio, audio_rate=rate, take=take,
                         capture=cap, tracked_mouth=tracked_mouth, character_mouth=character_mouth,
-                        timings=timings, alpha=alpha, emotions=emotions)
+                        timings=timings, alpha=alpha, emotions=emotions, drive=drive)
     if out is not None:
         t0 = time.perf_counter()
         if own is not None:                       # controls, skeleton, drawings: the target writes itself
             res.outputs.append(own.write(out, res.weights[:, own.key_order(names)], res.times, log=log))
             log(f"wrote {out} ({len(res.times)} frames of the {own.kind} target)")
+        elif drive is not None and _writes_back(drive.character, out):
+            from ..io import write_character_animation
+
+            res.outputs.append(write_character_animation(
+                out, drive.character, drive.channels, drive.full_weights(res.weights), res.times, head=res.head,
+                audio=res.audio, audio_rate=res.audio_rate, neck_share=neck_share, log=log))
         else:
             res.outputs.append(_write(out, play, res, bake, log))
         timings["write"] = time.perf_counter() - t0
@@ -472,6 +510,13 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
         timings["preview"] = time.perf_counter() - t0
     log(res.summary())
     return res
+
+
+def _writes_back(character, out) -> bool:
+    """Whether ``out`` writes the animation back into (a copy of) the character's own file."""
+    from ..io import writes_back
+
+    return writes_back(character, out)
 
 
 def _load_style(style):

@@ -15,8 +15,14 @@ from ._preview import (
     save_png,
     view_rotation,
 )
+from ._scene import SceneRender, barycentric_2d, look_at, pick, render_scene
 
 __all__ = [
+    "render_scene",
+    "SceneRender",
+    "look_at",
+    "pick",
+    "barycentric_2d",
     "MeshRenderer",
     "gl_available",
     "GL_PACKAGES",

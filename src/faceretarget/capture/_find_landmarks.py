@@ -1,0 +1,252 @@
+"""A character's 68 landmarks found automatically: render its neutral head, find the face, pick the surface.
+
+No hand-made landmark file: :func:`find_landmarks`
+
+1. frames the face: the vertices of the face mesh that its shapes move (the face region, whatever else
+   the mesh holds: a whole body, a neck), centred in a square of twice their extent;
+2. finds the front: the file's own convention first where it has one (a VRM), else each of the four
+   directions across the up axis (and, when the file's up is unknown, both common up axes), rendering
+   the character as it looks (:func:`faceretarget.render.render_scene`: every mesh, textures) and
+   keeping the view in which MediaPipe's Face Landmarker finds a face most frontally;
+3. zooms on the face found (a second, larger render centred on it) and runs the landmarker again;
+4. takes the 68 Multi-PIE points of its 478 (:data:`~faceretarget.capture.MEDIAPIPE_68`) and puts each
+   on the face mesh's surface under it (a render of the face mesh alone, so hair or eyeballs never get
+   a landmark): a triangle and barycentric coordinates, not a vertex, so a low-poly lip corner lands
+   where the corner is; a point just past the silhouette (the jaw line seen from the front) takes the
+   nearest surface pixel.
+
+It returns the points and what it saw (:class:`LandmarkSearch`: the views tried, the chosen front, the
+final render with the 68 points for a check picture).  A face the landmarker cannot find in any view
+(a robot, an animal) is a :class:`~faceretarget.errors.FaceNotFoundError` saying what was tried.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..character import Character, SurfacePoints
+from ..errors import FaceNotFoundError
+from ..render import look_at, pick, render_scene
+from ._points import MEDIAPIPE_68
+
+__all__ = ["find_landmarks", "LandmarkSearch", "face_region"]
+
+
+@dataclass(eq=False)
+class LandmarkSearch:
+    """What :func:`find_landmarks` tried and saw.
+
+    Attributes
+    ----------
+    landmarks : SurfacePoints
+    up, front : (3,) float
+        The character's up and facing directions found.
+    views : list of dict
+        Per view tried: ``up``, ``front``, ``found`` (bool), ``frontal`` (0..1, how squarely the face
+        looked at the camera).
+    image : (H, W, 3) uint8
+        The final render.
+    points : (68, 2) float
+        The 68 points in it (pixels).
+    snapped : (68,) float
+        Pixels each point moved to reach the face surface (0 over the surface).
+    seconds : float
+    """
+
+    landmarks: SurfacePoints
+    up: np.ndarray
+    front: np.ndarray
+    views: list = field(default_factory=list)
+    image: np.ndarray | None = None
+    points: np.ndarray | None = None
+    snapped: np.ndarray | None = None
+    seconds: float = 0.0
+
+
+def face_region(character: Character, mesh: int | None = None) -> np.ndarray:
+    """``(N, 3)`` rest positions of the face mesh's vertices its shapes move (more than 5 % of the most
+    any vertex moves); all its vertices when too few move."""
+    mi = character.primary if mesh is None else mesh
+    m = character.meshes[mi]
+    if m.n_shapes:
+        mv = np.sqrt(m.vertex_motion2().max(axis=0))
+        sel = mv > 0.05 * mv.max() if mv.max() > 0 else np.zeros(len(mv), bool)
+        if sel.sum() >= 20:
+            return m.mesh.vertices[sel]
+    return m.mesh.vertices
+
+
+def _candidates(character: Character) -> list[tuple[np.ndarray, np.ndarray]]:
+    ups = [np.asarray(character.up, float)] if character.up is not None else [np.array([0.0, 1.0, 0.0]),
+                                                                               np.array([0.0, 0.0, 1.0])]
+    out = []
+    for up in ups:
+        up = up / np.linalg.norm(up)
+        a = np.array([0.0, 0.0, 1.0]) if abs(up[2]) < 0.9 else np.array([0.0, -1.0, 0.0])
+        a = a - up * (a @ up)
+        a /= np.linalg.norm(a)
+        b = np.cross(up, a)
+        fronts = [a, -a, b, -b]
+        if character.front is not None:
+            f = np.asarray(character.front, float)
+            fronts = [f] + [x for x in fronts if not np.allclose(x, f)]
+        out += [(up, f) for f in fronts]
+    return out
+
+
+def _frontal(px: np.ndarray) -> float:
+    """How squarely a found face looks at the camera (1 frontal, 0 in profile): the balance of the two
+    eyes' outer corners about the nose bridge."""
+    p = px[MEDIAPIPE_68]
+    left = np.linalg.norm(p[45, :2] - p[27, :2])
+    right = np.linalg.norm(p[36, :2] - p[27, :2])
+    return float(min(left, right) / max(left, right, 1e-9))
+
+
+#: Inner-lip points on the upper lip and on the lower lip, with the outer-lip middle that tells each lip.
+_UPPER_INNER, _LOWER_INNER, _UPPER_REF, _LOWER_REF = (61, 62, 63), (65, 66, 67), 51, 57
+
+
+def _separate_lips(character: Character, prim: int, alone, pts: np.ndarray, tris: np.ndarray, bary: np.ndarray,
+                   radius: int) -> None:
+    """Put the inner-lip points of a closed mouth on the right lip.
+
+    At rest the lips touch and the landmarker puts the upper and the lower inner-lip points on the same
+    line, so the surface under them may be either lip.  Each surface point is told upper or lower lip by
+    how it moves over all the face's shapes (its motion correlated with that of the outer upper-lip
+    middle, point 51, or of the outer lower-lip middle, point 57), and an inner point on the wrong lip
+    moves to the nearest pixel of the right one (within ``radius``).  Changes ``tris`` and ``bary``.
+    """
+    m = character.meshes[prim]
+    if m.n_shapes == 0:
+        return
+    D = m.deltas.astype(np.float64).transpose(1, 0, 2).reshape(m.mesh.n_vertices, -1)     # (V, 3K)
+
+    def sig(tv, bw):
+        return np.einsum("...k,...kd->...d", bw, D[tv])
+
+    up, lo = sig(tris[_UPPER_REF], bary[_UPPER_REF]), sig(tris[_LOWER_REF], bary[_LOWER_REF])
+    if np.linalg.norm(up - lo) < 1e-9 * max(np.linalg.norm(up), np.linalg.norm(lo), 1e-12):
+        return
+
+    def lower_score(S):                     # > 0: moves like the lower lip
+        S = np.atleast_2d(S)
+        n = np.linalg.norm(S, axis=1) + 1e-12
+        return (S @ lo) / (n * np.linalg.norm(lo) + 1e-12) - (S @ up) / (n * np.linalg.norm(up) + 1e-12)
+
+    faces = m.mesh.triangles()
+    ys, xs = np.nonzero(alone.mesh == prim)
+    if not len(xs):
+        return
+    tri_at = alone.triangle[ys, xs]
+    proj = alone.camera.project(m.mesh.vertices)
+    for group, want_lower in ((_UPPER_INNER, False), (_LOWER_INNER, True)):
+        for k in group:
+            if tris[k, 0] < 0:
+                continue
+            if (lower_score(sig(tris[k], bary[k]))[0] > 0) == want_lower:
+                continue
+            x, y = pts[k]
+            near = np.flatnonzero((xs - x) ** 2 + (ys - y) ** 2 <= radius ** 2)
+            if not near.size:
+                continue
+            cand_t = tri_at[near]
+            ut, inv = np.unique(cand_t, return_inverse=True)
+            sc = lower_score(D[faces[ut]].mean(axis=1))
+            ok = (sc > 0) if want_lower else (sc < 0)
+            good = near[ok[inv]]
+            if not good.size:
+                continue
+            j = good[np.argmin((xs[good] - x) ** 2 + (ys[good] - y) ** 2)]
+            from ..render import barycentric_2d
+
+            tv = faces[tri_at[j]]
+            tris[k] = tv
+            bary[k] = barycentric_2d(proj[tv, :2], np.array([xs[j], ys[j]], dtype=np.float64))
+
+
+def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=None) -> LandmarkSearch:
+    """Find the character's 68 landmarks on a render of its neutral face (module docstring).
+
+    Parameters
+    ----------
+    character : Character
+        With face shapes (its :attr:`~faceretarget.character.Character.primary` mesh gets the points).
+    tracker : FaceTracker, optional
+        A MediaPipe tracker in image mode (made here when None).
+    size : int
+        Pixels across the final render.
+
+    Raises
+    ------
+    FaceNotFoundError
+        No view shows a face the landmarker finds.
+    """
+    from ._tracker import FaceTracker
+
+    t0 = time.perf_counter()
+    log = log or (lambda *_: None)
+    prim = character.primary
+    region = face_region(character, prim)
+    lo, hi = region.min(axis=0), region.max(axis=0)
+    centre = (lo + hi) / 2.0
+    extent = float((hi - lo).max())
+    own = tracker is None
+    tr = FaceTracker(images=True, min_detection=0.3, min_presence=0.3) if own else tracker
+    try:
+        views = []
+        best = None
+        for up, front in _candidates(character):
+            cam = look_at(centre, front, up, 2.0 * extent, (320, 320))
+            img = render_scene(character.meshes, cam).image
+            r = tr.track(img, 0.0)
+            v = {"up": up.tolist(), "front": front.tolist(), "found": r is not None,
+                 "frontal": None if r is None else _frontal(r[0])}
+            views.append(v)
+            if r is not None and (best is None or v["frontal"] > best[0]):
+                best = (v["frontal"], up, front, r[0], cam)
+            if r is not None and v["frontal"] > (0.6 if character.front is not None
+                                                 and np.allclose(front, character.front) else 0.85):
+                break                                    # a face seen squarely: the other sides can only be worse
+        if best is None:
+            raise FaceNotFoundError(
+                f"{character.path or character.name}: no face found on renders of '{character.meshes[prim].name}' "
+                f"from {len(views)} directions; give the 68 landmarks with --landmarks FILE (see "
+                "'faceretarget character inspect FILE --out check.png' for what was rendered)", views=views)
+        _, up, front, px, cam = best
+        # zoom on the face found and look again
+        p = px[MEDIAPIPE_68]
+        mid = (p[:, :2].min(axis=0) + p[:, :2].max(axis=0)) / 2.0
+        width_px = float(np.ptp(p[:, 0]))
+        R = cam.rotation
+        W, H = cam.size
+        off = np.array([(mid[0] - W / 2.0) / cam.scale, -(mid[1] - H / 2.0) / cam.scale, 0.0])
+        centre2 = cam.center + R.T @ off
+        width2 = 1.9 * width_px / cam.scale
+        cam2 = look_at(centre2, front, up, width2, (size, size))
+        img2 = render_scene(character.meshes, cam2).image
+        r2 = tr.track(img2, 0.0)
+        if r2 is None:                                   # the zoom lost it: keep the first view's points
+            cam2, img2, px2 = cam, render_scene(character.meshes, cam).image, px
+        else:
+            px2 = r2[0]
+        pts = px2[MEDIAPIPE_68, :2]
+        alone = render_scene(character.meshes, cam2, only=[prim], textures=False)
+        tris, bary, dist = pick(alone, character.meshes, pts, prim, radius=max(6, size // 40))
+        _separate_lips(character, prim, alone, pts, tris, bary, radius=max(4, size // 40))
+        if (tris < 0).any():
+            bad = np.flatnonzero((tris < 0).any(axis=1))
+            raise FaceNotFoundError(
+                f"{character.path or character.name}: {len(bad)} of the 68 landmarks found on the render (e.g. "
+                f"{int(bad[0])}) are not over the face mesh '{character.meshes[prim].name}'; give them with "
+                "--landmarks FILE", views=views)
+        log(f"landmarks: face found facing {np.round(front, 3).tolist()} (up {np.round(up, 3).tolist()}), "
+            f"{len(views)} view(s) tried, {int((dist > 0).sum())} of 68 snapped to the surface")
+        return LandmarkSearch(SurfacePoints(prim, tris, bary, "found on a render"), up, front, views, img2, pts,
+                              dist, time.perf_counter() - t0)
+    finally:
+        if own:
+            tr.close()

@@ -1,0 +1,118 @@
+"""Characters from any file a user has: one reader by extension, each giving a :class:`~faceretarget.character.Character`.
+
+============================ =============================================== ===============================
+input                         route                                           needs
+============================ =============================================== ===============================
+``.glb``, ``.gltf``, ``.vrm`` :func:`~faceretarget.io.read_gltf_character`     core (``meshopt``, ``DracoPy``
+                                                                              for compressed files)
+``.fbx``                      :func:`~faceretarget.io.read_fbx_character`      ``ufbx`` (core); Blender when
+                              (ufbx), or Blender's importer                   ufbx is missing
+``.blend``                    Blender itself (``bpy``)                        ``make blender``
+``.usd .usda .usdc .usdz``    usd-core (UsdSkel blend shapes)                 the ``usd`` extra
+folder of OBJ files           :func:`~faceretarget.io.read_rig`                core
+``.npz`` rig                  :func:`~faceretarget.io.read_rig_npz`            core
+============================ =============================================== ===============================
+
+:func:`character_from_rig` turns a :class:`~faceretarget.rig.Rig` (an OBJ folder, a ``.npz`` rig, a demo
+character) into a one-mesh character whose landmarks (when the rig has its 68) are points at those
+vertices, facing +Z with +Y up as the project's rigs do.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..character import Character, SceneMesh, SurfacePoints
+from ..errors import InputFileError
+from ..mesh import Mesh
+from ..rig import Rig
+
+__all__ = ["read_character", "character_from_rig", "CHARACTER_EXTENSIONS", "is_character_file"]
+
+#: File extensions :func:`read_character` reads (besides folders of OBJ files).
+CHARACTER_EXTENSIONS = (".glb", ".gltf", ".vrm", ".fbx", ".blend", ".usd", ".usda", ".usdc", ".usdz", ".npz")
+
+
+def is_character_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` names a character file (not a folder) by its extension."""
+    return Path(path).suffix.lower() in CHARACTER_EXTENSIONS and Path(path).suffix.lower() != ".npz"
+
+
+def character_from_rig(rig: Rig, path: str | os.PathLike | None = None, route: str = "rig") -> Character:
+    """A one-mesh character of a rig (unit converted to metres, shape names as the files gave them)."""
+    s = rig.mm_per_unit / 1000.0
+    m = rig.neutral
+    uvs = None if m.uvs is None else np.stack([m.uvs[:, 0], 1.0 - m.uvs[:, 1]], axis=1)
+    mesh = Mesh(m.vertices * s, m.face_counts, m.face_indices, uvs, m.face_uv_indices if uvs is not None else None,
+                name=rig.name)
+    names = list(rig.source_names) if rig.source_names is not None and len(set(rig.source_names)) == rig.n_shapes \
+        else list(rig.names)
+    sm = SceneMesh(rig.name, str(path) if path is not None else rig.name, mesh, names,
+                   (rig.deltas * s).astype(np.float32))
+    lm = None
+    if rig.landmarks is not None and len(rig.landmarks) == 68:
+        idx = np.asarray(rig.landmarks, dtype=np.int64)
+        lm = SurfacePoints(0, np.stack([idx, idx, idx], axis=1), np.tile([1.0, 0.0, 0.0], (68, 1)),
+                           "the rig's landmark file")
+    return Character(None if path is None else Path(path), "obj" if route == "OBJ folder" else "npz"
+                     if route == ".npz rig" else "rig", route, [sm], up=np.array([0.0, 1.0, 0.0]),
+                     front=np.array([0.0, 0.0, 1.0]), landmarks=lm, source_unit=rig.unit, name=rig.name)
+
+
+def read_character(path: str | os.PathLike, *, prefer: str | None = None) -> Character:
+    """Read a character from any supported file or an OBJ folder (module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+    prefer : str, optional
+        ``"blender"`` to read ``.fbx`` through Blender instead of ufbx.
+
+    Raises
+    ------
+    InputFileError
+        Missing file, an unsupported extension (the message lists the supported ones), or a file the
+        route cannot read.
+    MissingDependencyError
+        The route's optional package is not installed (the message says what to install).
+    """
+    p = Path(path)
+    if p.is_dir():
+        from ._rig import read_rig
+
+        return character_from_rig(read_rig(p), p, "OBJ folder")
+    if not p.exists():
+        raise InputFileError(f"{p}: character file not found")
+    ext = p.suffix.lower()
+    if ext in (".glb", ".gltf", ".vrm"):
+        from ._gltf_scene import read_gltf_character
+
+        return read_gltf_character(p)
+    if ext == ".fbx":
+        if prefer != "blender":
+            from ..optional import has_module
+
+            if has_module("ufbx"):
+                from ._fbx_scene import read_fbx_character
+
+                return read_fbx_character(p)
+        from ._blender_scene import read_blender_character
+
+        return read_blender_character(p)
+    if ext == ".blend":
+        from ._blender_scene import read_blender_character
+
+        return read_blender_character(p)
+    if ext in (".usd", ".usda", ".usdc", ".usdz"):
+        from ._usd_scene import read_usd_character
+
+        return read_usd_character(p)
+    if ext == ".npz":
+        from ._rig import read_rig_npz
+
+        return character_from_rig(read_rig_npz(p), p, ".npz rig")
+    raise InputFileError(f"{p}: '{ext or p.name}' is not a character format; give a .glb, .gltf, .vrm, .fbx, .blend, "
+                         ".usd/.usda/.usdc/.usdz file, a .npz rig or a folder of OBJ files")

@@ -1,0 +1,298 @@
+"""The animation written back into the user's own character file.
+
+:func:`write_character_animation` writes a copy of the character's file with one animation added and
+nothing else changed:
+
+``.glb`` / ``.vrm`` / ``.gltf`` in, the same format out (:func:`_write_gltf`)
+    The JSON is kept as it is (every node, mesh, material, texture, skin, extension and existing
+    animation) and one animation is appended: a ``weights`` channel on every node that draws a face
+    mesh (all its morph targets: the driven ones from the weights, the others at the mesh's default
+    weights), and a ``rotation`` channel on the character's own head joint (and neck, with
+    ``neck_share``) relative to its rest pose.  The new data is appended to the binary chunk (``.glb``,
+    ``.vrm``) or written to ``<out>.anim.bin`` (``.gltf``, whose other files are referenced where they
+    are); images and every other byte range are untouched.  The sound goes beside it (``<out>.wav``).
+``.fbx`` / ``.blend`` in
+    Blender opens the character's own scene and adds an action on the shape keys and the head bone
+    (:mod:`faceretarget.io._blender_scene`).
+``.usd*`` in
+    A new layer that references the asset and adds the animation (:mod:`faceretarget.io._usd_scene`).
+
+Head rotation: the take's head pose is in the head frame (+Y up, +Z out of the face;
+:mod:`faceretarget.headpose`); :func:`~faceretarget.character.joint_rotations` turns it into the joint's
+local rotation keys:
+``local(t) = local_rest * (G^-1 R_w(t)^(1-s) G)`` for the head and ``... R_w(t)^s ...`` for the neck,
+with ``G`` the joint's rest world rotation, ``R_w`` the head rotation in the file's world frame and
+``s`` the neck share, so the head ends exactly at ``R_w`` times its rest world rotation.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from ..character import Channel, Character, head_joints, joint_rotations
+from ..errors import InvalidDataError, OutputError
+from ..files import atomic_path, check_output_path
+from ..headpose import HeadPose
+
+__all__ = ["write_character_animation", "writes_back", "WRITE_BACK"]
+
+#: Output extensions that write back into the user's file, per character format.
+WRITE_BACK = {"gltf": (".glb", ".gltf"), "vrm0": (".vrm", ".glb"), "vrm1": (".vrm", ".glb"),
+              "fbx": (".fbx", ".blend"), "blend": (".blend", ".fbx"), "usd": (".usd", ".usda", ".usdc")}
+_GLB_MAGIC, _JSON, _BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
+_FLOAT = 5126
+
+
+def writes_back(character: Character, out: str | os.PathLike) -> bool:
+    """Whether writing ``out`` puts the animation back into a copy of the character's own file."""
+    fmt = getattr(character, "format", None)
+    if fmt == "gltf" and getattr(character, "path", None) is not None and Path(character.path).suffix.lower() == ".gltf":
+        return Path(out).suffix.lower() in (".gltf", ".glb")
+    return character.path is not None and Path(out).suffix.lower() in WRITE_BACK.get(fmt, ())
+
+
+def write_character_animation(out: str | os.PathLike, character: Character, chans: list[Channel],
+                              weights: np.ndarray, times: np.ndarray, *, head: HeadPose | None = None,
+                              audio: np.ndarray | None = None, audio_rate: float | None = None,
+                              neck_share: float = 0.0, name: str = "faceretarget", log=None) -> Path:
+    """Write the animation back into a copy of the character's own file (module docstring).
+
+    Parameters
+    ----------
+    out : path-like
+        The copy; its extension chooses the route (:data:`WRITE_BACK`).
+    character : Character
+    chans : list of Channel
+        The character's channels (:func:`~faceretarget.character.channels`).
+    weights : (T, C) float
+        One column per channel.
+    times : (T,) float
+        Seconds, strictly increasing.
+    head : HeadPose, optional
+        Head rotation per frame in the head frame; goes on the head joint (a note when it has none).
+    audio, audio_rate : optional
+        Written beside the file as ``<out>.wav`` (glTF) or into the scene (Blender) / a sound prim (USD).
+    neck_share : float
+        Share of the head rotation the neck joint takes (0..1).
+    """
+    log = log or (lambda *_: None)
+    out = check_output_path(out)
+    W = np.asarray(weights, dtype=np.float64)
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    if W.ndim != 2 or W.shape != (len(t), len(chans)):
+        raise InvalidDataError(f"{out}: weights must be ({len(t)}, {len(chans)}) for {len(t)} times and "
+                               f"{len(chans)} channels, got {W.shape}")
+    if not np.isfinite(W).all():
+        f = int(np.flatnonzero(~np.isfinite(W).all(axis=1))[0])
+        raise InvalidDataError(f"{out}: frame {f} has a non-finite weight; nothing written")
+    if len(t) == 0 or not np.isfinite(t).all() or (np.diff(t) <= 0).any():
+        raise InvalidDataError(f"{out}: times must be finite and strictly increasing")
+    if not writes_back(character, out):
+        raise OutputError(f"{out}: a {character.format} character is written back as "
+                          f"{' or '.join(WRITE_BACK.get(character.format, ()))}")
+    fmt = character.format
+    if fmt in ("gltf", "vrm0", "vrm1"):
+        path = _write_gltf(out, character, chans, W, t, head, neck_share, name, log)
+    elif fmt in ("fbx", "blend"):
+        from ._blender_scene import write_blender_animation
+
+        return write_blender_animation(out, character, chans, W, t, head=head, audio=audio, audio_rate=audio_rate,
+                                       neck_share=neck_share, name=name, log=log)
+    else:
+        from ._usd_scene import write_usd_animation
+
+        return write_usd_animation(out, character, chans, W, t, head=head, audio=audio, audio_rate=audio_rate,
+                                   neck_share=neck_share, name=name, log=log)
+    if audio is not None and audio_rate:
+        from ._audio import checked_audio, write_wav
+
+        wav = out.with_suffix(".wav")
+        check_output_path(wav)
+        with atomic_path(wav) as tmp:
+            write_wav(tmp, *checked_audio(wav, audio, audio_rate))
+        log(f"wrote {wav} (the sound, beside the animation)")
+    return path
+
+
+# ----------------------------------------------------------------------------------------- glTF
+def _mesh_columns(character: Character, chans: list[Channel], W: np.ndarray) -> dict[int, dict[int, np.ndarray]]:
+    """``{scene mesh: {shape index: (T,) weights}}`` of every shape a channel drives."""
+    out: dict[int, dict[int, np.ndarray]] = {}
+    for c, ch in enumerate(chans):
+        for mi, k in ch.binds:
+            out.setdefault(mi, {})[k] = W[:, c]
+    return out
+
+
+def _write_gltf(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
+                head: HeadPose | None, neck_share: float, name: str, log) -> Path:
+    from ._gltf_scene import GltfDocument
+
+    doc = GltfDocument(character.path)
+    js = copy.deepcopy(doc.json)
+    to_glb = out.suffix.lower() in (".glb", ".vrm")
+    new = bytearray()
+    views, accessors = js.setdefault("bufferViews", []), js.setdefault("accessors", [])
+
+    def add(arr: np.ndarray, type_: str, minmax: bool = False) -> int:
+        data = np.ascontiguousarray(arr, dtype=np.float32)
+        pad = (-len(new)) % 4
+        new.extend(b"\0" * pad)
+        views.append({"buffer": -1, "byteOffset": len(new), "byteLength": data.nbytes})
+        new.extend(data.tobytes())
+        n = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[type_]
+        acc = {"bufferView": len(views) - 1, "componentType": _FLOAT, "count": int(data.size // n), "type": type_}
+        if minmax:
+            flat = data.reshape(-1, n)
+            acc["min"] = [float(x) for x in flat.min(axis=0)]
+            acc["max"] = [float(x) for x in flat.max(axis=0)]
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    t32 = (t - t[0]).astype(np.float32)
+    if len(t32) > 1 and not (np.diff(t32) > 0).all():
+        raise InvalidDataError(f"{out}: frame times do not increase in float32 seconds")
+    t_acc = add(t32, "SCALAR", minmax=True)
+    samplers, channels_ = [], []
+    cols = _mesh_columns(character, chans, W)
+    nodes = js.get("nodes", [])
+    done = 0
+    for mi, shapes in cols.items():
+        sm = character.meshes[mi]
+        node_i = int(sm.ref.split(":")[1])
+        gmesh = js["meshes"][int(nodes[node_i]["mesh"])]
+        K = max(len(p.get("targets", [])) for p in gmesh["primitives"])
+        rest = np.asarray(gmesh.get("weights", [0.0] * K), dtype=np.float64)
+        if len(rest) != K:
+            rest = np.zeros(K)
+        M = np.tile(rest, (len(t), 1))
+        for k, col in shapes.items():
+            M[:, sm.shape_refs[k]] = col
+        samplers.append({"input": t_acc, "output": add(M.reshape(-1), "SCALAR"), "interpolation": "LINEAR"})
+        channels_.append({"sampler": len(samplers) - 1, "target": {"node": node_i, "path": "weights"}})
+        done += 1
+    if head is not None:
+        if head.n_frames != len(t) or not head.valid.all():
+            raise InvalidDataError(f"{out}: the head pose needs one valid rotation per frame ({len(t)})")
+        placed = []
+        for role, share, j in head_joints(character, neck_share):
+            q = joint_rotations(character, head, role, share)
+            ni = int(j.ref.split(":")[1])
+            _trs(nodes[ni])
+            samplers.append({"input": t_acc, "output": add(q, "VEC4"), "interpolation": "LINEAR"})
+            channels_.append({"sampler": len(samplers) - 1, "target": {"node": ni, "path": "rotation"}})
+            placed.append(f"{j.name} ({role})")
+        if placed:
+            log(f"head rotation on the character's joint(s): {', '.join(placed)}")
+        else:
+            log(f"{character.name}: no head joint; the head motion is left out of {out.name}")
+    js.setdefault("animations", []).append({"name": name, "samplers": samplers, "channels": channels_})
+    if to_glb:
+        binchunk = _attach_glb_buffer(js, doc, bytes(new))
+        _write_glb(out, js, binchunk)
+    else:
+        _write_gltf_json(out, js, doc, bytes(new))
+    log(f"wrote {out} ({len(t)} frames on {done} face mesh node(s); everything else of {Path(character.path).name} "
+        "kept)")
+    return out
+
+
+def _trs(node: dict) -> None:
+    """Give a node TRS instead of a matrix (animated nodes must have TRS)."""
+    if "matrix" not in node:
+        return
+    from scipy.spatial.transform import Rotation
+
+    M = np.asarray(node.pop("matrix"), dtype=np.float64).reshape(4, 4).T
+    s = np.linalg.norm(M[:3, :3], axis=0)
+    R = M[:3, :3] / np.where(s > 0, s, 1.0)
+    if np.linalg.det(R) < 0:
+        s[0], R[:, 0] = -s[0], -R[:, 0]
+    node["translation"] = [float(x) for x in M[:3, 3]]
+    node["rotation"] = [float(x) for x in Rotation.from_matrix(R).as_quat()]
+    node["scale"] = [float(x) for x in s]
+
+
+def _attach_glb_buffer(js: dict, doc, new: bytes) -> bytes:
+    """Put the new views in the GLB binary chunk (buffer 0), after what it holds; return the chunk."""
+    buffers = js.setdefault("buffers", [])
+    if doc.is_glb and buffers and "uri" not in buffers[0]:
+        base = bytes(doc.bin[: int(buffers[0].get("byteLength", len(doc.bin)))])
+    else:                                                   # no binary chunk yet: a new buffer 0
+        for v in js.get("bufferViews", []):
+            if v.get("buffer", 0) != -1:
+                v["buffer"] = int(v.get("buffer", 0)) + 1
+            ext = v.get("extensions", {}).get("EXT_meshopt_compression")
+            if ext is not None:
+                ext["buffer"] = int(ext.get("buffer", 0)) + 1
+        buffers.insert(0, {"byteLength": 0})
+        base = b""
+        for b in buffers[1:]:                               # external files stay where they are, by absolute uri
+            if "uri" in b and not b["uri"].startswith("data:"):
+                b["uri"] = _rebase(b["uri"], doc.folder, None)
+    pad = (-len(base)) % 4
+    offset = len(base) + pad
+    for v in js["bufferViews"]:
+        if v.get("buffer") == -1:
+            v["buffer"] = 0
+            v["byteOffset"] = int(v["byteOffset"]) + offset
+    chunk = base + b"\0" * pad + new
+    buffers[0]["byteLength"] = len(chunk)
+    return chunk
+
+
+def _rebase(uri: str, src_folder: Path, dst_folder: Path | None) -> str:
+    import urllib.parse
+
+    p = (src_folder / urllib.parse.unquote(uri)).resolve()
+    if dst_folder is None:
+        return p.as_uri()
+    return urllib.parse.quote(os.path.relpath(p, dst_folder.resolve()).replace(os.sep, "/"))
+
+
+def _write_glb(out: Path, js: dict, binchunk: bytes) -> None:
+    body = json.dumps(js, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
+    body += b" " * ((-len(body)) % 4)
+    binpad = binchunk + b"\0" * ((-len(binchunk)) % 4)
+    total = 12 + 8 + len(body) + (8 + len(binpad) if binpad else 0)
+    with atomic_path(out) as tmp, open(tmp, "wb") as f:
+        f.write(struct.pack("<III", _GLB_MAGIC, 2, total))
+        f.write(struct.pack("<II", len(body), _JSON))
+        f.write(body)
+        if binpad:
+            f.write(struct.pack("<II", len(binpad), _BIN))
+            f.write(binpad)
+
+
+def _write_gltf_json(out: Path, js: dict, doc, new: bytes) -> None:
+    """A ``.gltf`` copy: external files referenced where they are (relative to the copy), the new data
+    in ``<out>.anim.bin``; a GLB input's binary chunk is written beside it too (``<out>.bin``)."""
+    buffers = js.setdefault("buffers", [])
+    extra: list[tuple[Path, bytes]] = []
+    for i, b in enumerate(buffers):
+        if "uri" in b and not b["uri"].startswith("data:"):
+            b["uri"] = _rebase(b["uri"], doc.folder, out.parent)
+        elif "uri" not in b and i == 0 and doc.is_glb:
+            p = out.with_suffix(".bin")
+            b["uri"] = p.name
+            extra.append((p, bytes(doc.bin[: int(b.get("byteLength", len(doc.bin)))])))
+    for img in js.get("images", []):
+        if "uri" in img and not img["uri"].startswith("data:"):
+            img["uri"] = _rebase(img["uri"], doc.folder, out.parent)
+    anim = out.with_name(out.stem + ".anim.bin")
+    buffers.append({"uri": anim.name, "byteLength": len(new)})
+    for v in js["bufferViews"]:
+        if v.get("buffer") == -1:
+            v["buffer"] = len(buffers) - 1
+    for p, data in extra + [(anim, new)]:
+        check_output_path(p)
+        with atomic_path(p) as tmp:
+            Path(tmp).write_bytes(data)
+    with atomic_path(out) as tmp:
+        Path(tmp).write_text(json.dumps(js, indent=1, ensure_ascii=False), encoding="utf-8")

@@ -1,0 +1,454 @@
+"""A user's character made ready to drive: read, landmarks found (or read from the cache), checked.
+
+:func:`load_character` is what ``--character FILE`` / ``--target-rig FILE`` do: read the file whatever its
+format (:func:`faceretarget.io.read_character`), find its 68 landmarks on a render
+(:func:`faceretarget.capture.find_landmarks`) unless a landmark file is given or the cache has them,
+and check it can be driven (face shapes, one head).  :func:`drive_rig` chooses the shapes that drive
+(``--shapes``) and builds the one rig the solvers work on.  :func:`inspect_character` is
+``faceretarget character inspect``.
+
+The landmark cache
+------------------
+Found landmarks are written to ``<file>.landmarks.json`` beside the character when that folder is
+writable, else to ``$FACERETARGET_CACHE`` (default ``~/.cache/faceretarget``) as ``<sha256>.json``;
+``FACERETARGET_CACHE`` set means the cache folder is always used.  The file records the character's
+SHA-256, so an edited character is searched again.  Its layout (also what ``--landmarks FILE.json``
+takes)::
+
+    {"format": "faceretarget.landmarks/1", "sha256": "...", "mesh": "H_DDS_HighRes", "vertices": 22249,
+     "triangles": [[a, b, c], ...68], "bary": [[u, v, w], ...68], "up": [0, 1, 0], "front": [0, 0, 1],
+     "source": "found on a render"}
+
+``--landmarks FILE.txt`` takes 68 vertex indices of the face mesh (``landmarks68.txt``'s layout) or 68
+lines of ``x y z`` (metres, the file's world frame), each put on the nearest point of the face mesh.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..character import Character, ShapeChoice, SurfacePoints, channels, choose_shapes, face_rig
+from ..errors import InputFileError, InvalidDataError, MissingShapeError
+from ..files import atomic_path
+from ..rig import Rig
+
+__all__ = ["load_character", "drive_rig", "DriveRig", "inspect_character", "CharacterReport", "landmark_cache_path",
+           "read_landmark_file",
+           "LANDMARKS_FORMAT"]
+
+LANDMARKS_FORMAT = "faceretarget.landmarks/1"
+#: Regions of the 68 points, for grouping shapes by what they move.
+REGIONS = {"jaw line": range(0, 17), "brows": range(17, 27), "nose": range(27, 36), "eyes": range(36, 48),
+           "mouth": range(48, 68)}
+
+
+def _quiet(*_a) -> None:
+    return None
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    if path.is_dir():
+        for f in sorted(p for p in path.rglob("*") if p.is_file() and not p.name.endswith(".landmarks.json")):
+            h.update(f.name.encode())
+            h.update(f.read_bytes())
+    else:
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+def _cache_dir() -> Path:
+    env = os.environ.get("FACERETARGET_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "faceretarget"
+
+
+def landmark_cache_path(path: str | os.PathLike, sha: str | None = None, *, for_writing: bool = False) -> Path:
+    """Where the landmarks of the character ``path`` are cached (module docstring)."""
+    p = Path(path)
+    beside = p.parent / f"{p.name}.landmarks.json" if p.is_file() else p / "landmarks.json"
+    if not os.environ.get("FACERETARGET_CACHE"):
+        if not for_writing and beside.is_file():
+            return beside
+        if for_writing and os.access(beside.parent, os.W_OK):
+            return beside
+    sha = sha or _sha256(p)
+    return _cache_dir() / "landmarks" / f"{sha}.json"
+
+
+def _read_cache(character: Character, path: Path, sha: str, log) -> bool:
+    for cand in {landmark_cache_path(path, sha), _cache_dir() / "landmarks" / f"{sha}.json"}:
+        if not cand.is_file():
+            continue
+        try:
+            d = json.loads(cand.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if d.get("format") != LANDMARKS_FORMAT or d.get("sha256") != sha:
+            continue
+        try:
+            _apply(character, d, str(cand))
+        except (InvalidDataError, InputFileError, KeyError, ValueError, TypeError):
+            continue
+        log(f"landmarks: read from the cache {cand}")
+        return True
+    return False
+
+
+def _apply(character: Character, d: dict, where: str) -> None:
+    names = [m.name for m in character.meshes]
+    if d.get("mesh") not in names:
+        raise InputFileError(f"{where}: mesh '{d.get('mesh')}' is not in the character (it has {', '.join(names)})")
+    mi = names.index(d["mesh"])
+    m = character.meshes[mi]
+    if int(d.get("vertices", -1)) != m.mesh.n_vertices:
+        raise InputFileError(f"{where}: made for {d.get('vertices')} vertices, mesh '{m.name}' has {m.mesh.n_vertices}")
+    tri = np.asarray(d["triangles"], dtype=np.int64)
+    bary = np.asarray(d["bary"], dtype=np.float64)
+    if tri.shape != (68, 3) or bary.shape != (68, 3) or tri.min() < 0 or tri.max() >= m.mesh.n_vertices \
+            or not np.isfinite(bary).all():
+        raise InputFileError(f"{where}: 'triangles' and 'bary' must be 68 x 3 (vertices of '{m.name}', weights)")
+    character.landmarks = SurfacePoints(mi, tri, bary, d.get("source", where))
+    if d.get("up") is not None:
+        character.up = np.asarray(d["up"], dtype=np.float64)
+    if d.get("front") is not None:
+        character.front = np.asarray(d["front"], dtype=np.float64)
+
+
+def _write_cache(character: Character, path: Path, sha: str, log) -> Path | None:
+    lm = character.landmarks
+    m = character.meshes[lm.mesh]
+    d = {"format": LANDMARKS_FORMAT, "sha256": sha, "mesh": m.name, "vertices": m.mesh.n_vertices,
+         "triangles": lm.triangles.tolist(), "bary": np.round(lm.bary, 9).tolist(),
+         "up": None if character.up is None else np.asarray(character.up, float).tolist(),
+         "front": None if character.front is None else np.asarray(character.front, float).tolist(),
+         "source": lm.source}
+    for cand in (landmark_cache_path(path, sha, for_writing=True), _cache_dir() / "landmarks" / f"{sha}.json"):
+        try:
+            cand.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(cand) as tmp:
+                Path(tmp).write_text(json.dumps(d), encoding="utf-8")
+            log(f"landmarks: cached in {cand}")
+            return cand
+        except OSError:
+            continue
+    log("landmarks: no writable cache folder; they will be searched again next time")
+    return None
+
+
+def read_landmark_file(character: Character, path: str | os.PathLike) -> SurfacePoints:
+    """Landmarks from ``--landmarks FILE`` (module docstring): the JSON layout, 68 vertex indices of the
+    face mesh, or 68 ``x y z`` positions put on its nearest surface points."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(f"{p}: landmark file not found")
+    if p.suffix.lower() == ".json":
+        try:
+            d = json.loads(p.read_text(encoding="utf-8"))
+        except ValueError as e:
+            raise InputFileError(f"{p}: not JSON ({str(e)[:60]})") from e
+        _apply(character, d, str(p))
+        return character.landmarks
+    toks = p.read_text(encoding="utf-8", errors="replace").split()
+    mi = character.primary
+    m = character.meshes[mi].mesh
+    if len(toks) == 68:
+        try:
+            idx = np.array([int(t) for t in toks], dtype=np.int64)
+        except ValueError:
+            raise InputFileError(f"{p}: 68 values but not all integers (vertex indices)") from None
+        if idx.min() < 0 or idx.max() >= m.n_vertices:
+            raise InputFileError(f"{p}: a vertex index is outside 0..{m.n_vertices - 1} of the face mesh "
+                                 f"'{character.meshes[mi].name}'")
+        return SurfacePoints(mi, np.stack([idx] * 3, axis=1), np.tile([1.0, 0.0, 0.0], (68, 1)), str(p))
+    if len(toks) == 204:
+        try:
+            X = np.array([float(t) for t in toks]).reshape(68, 3)
+        except ValueError:
+            raise InputFileError(f"{p}: 204 values but not all numbers (68 x, y, z)") from None
+        tri, bary = _nearest_surface(m.vertices, m.triangles(), X)
+        return SurfacePoints(mi, tri, bary, str(p))
+    raise InputFileError(f"{p}: expected 68 vertex indices or 68 lines of x y z, found {len(toks)} values")
+
+
+def _nearest_surface(V: np.ndarray, T: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle and barycentrics of the nearest surface point to each of ``X`` (n, 3)."""
+    from scipy.spatial import cKDTree
+
+    cent = V[T].mean(axis=1)
+    tree = cKDTree(cent)
+    _, cand = tree.query(X, k=min(16, len(T)))
+    cand = np.atleast_2d(cand)
+    tri_out, bary_out = [], []
+    for x, cs in zip(X, cand, strict=True):
+        best = (np.inf, None, None)
+        for t in cs:
+            a, b, c = V[T[t]]
+            lam = _closest_bary(x, a, b, c)
+            d = np.linalg.norm(lam @ np.stack([a, b, c]) - x)
+            if d < best[0]:
+                best = (d, T[t], lam)
+        tri_out.append(best[1])
+        bary_out.append(best[2])
+    return np.array(tri_out), np.array(bary_out)
+
+
+def _closest_bary(p, a, b, c) -> np.ndarray:
+    """Barycentric coordinates of the point of triangle abc nearest ``p`` (Ericson, Real-Time Collision)."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = ab @ ap, ac @ ap
+    if d1 <= 0 and d2 <= 0:
+        return np.array([1.0, 0.0, 0.0])
+    bp = p - b
+    d3, d4 = ab @ bp, ac @ bp
+    if d3 >= 0 and d4 <= d3:
+        return np.array([0.0, 1.0, 0.0])
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0 and d1 >= 0 and d3 <= 0:
+        v = d1 / (d1 - d3)
+        return np.array([1 - v, v, 0.0])
+    cp = p - c
+    d5, d6 = ab @ cp, ac @ cp
+    if d6 >= 0 and d5 <= d6:
+        return np.array([0.0, 0.0, 1.0])
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0 and d2 >= 0 and d6 <= 0:
+        w = d2 / (d2 - d6)
+        return np.array([1 - w, 0.0, w])
+    va = d3 * d6 - d5 * d4
+    if va <= 0 and (d4 - d3) >= 0 and (d5 - d6) >= 0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return np.array([0.0, 1 - w, w])
+    den = 1.0 / (va + vb + vc)
+    v, w = vb * den, vc * den
+    return np.array([1 - v - w, v, w])
+
+
+def _one_head(character: Character, mesh: str | None) -> None:
+    """Restrict the face to ``mesh`` (``--mesh``), or refuse two separate heads in one file."""
+    names = [m.name for m in character.meshes]
+    if mesh is not None:
+        hits = [i for i, n in enumerate(names) if n == mesh] or [i for i, n in enumerate(names)
+                                                                 if n.lower() == mesh.lower()]
+        if not hits:
+            raise MissingShapeError(f"{character.path}: --mesh '{mesh}': no such mesh (the character has "
+                                    f"{', '.join(names)})")
+        character.face_filter = [hits[0]]
+        return
+    face = character.face_meshes()
+    if len(face) < 2:
+        return
+    from ..capture import face_region
+
+    big = [i for i in face if character.meshes[i].n_shapes >= max(3, character.meshes[face[0]].n_shapes // 2)]
+    regions = [face_region(character, i) for i in big]
+    heads = [big[0]]
+    for i, r in zip(big[1:], regions[1:], strict=True):
+        c = r.mean(axis=0)
+        if all(np.linalg.norm(c - face_region(character, h).mean(axis=0)) >
+               1.5 * np.ptp(face_region(character, h), axis=0).max() for h in heads):
+            heads.append(i)
+    if len(heads) > 1:
+        raise InvalidDataError(f"{character.path}: {len(heads)} separate heads with face shapes "
+                               f"({', '.join(names[i] for i in heads)}); choose one with --mesh NAME")
+
+
+def load_character(character, *, landmarks: str | os.PathLike | None = None, mesh: str | None = None,
+                   find: bool = True, cache: bool = True, prefer: str | None = None, tracker=None,
+                   log: Callable[..., None] = _quiet) -> Character:
+    """A character ready to drive (module docstring).
+
+    Parameters
+    ----------
+    character : path-like, Character or Rig
+        A character file or OBJ folder, or one already read.
+    landmarks : path-like, optional
+        ``--landmarks``: a landmark file that overrides the cache and the search.
+    mesh : str, optional
+        ``--mesh``: the face mesh, when the file holds several heads.
+    find : bool
+        Search the landmarks on a render when neither the file, ``landmarks`` nor the cache gives them.
+    cache : bool
+        Read and write the landmark cache.
+
+    Returns
+    -------
+    Character
+        With :attr:`~faceretarget.character.Character.landmarks` (when found) and ``timings``
+        (``read``, ``landmarks`` seconds).
+
+    Raises
+    ------
+    MissingShapeError
+        No face shapes.
+    FaceNotFoundError
+        The landmarks are not found on the render (the message names ``--landmarks``).
+    InvalidDataError
+        Two heads and no ``mesh``.
+    """
+    from ..io import character_from_rig, read_character
+
+    t0 = time.perf_counter()
+    if isinstance(character, Character):
+        ch = character
+        path = ch.path
+    elif isinstance(character, Rig):
+        ch = character_from_rig(character)
+        path = None
+    else:
+        path = Path(character)
+        ch = read_character(path, prefer=prefer)
+    timings = {"read": time.perf_counter() - t0}
+    if not ch.face_meshes():
+        raise MissingShapeError(ch.no_shapes_message())
+    _one_head(ch, mesh)
+    t0 = time.perf_counter()
+    if landmarks is not None:
+        ch.landmarks = read_landmark_file(ch, landmarks)
+        log(f"landmarks: read from {landmarks}")
+    elif ch.landmarks is None and path is not None:
+        sha = _sha256(path)
+        if not (cache and _read_cache(ch, path, sha, log)) and find:
+            _search(ch, tracker, log)
+            if cache:
+                _write_cache(ch, path, sha, log)
+    elif ch.landmarks is None and find:
+        _search(ch, tracker, log)
+    timings["landmarks"] = time.perf_counter() - t0
+    ch.timings = timings
+    return ch
+
+
+def _search(ch: Character, tracker, log) -> None:
+    from ..capture import find_landmarks
+
+    res = find_landmarks(ch, tracker=tracker, log=log)
+    ch.landmarks = res.landmarks
+    ch.up, ch.front = res.up, res.front
+    ch.search = res
+
+
+# ------------------------------------------------------------------------------------- driving
+@dataclass(eq=False)
+class DriveRig:
+    """What drives a character: the solve rig, the channels and which of them drive.
+
+    Attributes
+    ----------
+    rig : Rig
+        The face meshes side by side plus the 68 landmark points (:func:`~faceretarget.character.face_rig`),
+        one shape per driving channel, names exact.
+    channels : list of Channel
+        Every channel of the character.
+    choice : ShapeChoice
+    """
+
+    rig: Rig
+    channels: list
+    choice: ShapeChoice
+    character: Character = field(repr=False, default=None)
+
+    @property
+    def summary(self) -> str:
+        return self.choice.summary(self.channels)
+
+    def full_weights(self, W: np.ndarray) -> np.ndarray:
+        """``(T, C)`` weights of every channel (0 for those at rest) from the driving ones ``(T, D)``."""
+        out = np.zeros((len(W), len(self.channels)))
+        out[:, self.choice.drive] = W
+        return out
+
+
+def drive_rig(character: Character, shapes: str = "auto") -> DriveRig:
+    """Choose the shapes that drive (``--shapes``) and build the solve rig (needs the landmarks)."""
+    if character.landmarks is None:
+        raise InvalidDataError(f"{character.name}: the landmarks are not known yet (load_character finds them)")
+    chans = channels(character)
+    motion = character._landmark_deltas(chans)
+    choice = choose_shapes(chans, shapes, motion, who=str(character.path or character.name))
+    return DriveRig(face_rig(character, chans, choice.drive), chans, choice, character)
+
+
+# ------------------------------------------------------------------------------------- inspect
+@dataclass(eq=False)
+class CharacterReport:
+    """What ``character inspect`` found (:func:`inspect_character`)."""
+
+    character: Character
+    drive: DriveRig | None
+    regions: dict
+    lines: list
+    picture: Path | None = None
+
+
+def inspect_character(path, *, out: str | os.PathLike | None = None, shapes: str = "auto",
+                      landmarks: str | os.PathLike | None = None, mesh: str | None = None,
+                      log: Callable[..., None] = _quiet) -> CharacterReport:
+    """Read a character, find its landmarks and report what will drive it; with ``out`` write a
+    picture of the render with the 68 points (the face found, the check a user makes)."""
+    ch = load_character(path, landmarks=landmarks, mesh=mesh, log=log)
+    lines = [ch.summary()]
+    lines += [f"note: {n}" for n in ch.notes]
+    if ch.landmarks is not None:
+        lines.append(f"landmarks: 68 on '{ch.meshes[ch.landmarks.mesh].name}' ({ch.landmarks.source}); "
+                     f"read {ch.timings['read']:.2f} s, landmarks {ch.timings['landmarks']:.2f} s")
+    dr = drive_rig(ch, shapes) if ch.landmarks is not None else None
+    regions: dict[str, list[str]] = {}
+    if dr is not None:
+        D = ch._landmark_deltas(dr.channels)
+        for c, chn in enumerate(dr.channels):
+            mag = {r: float(np.linalg.norm(D[c, list(ix)], axis=1).max()) for r, ix in REGIONS.items()}
+            r = max(mag, key=mag.get)
+            regions.setdefault(r if mag[r] > 0 else "no landmark", []).append(chn.name)
+        for r, names in regions.items():
+            lines.append(f"  {r}: {len(names)} shape(s): {', '.join(names[:8])}{' ...' if len(names) > 8 else ''}")
+        lines.append(dr.summary)
+    pic = None
+    if out is not None:
+        pic = _check_picture(ch, out)
+        lines.append(f"wrote {pic}")
+    for ln in lines:
+        log(ln)
+    return CharacterReport(ch, dr, regions, lines, pic)
+
+
+def _check_picture(ch: Character, out) -> Path:
+    from PIL import Image, ImageDraw
+
+    from ..render import look_at, render_scene
+
+    out = Path(out)
+    res = getattr(ch, "search", None)
+    if res is not None and res.image is not None:
+        img, pts = res.image, res.points
+    else:
+        from ..capture import face_region
+        from ..character import character_frame
+
+        R = character_frame(ch)
+        reg = face_region(ch)
+        c = (reg.min(0) + reg.max(0)) / 2
+        cam = look_at(c, R[2], R[1], 1.6 * float(np.ptp(reg, axis=0).max()), (512, 512))
+        img = render_scene(ch.meshes, cam).image
+        pts = cam.project(ch.landmark_positions())[:, :2] if ch.landmarks is not None else np.zeros((0, 2))
+    im = Image.fromarray(img)
+    d = ImageDraw.Draw(im)
+    for k, (x, y) in enumerate(pts):
+        col = (40, 220, 60) if k >= 17 else (240, 160, 30)
+        d.ellipse([x - 2.5, y - 2.5, x + 2.5, y + 2.5], fill=col, outline=(0, 0, 0))
+    with atomic_path(out) as tmp:
+        im.save(tmp, format="PNG")
+    return out
+
