@@ -26,6 +26,8 @@ EXTRAS: dict[str, str] = {
     "dask": "batch",
     "distributed": "batch",
 }
+#: Core packages a failed import names directly (a broken install): ``pip install <name>``.
+CORE_PACKAGES = {"meshopt": "meshopt", "DracoPy": "DracoPy", "ufbx": "ufbx"}
 
 
 def optional_import(name: str, purpose: str, hint: str | None = None) -> ModuleType:

@@ -198,10 +198,12 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
     tr = FaceTracker(images=True, min_detection=0.3, min_presence=0.3) if own else tracker
     try:
         views = []
+        images = []
         best = None
         for up, front in _candidates(character):
             cam = look_at(centre, front, up, 2.0 * extent, (320, 320))
             img = render_scene(character.meshes, cam).image
+            images.append(img)
             r = tr.track(img, 0.0)
             v = {"up": up.tolist(), "front": front.tolist(), "found": r is not None,
                  "frontal": None if r is None else _frontal(r[0])}
@@ -212,10 +214,12 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
                                                  and np.allclose(front, character.front) else 0.85):
                 break                                    # a face seen squarely: the other sides can only be worse
         if best is None:
-            raise FaceNotFoundError(
+            err = FaceNotFoundError(
                 f"{character.path or character.name}: no face found on renders of '{character.meshes[prim].name}' "
                 f"from {len(views)} directions; give the 68 landmarks with --landmarks FILE (see "
                 "'faceretarget character inspect FILE --out check.png' for what was rendered)", views=views)
+            err.images = images
+            raise err
         _, up, front, px, cam = best
         # zoom on the face found and look again
         p = px[MEDIAPIPE_68]

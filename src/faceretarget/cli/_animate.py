@@ -1,4 +1,4 @@
-"""Command line: ``faceretarget animate VIDEO --character RIG --out OUT [--preview OUT.mp4]``.
+"""Command line: ``faceretarget animate VIDEO --character FILE|RIG --out OUT [--preview OUT.mp4]``.
 
 The project's main job (:func:`faceretarget.pipelines.animate`): a video of an actor onto a character
 in one command.  Outputs are checked before any work (extension, writable folder, not an input).
@@ -16,27 +16,55 @@ from ._support import protect as _protect
 #: ``--head-amplitude`` (as :func:`faceretarget.pipelines.animate` checks it) and ``--preview-size``.
 HEAD_AMPLITUDE = Range(0, 10)
 PREVIEW_SIZE = Range(16, 4096, integer=True)
+#: ``--neck-share``.
+NECK_SHARE = Range(0, 1)
 
-__all__ = ["register", "cmd_animate"]
+__all__ = ["register", "cmd_animate", "add_character_options", "character_out"]
+
+
+def character_out(character, out: Path) -> bool:
+    """Check ``--out`` for ``--character`` before any work: True when it writes the animation back into a
+    copy of the character's own file (same format), else it must be a format every rig writes."""
+    from ..io import (
+        WRITE_BACK,
+        WRITERS,
+        character_format,
+        check_character_route,
+        is_character_file,
+        writes_back,
+    )
+
+    back = is_character_file(character) and writes_back(character, out)
+    if not back and out.suffix.lower() not in WRITERS:
+        own = WRITE_BACK.get("vrm0" if character_format(character) == "vrm" else character_format(character), ())
+        extra = f" or, into a copy of {Path(character).name}, {' '.join(own)}" if own else ""
+        raise OutputError(f"{out}: unknown output format '{out.suffix}' (use .glb, .usd, .usda, .usdc, .blend, "
+                          f".fbx or .csv{extra})")
+    if is_character_file(character):
+        check_character_route(character, out if back else None)
+    return back
 
 
 def cmd_animate(args, log) -> int:
     from ..files import check_output_path
-    from ..io import WRITERS, read_rig
+    from ..io import is_character_file, read_rig
     from ..pipelines import animate
 
     video = Path(args.video)
     if not video.is_file():
         raise InvalidDataError(f"{video}: video not found")
-    inputs = [video, args.character, args.style, args.speech, args.head_db, args.source_keys, args.target_keys]
+    inputs = [video, args.character, args.style, args.speech, args.head_db, args.source_keys, args.target_keys,
+              args.landmarks]
     check_inputs(("--character", args.character), ("--style", args.style), ("--speech", args.speech),
                  ("--head-db", args.head_db), ("--source-keys", args.source_keys),
-                 ("--target-keys", args.target_keys), ("--model", args.model),
+                 ("--target-keys", args.target_keys), ("--model", args.model), ("--landmarks", args.landmarks),
                  folders=("--character", "--source-keys", "--target-keys"))
     out = Path(args.out)
-    if out.suffix.lower() not in WRITERS:
-        raise OutputError(f"{out}: unknown output format '{out.suffix}' (use .glb, .usd, .usda, .usdc, .blend, "
-                          ".fbx or .csv)")
+    character_out(args.character, out)
+    file_character = is_character_file(args.character)
+    if not file_character and (args.shapes != "auto" or args.landmarks or args.mesh or args.neck_share):
+        raise InvalidDataError("--shapes, --landmarks, --mesh and --neck-share apply to a character file "
+                               "(.glb, .gltf, .vrm, .fbx, .blend, .usd*), not to a rig folder")
     _protect(out, inputs)
     check_output_path(out)
     preview = None
@@ -48,8 +76,11 @@ def cmd_animate(args, log) -> int:
             raise OutputError(f"{preview}: given for both --out and --preview")
         _protect(preview, inputs)
         check_output_path(preview)
-    with neutral_option("--neutral"):
-        character = read_rig(args.character, neutral=args.neutral)
+    if file_character:
+        character = args.character
+    else:
+        with neutral_option("--neutral"):
+            character = read_rig(args.character, neutral=args.neutral)
     with neutral_option(None):
         sk = read_rig(args.source_keys) if args.source_keys else None
         tk = read_rig(args.target_keys) if args.target_keys else None
@@ -60,8 +91,21 @@ def cmd_animate(args, log) -> int:
                       head_amplitude=args.head_amplitude, emotion=args.emotion, style=args.style,
                       speech=args.speech, source_keys=sk, target_keys=tk, max_frames=args.max_frames,
                       landmarker=args.model, preview_size=args.preview_size, bake=args.bake,
-                      progress=not log.quiet, log=log)
+                      progress=not log.quiet, shapes=args.shapes, landmarks=args.landmarks, mesh=args.mesh,
+                      neck_share=args.neck_share, log=log)
     return 0 if res.outputs else 1
+
+
+def add_character_options(p, shapes_default: str = "auto") -> None:
+    """``--shapes``, ``--landmarks``, ``--mesh``, ``--neck-share`` for commands that take a character file."""
+    p.add_argument("--shapes", default=shapes_default,
+                   help="a character file's shapes that drive the face: auto (ARKit when it has them, else all), "
+                   f"arkit, visemes, all, or names/patterns separated by commas (default {shapes_default})")
+    p.add_argument("--landmarks", help="the character's 68 landmarks (JSON from 'character inspect', 68 vertex "
+                   "indices, or 68 x y z lines): overrides the automatic search")
+    p.add_argument("--mesh", help="the face mesh to drive when the file holds several heads")
+    p.add_argument("--neck-share", type=NECK_SHARE, default=0.0,
+                   help=f"share of the head rotation the neck joint takes, {NECK_SHARE} (default 0)")
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -72,10 +116,13 @@ def register(subparsers) -> argparse.ArgumentParser:
         "shapes from the landmarks (or keyshape pairs), optionally change the emotion (Eq. 5.1) and re-time to "
         "new speech, add head motion, and write one file with face, head and sound, plus a side-by-side preview.")
     a.add_argument("video", help="the actor's video (any format FFmpeg reads)")
-    a.add_argument("--character", required=True, help="rig folder (neutral + shapes OBJ, landmarks68.txt)")
-    a.add_argument("--neutral", help="the character's neutral OBJ when it is not named neutral*")
-    a.add_argument("--out", required=True, help="output: .glb, .usd/.usda/.usdc, .blend, .fbx (make blender) or "
-                   ".csv (Live Link Face)")
+    a.add_argument("--character", required=True,
+                   help="your character: .glb/.gltf/.vrm, .fbx, .blend (make blender) or .usd* file (its own shapes, "
+                   "landmarks found automatically), or a rig folder (neutral + shapes OBJ, landmarks68.txt)")
+    a.add_argument("--neutral", help="a rig folder's neutral OBJ when it is not named neutral*")
+    a.add_argument("--out", required=True, help="output: the character's own format (the animation written back "
+                   "into a copy of its file), or .glb, .usd/.usda/.usdc, .blend, .fbx (make blender), .csv (Live Link Face)")
+    add_character_options(a)
     a.add_argument("--preview", help="side-by-side preview video (.mp4, with the audio)")
     a.add_argument("--preview-size", type=PREVIEW_SIZE, default=512,
                    help=f"preview height in pixels, {PREVIEW_SIZE} (default 512)")

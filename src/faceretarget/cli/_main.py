@@ -418,11 +418,13 @@ def build_parser() -> argparse.ArgumentParser:
     from ._animate import register as _register_animate
     from ._batch import register as _register_batch
     from ._capture import register as _register_capture
+    from ._character import register as _register_character
     from ._headmotion import register as _register_headmotion
     from ._live import register as _register_live
     from ._style import register as _register_style
 
     _register_animate(sub)
+    _register_character(sub)
     _register_capture(sub)
     _register_style(sub)
     _register_headmotion(sub)

@@ -28,7 +28,14 @@ from ._bvh import (
     write_bvh,
 )
 from ._c3d import read_c3d, write_c3d
-from ._character import CHARACTER_EXTENSIONS, character_from_rig, is_character_file, read_character
+from ._character import (
+    CHARACTER_EXTENSIONS,
+    character_format,
+    character_from_rig,
+    check_character_route,
+    is_character_file,
+    read_character,
+)
 from ._character_write import WRITE_BACK, write_character_animation, writes_back
 from ._controls import (
     CONTROL_TABLE_FORMATS,
@@ -101,6 +108,7 @@ from ._video import VideoInfo, iter_frames, probe_video, read_video_audio, write
 
 __all__ = [
     "read_character", "character_from_rig", "is_character_file", "CHARACTER_EXTENSIONS", "read_gltf_character",
+    "character_format", "check_character_route",
     "GltfDocument", "write_character_animation", "writes_back", "WRITE_BACK",
     "read_obj", "read_obj_vertices", "write_obj", "read_obj_sequence", "write_obj_sequence",
     "read_rig", "write_rig", "write_rig_npz", "read_rig_npz",

@@ -30,7 +30,8 @@ from ..errors import InputFileError
 from ..mesh import Mesh
 from ..rig import Rig
 
-__all__ = ["read_character", "character_from_rig", "CHARACTER_EXTENSIONS", "is_character_file"]
+__all__ = ["read_character", "character_from_rig", "CHARACTER_EXTENSIONS", "is_character_file", "character_format",
+           "check_character_route"]
 
 #: File extensions :func:`read_character` reads (besides folders of OBJ files).
 CHARACTER_EXTENSIONS = (".glb", ".gltf", ".vrm", ".fbx", ".blend", ".usd", ".usda", ".usdc", ".usdz", ".npz")
@@ -39,6 +40,46 @@ CHARACTER_EXTENSIONS = (".glb", ".gltf", ".vrm", ".fbx", ".blend", ".usd", ".usd
 def is_character_file(path: str | os.PathLike) -> bool:
     """Whether ``path`` names a character file (not a folder) by its extension."""
     return Path(path).suffix.lower() in CHARACTER_EXTENSIONS and Path(path).suffix.lower() != ".npz"
+
+
+def character_format(path: str | os.PathLike) -> str:
+    """The :attr:`~faceretarget.character.Character.format` a character file will have, by extension
+    (``"vrm"`` for either VRM version; a folder is ``"obj"``)."""
+    p = Path(path)
+    if p.is_dir():
+        return "obj"
+    ext = p.suffix.lower()
+    return {".glb": "gltf", ".gltf": "gltf", ".vrm": "vrm", ".fbx": "fbx", ".blend": "blend", ".npz": "npz"}.get(
+        ext, "usd" if ext in (".usd", ".usda", ".usdc", ".usdz") else "")
+
+
+#: What each character route needs: (module, purpose, how to install).
+_BLENDER = ("bpy", "Blender (.blend files; .fbx written back)", "make blender (Blender 4.5 as a Python module)")
+_USD = ("pxr", "USD characters", "pip install 'faceretarget[usd]'")
+
+
+def check_character_route(path: str | os.PathLike, out: str | os.PathLike | None = None) -> None:
+    """Refuse, before any work, a character route whose optional package is missing: reading ``path``
+    and (with ``out``) writing the animation back into a copy of it.
+
+    Raises
+    ------
+    MissingDependencyError
+        Naming what needs it and how to install it.
+    """
+    from ..errors import MissingDependencyError
+    from ..optional import has_module
+
+    fmt = character_format(path)
+    oext = Path(out).suffix.lower() if out is not None else ""
+    needs = []
+    if fmt == "blend" or (fmt == "fbx" and (oext in (".fbx", ".blend") or not has_module("ufbx"))):
+        needs.append(_BLENDER)
+    if fmt == "usd":
+        needs.append(_USD)
+    for mod, what, how in needs:
+        if not has_module(mod):
+            raise MissingDependencyError(f"{path}: {what} need the '{mod}' package, not installed: {how}")
 
 
 def character_from_rig(rig: Rig, path: str | os.PathLike | None = None, route: str = "rig") -> Character:

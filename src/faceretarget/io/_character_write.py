@@ -49,12 +49,19 @@ _GLB_MAGIC, _JSON, _BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
 _FLOAT = 5126
 
 
-def writes_back(character: Character, out: str | os.PathLike) -> bool:
-    """Whether writing ``out`` puts the animation back into a copy of the character's own file."""
-    fmt = getattr(character, "format", None)
-    if fmt == "gltf" and getattr(character, "path", None) is not None and Path(character.path).suffix.lower() == ".gltf":
-        return Path(out).suffix.lower() in (".gltf", ".glb")
-    return character.path is not None and Path(out).suffix.lower() in WRITE_BACK.get(fmt, ())
+def writes_back(character, out: str | os.PathLike) -> bool:
+    """Whether writing ``out`` puts the animation back into a copy of the character's own file.
+
+    ``character`` is a :class:`~faceretarget.character.Character` or the path of a character file."""
+    from ._character import character_format
+
+    if isinstance(character, Character):
+        fmt, path = character.format, character.path
+    else:
+        path = Path(character)
+        fmt = character_format(path)
+        fmt = "vrm0" if fmt == "vrm" else fmt
+    return path is not None and Path(out).suffix.lower() in WRITE_BACK.get(fmt, ())
 
 
 def write_character_animation(out: str | os.PathLike, character: Character, chans: list[Channel],

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..character import Character, ShapeChoice, SurfacePoints, channels, choose_shapes, face_rig
-from ..errors import InputFileError, InvalidDataError, MissingShapeError
+from ..errors import FaceNotFoundError, InputFileError, InvalidDataError, MissingShapeError
 from ..files import atomic_path
 from ..rig import Rig
 
@@ -398,7 +398,16 @@ def inspect_character(path, *, out: str | os.PathLike | None = None, shapes: str
                       log: Callable[..., None] = _quiet) -> CharacterReport:
     """Read a character, find its landmarks and report what will drive it; with ``out`` write a
     picture of the render with the 68 points (the face found, the check a user makes)."""
-    ch = load_character(path, landmarks=landmarks, mesh=mesh, log=log)
+    try:
+        ch = load_character(path, landmarks=landmarks, mesh=mesh, log=log)
+    except FaceNotFoundError as e:
+        if out is None or not getattr(e, "images", None):
+            raise
+        from ..render import render_grid, save_png
+
+        labels = [f"from {np.round(v['front'], 2).tolist()}" for v in e.views]
+        save_png(out, render_grid(e.images, labels))
+        raise FaceNotFoundError(f"{e}; the {len(e.images)} renders tried are in {out}", views=e.views) from e
     lines = [ch.summary()]
     lines += [f"note: {n}" for n in ch.notes]
     if ch.landmarks is not None:
