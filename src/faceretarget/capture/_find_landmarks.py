@@ -54,6 +54,10 @@ class LandmarkSearch:
     snapped : (68,) float
         Pixels each point moved to reach the face surface (0 over the surface).
     seconds : float
+    camera : Camera
+        The final render's camera.
+    depth : (68,) float
+        The landmarker's relative depth of each point (pixels, smaller nearer the camera).
     """
 
     landmarks: SurfacePoints
@@ -64,6 +68,8 @@ class LandmarkSearch:
     points: np.ndarray | None = None
     snapped: np.ndarray | None = None
     seconds: float = 0.0
+    camera: object = None
+    depth: np.ndarray | None = None
 
 
 def face_region(character: Character, mesh: int | None = None) -> np.ndarray:
@@ -250,7 +256,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         log(f"landmarks: face found facing {np.round(front, 3).tolist()} (up {np.round(up, 3).tolist()}), "
             f"{len(views)} view(s) tried, {int((dist > 0).sum())} of 68 snapped to the surface")
         return LandmarkSearch(SurfacePoints(prim, tris, bary, "found on a render"), up, front, views, img2, pts,
-                              dist, time.perf_counter() - t0)
+                              dist, time.perf_counter() - t0, cam2, px2[MEDIAPIPE_68, 2])
     finally:
         if own:
             tr.close()

@@ -42,8 +42,19 @@ def cmd_live(args, log) -> int:
                  ("--landmarks", args.landmarks), ("--model", args.model), folders=("--character",))
     wait = args.wait if args.wait is not None else (DEFAULT_WAIT if args.video and serve else 0.0)
     smooth = OneEuroParams.parse(args.smooth)
-    with neutral_option("--neutral"):
-        character = read_rig(args.character, neutral=args.neutral, landmarks=args.landmarks)
+    from ..io import check_character_route, is_character_file
+
+    if is_character_file(args.character):                  # its own shapes, its landmarks found (and cached)
+        from ..pipelines import drive_rig, load_character
+
+        check_character_route(args.character)
+        drive = drive_rig(load_character(args.character, landmarks=args.landmarks, mesh=args.mesh, log=log),
+                          args.shapes)
+        log(f"{drive.character.name}: {drive.summary}")
+        character = drive.rig
+    else:
+        with neutral_option("--neutral"):
+            character = read_rig(args.character, neutral=args.neutral, landmarks=args.landmarks)
     source = args.video if args.video is not None else args.camera
     stats = run_live(source, character, serve=serve, max_frames=args.max_frames, realtime=not args.no_realtime,
                      emotion_amount=args.emotion_amount, head_amplitude=args.head_amplitude,
@@ -67,9 +78,14 @@ def register(subparsers) -> argparse.ArgumentParser:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--video", help="a video file, played at its own pace (see --no-realtime)")
     src.add_argument("--camera", type=CAMERA, help=f"a camera index (OpenCV), {CAMERA}, e.g. 0")
-    p.add_argument("--character", required=True, help="rig folder with ARKit-named shapes and landmarks68.txt")
-    p.add_argument("--neutral", help="the rig's neutral OBJ when it is not named neutral*")
-    p.add_argument("--landmarks", help="landmark index file for the rig (default landmarks68.txt)")
+    p.add_argument("--character", required=True, help="a character file (.glb/.gltf/.vrm/.fbx/.blend/.usd*: its own "
+                   "shapes, landmarks found automatically) or a rig folder with ARKit-named shapes and landmarks68.txt")
+    p.add_argument("--neutral", help="a rig folder's neutral OBJ when it is not named neutral*")
+    p.add_argument("--landmarks", help="landmark file (a rig folder: indices, default landmarks68.txt; a character "
+                   "file: overrides the automatic search)")
+    p.add_argument("--shapes", default="auto", help="a character file's shapes that drive: auto, arkit, visemes, all "
+                   "or names")
+    p.add_argument("--mesh", help="a character file's face mesh when it holds several heads")
     p.add_argument("--serve", default=DEFAULT_SERVE, metavar="HOST:PORT|off",
                    help=f"where to serve the page (default {DEFAULT_SERVE}; port 0 picks a free one; "
                    "0.0.0.0 exposes it to the network; off: no page)")

@@ -39,14 +39,35 @@ TEMPORAL = Range(0, 1000)
 KEYS = Range(1, 10000, integer=True)
 
 
-def _rig(path, neutral=None, landmarks=None, flag: str = "--neutral"):
-    """The rig folder ``path`` (None without one); a missing neutral names the command's ``flag``."""
-    from ..io import read_rig
+def _rig(path, neutral=None, landmarks=None, flag: str = "--neutral", args=None):
+    """The rig folder ``path`` (None without one); a missing neutral names the command's ``flag``.  A
+    character file (.glb, .fbx, ...) gives its face rig on its ARKit shapes (``args.shapes``), and the
+    :class:`~faceretarget.pipelines.DriveRig` is kept as ``args.character`` for the output."""
+    from ..io import is_character_file, read_rig
 
     if not path:
         return None
+    if is_character_file(path):
+        from ..pipelines import drive_rig, load_character
+
+        drive = drive_rig(load_character(path, find=False, mesh=getattr(args, "mesh", None)),
+                          getattr(args, "shapes", "arkit") or "arkit", need_landmarks=False)
+        if args is not None:
+            args.character = drive
+        return drive.rig
     with neutral_option(flag):
         return read_rig(path, neutral=neutral, landmarks=landmarks)
+
+
+def _character_out(args, rig_path, out: Path) -> bool:
+    """``--out`` for a character file given as the target: True when it writes back into a copy of it."""
+    from ..io import is_character_file
+
+    if not rig_path or not is_character_file(rig_path):
+        return False
+    from ._animate import character_out
+
+    return character_out(rig_path, out)
 
 
 def cmd_clone(args, log) -> int:
@@ -54,7 +75,7 @@ def cmd_clone(args, log) -> int:
         return _clone(args, log)
 
 
-def _head_choice(value: str, out: Path, target=None):
+def _head_choice(value: str, out: Path, target=None, back: bool = False):
     """``--head auto|off|FILE`` checked before any work: the file exists and ``out`` can hold a head (as
     ``target`` writes it, when the target keys are controls, a skeleton or drawings)."""
     from ..errors import InputFileError, OutputError
@@ -68,7 +89,7 @@ def _head_choice(value: str, out: Path, target=None):
         raise InputFileError(f"{head}: head-motion file not found (--head takes auto, off or a file)")
     if head.suffix.lower() not in HEAD_READ_FORMATS:
         raise InputFileError(f"{head}: unknown head-motion format '{head.suffix}' (use {', '.join(HEAD_READ_FORMATS)})")
-    if not (target.holds_head(out) if target is not None and target.kind != "mesh" else holds_head(out)):
+    if not back and not (target.holds_head(out) if target is not None and target.kind != "mesh" else holds_head(out)):
         ok = ", ".join(face_and_head_formats())
         raise OutputError(f"{out}: this format cannot hold head motion from {head}; write one that can ({ok}) "
                           "or drop --head")
@@ -106,7 +127,7 @@ def _clone_keys(args, perf, source_rig, log, target=None):
         return sk, tk
     if not (args.source_rig and args.target_rig):
         raise InvalidDataError("give --source-keys/--target-keys, or --source-rig/--target-rig with --keys")
-    target_rig = _rig(args.target_rig, args.target_neutral, args.target_landmarks, "--target-neutral")
+    target_rig = _rig(args.target_rig, args.target_neutral, args.target_landmarks, "--target-neutral", args)
     rom = read_performance(args.keys_from) if args.keys_from else None
     if args.keys.startswith("rom-") and rom is None:
         if perf.kind != "weights":
@@ -136,24 +157,27 @@ def _clone(args, log) -> int:
     out = check_out(args.out, [args.performance, args.source_keys, args.target_keys, args.source_rig,
                                args.target_rig, args.keys_from, args.target_frames,
                                None if args.head in ("auto", "off") else args.head])
+    back = _character_out(args, args.target_rig, out)
     # the heavy imports after the quick checks
     from ..io import read_performance
     from ..pipelines import check_result_path, clone_take, write_result
 
     target = _target(args, log)                            # controls, skeleton or drawings: their own formats
-    check_result_path(out, bake=args.bake, target=target)  # before any work: format, folder, --bake
-    head = _head_choice(args.head, out, target)
+    if not back:
+        check_result_path(out, bake=args.bake, target=target)  # before any work: format, folder, --bake
+    head = _head_choice(args.head, out, target, back)
     weight_range = _weight_range(args.weight_range)
     perf = read_performance(args.performance, fps=args.fps)
     source_rig = _rig(args.source_rig, args.source_neutral,
                       args.source_landmarks if not (args.source_keys or args.target_keys) else None,
                       "--source-neutral")
+    args.character = None
     sk, tk = _clone_keys(args, perf, source_rig, log, target)
-    if target is None:
+    if target is None and not back:
         check_result_path(out, keys=tk, bake=args.bake)    # a .csv needs ARKit keys: known before the solve
     job = clone_take(perf, sk, tk, source_rig=source_rig, method=args.method, features=args.features,
                      weight_range=weight_range, log=log)
-    write_result(out, job, head=head, bake=args.bake, log=log)
+    write_result(out, job, head=head, bake=args.bake, character=args.character, neck_share=args.neck_share, log=log)
     return 0
 
 
@@ -219,15 +243,17 @@ def cmd_retarget(args, log) -> int:
 def _retarget(args, log) -> int:
     out = check_out(args.out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions,
                                args.target_rig, args.target_frames, None if args.head in ("auto", "off") else args.head])
+    back = _character_out(args, args.target_keys, out)
     # the heavy imports after the quick checks
     from ..cloning import keymodel_pair
-    from ..io import is_keyshape_folder, read_keys, read_performance
+    from ..io import is_character_file, is_keyshape_folder, read_keys, read_performance
     from ..pipelines import check_result_path, retarget_take, write_result
     from ..retarget import load_regions
 
-    target = _target(args, log)                            # controls, skeleton or drawings: their own formats
-    check_result_path(out, bake=args.bake, target=target)  # before any work: format, folder, --bake
-    head = _head_choice(args.head, out, target)
+    target = None if back else _target(args, log)          # controls, skeleton or drawings: their own formats
+    if not back:
+        check_result_path(out, bake=args.bake, target=target)  # before any work: format, folder, --bake
+    head = _head_choice(args.head, out, target, back)
     for opt, v in (("--temporal", args.temporal), ("--l1", args.l1)):
         if v and args.solver != "nnls":
             raise InvalidDataError(f"{opt} {v:g} applies to --solver nnls only (the default 'signed' solve has no "
@@ -238,8 +264,11 @@ def _retarget(args, log) -> int:
     with neutral_option("--source-neutral"):
         sk, labels = read_keys(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks,
                                rig=rig)
+    args.character = None
     if target is not None:
         tk = target
+    elif is_character_file(args.target_keys):               # a character file: its ARKit shapes
+        tk = _rig(args.target_keys, args=args)
     else:
         with neutral_option("--target-neutral"):
             tk, _ = read_keys(args.target_keys, neutral=args.target_neutral, landmarks=args.target_landmarks)
@@ -249,7 +278,7 @@ def _retarget(args, log) -> int:
         sk, tk, _ = keymodel_pair(sk, tk, "arkit")
     log(f"keyshapes: {sk.n_shapes} source from {args.source_keys}, "
         f"{tk.n_keys if target is not None else tk.n_shapes} target from {args.target_keys}")
-    if target is None:
+    if target is None and not back:
         check_result_path(out, keys=tk, bake=args.bake)    # a .csv needs ARKit keys: known before the solve
     regions = None
     if args.regions:
@@ -261,7 +290,7 @@ def _retarget(args, log) -> int:
                         temporal=args.temporal,
                         denoise=not args.no_denoise, filter_level=args.smooth, regions=regions,
                         align=not args.no_align, rigid_subset=_subset(args.rigid_subset))
-    write_result(out, job, head=head, bake=args.bake, log=log)
+    write_result(out, job, head=head, bake=args.bake, character=args.character, neck_share=args.neck_share, log=log)
     return 0
 
 
@@ -299,7 +328,9 @@ def _register_clone(sub) -> None:
                    "in the target's own parameters: a control table (.csv/.json), a BVH or glTF skin (with "
                    "--target-frames), a folder of SVG drawings or 2-D point sets (docs/targets.md)")
     c.add_argument("--source-rig", help="source ARKit-style rig folder (also plays a weight take)")
-    c.add_argument("--target-rig", help="target ARKit-style rig folder (with a control table: the rig whose shapes "
+    c.add_argument("--target-rig", help="target ARKit-style rig folder or character file (.glb/.vrm/.fbx/.blend/.usd*; "
+                   "an --out in its own format writes the animation back into a copy of it) (with a control table: the "
+                   "rig whose shapes "
                    "the controls drive, for .glb/.usd/.blend output)")
     c.add_argument("--target-frames", help=_FRAMES_HELP)
     c.add_argument("--control-ranges", default="report", choices=["report", "clip", "project"], help=_CLIP_HELP)
@@ -315,7 +346,19 @@ def _register_clone(sub) -> None:
     c.add_argument("--target-landmarks", help="landmark index file for the target")
     c.add_argument("--source-neutral", help="the source folder's neutral OBJ when it is not named neutral*")
     c.add_argument("--target-neutral", help="the target folder's neutral OBJ when it is not named neutral*")
+    _character_options(c)
     c.set_defaults(func=cmd_clone)
+
+
+def _character_options(p) -> None:
+    """``--shapes`` / ``--mesh`` / ``--neck-share`` for a target given as a character file (.glb, .fbx, ...)."""
+    from ._animate import NECK_SHARE
+
+    p.add_argument("--shapes", default="arkit", help="a target character file's shapes the ARKit curves drive "
+                   "(default arkit; or names/patterns separated by commas)")
+    p.add_argument("--mesh", help="a target character file's face mesh when it holds several heads")
+    p.add_argument("--neck-share", type=NECK_SHARE, default=0.0,
+                   help=f"a target character's neck share of the head rotation, {NECK_SHARE} (default 0)")
 
 
 def _register_keys(sub) -> None:
@@ -396,6 +439,7 @@ def _register_retarget(sub) -> None:
     r.add_argument("--source-landmarks", help="landmark index file for mesh source keys")
     r.add_argument("--target-landmarks", help="landmark index file for the target")
     r.add_argument("--fps", type=FPS, help=f"frame rate of an OBJ sequence without times.txt, {FPS}")
+    _character_options(r)
     r.set_defaults(func=cmd_retarget)
 
 

@@ -100,6 +100,9 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
         raise InvalidDataError(f"{out}: frame {f} has a non-finite weight; nothing written")
     if len(t) == 0 or not np.isfinite(t).all() or (np.diff(t) <= 0).any():
         raise InvalidDataError(f"{out}: times must be finite and strictly increasing")
+    src = Path(character.path) if character.path is not None else None
+    if src is not None and src.exists() and out.exists() and os.path.samefile(src, out):
+        raise OutputError(f"{out}: is the character's own file; write the animation to a copy (another name)")
     if not writes_back(character, out):
         raise OutputError(f"{out}: a {character.format} character is written back as "
                           f"{' or '.join(WRITE_BACK.get(character.format, ()))}")

@@ -17,8 +17,8 @@ Max: centimetres; Maya: either), and builds a :class:`~faceretarget.character.Ch
 
 The binding (ufbx 0.0.5 on PyPI) frees parts of the scene when some of its Python wrappers are dropped,
 and a later access then crashes the process.  So every wrapper is kept referenced until the whole
-character is copied to NumPy, and the reading runs in a child process (forked where the platform
-allows): a crash of the binding on some file is an :class:`~faceretarget.errors.InputFileError` saying
+character is copied to NumPy, and the reading runs in a child Python process (also from a Dask worker,
+which may not fork): a crash of the binding on some file is an :class:`~faceretarget.errors.InputFileError` saying
 so, never the end of the user's program.
 """
 
@@ -64,42 +64,44 @@ def read_fbx_character(path: str | os.PathLike) -> Character:
 
 
 def _in_child(path: Path) -> Character:
-    import multiprocessing as mp
+    """Read ``path`` in a child Python process (a crash of the binding ends only the child); works from a
+    daemonic process too (a Dask worker), where ``multiprocessing`` may not start children."""
     import pickle
+    import subprocess
+    import sys
+    import tempfile
 
-    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-    recv, send = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(str(path), send), daemon=True)
-    proc.start()
-    send.close()
-    try:
-        data = recv.recv_bytes() if recv.poll(300) else None
-    except EOFError:
-        data = None
-    proc.join(10)
-    if data is None:
-        if proc.is_alive():
-            proc.kill()
-        raise InputFileError(f"{path}: the FBX reader (ufbx) stopped on this file (exit code {proc.exitcode}); "
-                             "open it in Blender and save it as .blend or .glb, then use that file")
-    kind, payload = pickle.loads(data)
+    with tempfile.TemporaryDirectory(prefix="faceretarget-fbx-") as d:
+        out = Path(d) / "character.pickle"
+        code = "import sys; from faceretarget.io._fbx_scene import _child; _child(sys.argv[1], sys.argv[2])"
+        try:
+            r = subprocess.run([sys.executable, "-c", code, str(path), str(out)], capture_output=True, timeout=300)
+        except subprocess.TimeoutExpired:
+            raise InputFileError(f"{path}: the FBX reader (ufbx) did not finish in 300 s") from None
+        if r.returncode != 0 or not out.is_file():
+            raise InputFileError(f"{path}: the FBX reader (ufbx) stopped on this file (exit code {r.returncode}); "
+                                 "open it in Blender and save it as .blend or .glb, then use that file")
+        kind, payload = pickle.loads(out.read_bytes())
     if kind == "error":
         raise InputFileError(payload)
     return payload
 
 
-def _child(path: str, conn) -> None:
+def _child(path: str, out: str) -> None:
+    """The child's side of :func:`_in_child`: read, pickle to ``out``, and leave without cleaning up."""
     import pickle
 
     keep: list = []                          # the binding's wrappers live until the process ends
     try:
-        out = ("ok", _read_here(Path(path), keep))
+        res = ("ok", _read_here(Path(path), keep))
     except InputFileError as e:
-        out = ("error", str(e))
+        res = ("error", str(e))
     except Exception as e:  # anything else the binding raises: one line naming the file
-        out = ("error", f"{path}: the FBX reader failed ({type(e).__name__}: {excerpt(e, 100)})")
-    conn.send_bytes(pickle.dumps(out, protocol=pickle.HIGHEST_PROTOCOL))
-    conn.close()
+        res = ("error", f"{path}: the FBX reader failed ({type(e).__name__}: {excerpt(e, 100)})")
+    with open(out, "wb") as f:
+        pickle.dump(res, f, protocol=pickle.HIGHEST_PROTOCOL)
+        f.flush()
+        os.fsync(f.fileno())
     os._exit(0)                              # no clean-up of the wrappers (see the module docstring)
 
 

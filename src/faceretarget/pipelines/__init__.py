@@ -49,10 +49,12 @@ from ._capture import (
 from ._character import (
     CharacterReport,
     DriveRig,
+    character_weights,
     drive_rig,
     inspect_character,
     landmark_cache_path,
     load_character,
+    look_rig,
     read_landmark_file,
 )
 from ._demo import run_demo
@@ -91,6 +93,8 @@ from ._transfer import (
 __all__ = [
     "load_character",
     "drive_rig",
+    "character_weights",
+    "look_rig",
     "DriveRig",
     "inspect_character",
     "CharacterReport",

@@ -506,7 +506,14 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
         if shown is None:
             raise InvalidDataError(f"{preview}: a preview of a capture or take needs the video to show beside "
                                    "the character (preview_video)")
-        res.outputs.append(_preview(preview, shown, play, res, preview_size, preview_backend, progress, log))
+        if drive is not None:                     # the character as it looks: textures, every mesh about the face
+            from ._character import look_rig
+
+            look, colors, pivot = look_rig(drive)
+            res.outputs.append(_preview(preview, shown, look, res, preview_size, preview_backend, progress, log,
+                                        colors=colors, pivot=pivot))
+        else:
+            res.outputs.append(_preview(preview, shown, play, res, preview_size, preview_backend, progress, log))
         timings["preview"] = time.perf_counter() - t0
     log(res.summary())
     return res
@@ -569,10 +576,11 @@ def _write(out, rig: Rig, res: AnimateResult, bake: bool, log) -> Path:
     return path
 
 
-def _preview(out, video, rig: Rig, res: AnimateResult, size: int, backend: str, progress: bool, log) -> Path:
+def _preview(out, video, rig: Rig, res: AnimateResult, size: int, backend: str, progress: bool, log,
+             **look) -> Path:
     from ._preview import write_animation_preview
 
     info = write_animation_preview(out, video, rig, res.weights, res.times, res.head, size=size, backend=backend,
-                                   progress=progress, log=log)
+                                   progress=progress, log=log, **look)
     log(f"wrote {out} (preview, {info.get('frames')} frames, {info.get('fps', 0):.1f} frames/s, {info.get('backend')})")
     return Path(out)

@@ -308,14 +308,18 @@ class _Fitted:
     keys: object = None
     character: object = None
     style: object = None
+    drive: object = None
     seconds: float = 0.0
     error: str | None = None
     warnings: list = field(default_factory=list)
 
 
 def _load_rig(c: Character):
+    """A character's rig: a :class:`~faceretarget.rig.Rig` (OBJ folder, ``.npz``, demo), or for a character
+    file (``.glb``, ``.vrm``, ``.fbx``, ``.blend``, ``.usd*``) the :class:`faceretarget.character.Character`
+    with its landmarks (found once and cached beside the file or in the user's cache)."""
     from ..datasets import make_demo_character
-    from ..io import read_glb_rig, read_rig, read_rig_npz
+    from ..io import is_character_file, read_rig, read_rig_npz
 
     if c.demo is not None:
         return make_demo_character(c.demo)
@@ -323,9 +327,25 @@ def _load_rig(c: Character):
         return read_rig(c.rig, neutral=c.neutral, landmarks=c.landmarks)
     if c.rig.suffix.lower() == ".npz":
         return read_rig_npz(c.rig)
-    if c.rig.suffix.lower() == ".glb":
-        return read_glb_rig(c.rig)
-    raise InvalidDataError(f"{c.rig}: a character's rig is a folder of OBJs, a rig .npz or a .glb")
+    if is_character_file(c.rig):
+        from ._character import load_character
+
+        return load_character(c.rig, landmarks=c.landmarks)
+    raise InvalidDataError(f"{c.rig}: a character's rig is a folder of OBJs, a rig .npz or a character file "
+                           "(.glb, .gltf, .vrm, .fbx, .blend, .usd*)")
+
+
+def _target_rig(rig, f: _Fitted):
+    """The rig the ARKit key sets are built on: a character file's face rig on its ARKit shapes (kept in
+    ``f.drive`` so the output is written back into a copy of its file)."""
+    from ..character import Character as FileCharacter
+
+    if isinstance(rig, FileCharacter):
+        from ._character import drive_rig
+
+        f.drive = drive_rig(rig, "arkit", need_landmarks=False)
+        return f.drive.rig
+    return rig
 
 
 class _RigFailed:
@@ -357,7 +377,7 @@ def _fit_clone(m: _Model, f: _Fitted, rigs: dict) -> None:
         tk = read_rig(c.target_keys, neutral=c.target_neutral, landmarks=c.target_landmarks)
     else:
         rom = read_performance(o["keys_from"]) if o["keys_from"] is not None else None
-        sk, tk, _ = keymodel_pair(src, rigs["character"], o["keys"], rom=rom)
+        sk, tk, _ = keymodel_pair(src, _target_rig(rigs["character"], f), o["keys"], rom=rom)
     features = str(o["features"]) if isinstance(o["features"], Path) else o["features"]
     f.model = ExpressionCloner(o["method"], features=features, weight_range=o["weight_range"]).fit(sk, tk)
     f.source_rig, f.keys = src, tk
@@ -379,7 +399,7 @@ def _fit_retarget(m: _Model, f: _Fitted, rigs: dict) -> None:
             rig = sk if rig is None else rig
             sk, tk, _ = keymodel_pair(sk, tk, "arkit")
     else:
-        sk, tk, _ = keymodel_pair(rig, rigs["character"], "arkit")
+        sk, tk, _ = keymodel_pair(rig, _target_rig(rigs["character"], f), "arkit")
         labels = []
     regions = load_regions(o["regions"]) if isinstance(o["regions"], Path) else o["regions"]
     rt = BlendshapeRetargeter(solver=o["solver"], weight_range=o["weight_range"], l1=o["l1"], l2=o["l2"],
@@ -461,7 +481,7 @@ def _transfer(job: Job, f: _Fitted) -> int:
     res = _apply(f.model, take, rig, _quiet)
     tr = Transfer(f.model, res, time.perf_counter() - t0, f.keys)
     job.out.parent.mkdir(parents=True, exist_ok=True)
-    write_result(job.out, tr, head=job.apply["head"], bake=job.apply["bake"])
+    write_result(job.out, tr, head=job.apply["head"], bake=job.apply["bake"], character=f.drive)
     return take.n_frames
 
 

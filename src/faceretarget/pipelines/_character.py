@@ -41,6 +41,7 @@ from ..files import atomic_path
 from ..rig import Rig
 
 __all__ = ["load_character", "drive_rig", "DriveRig", "inspect_character", "CharacterReport", "landmark_cache_path",
+           "look_rig", "character_weights",
            "read_landmark_file",
            "LANDMARKS_FORMAT"]
 
@@ -371,14 +372,114 @@ class DriveRig:
         return out
 
 
-def drive_rig(character: Character, shapes: str = "auto") -> DriveRig:
-    """Choose the shapes that drive (``--shapes``) and build the solve rig (needs the landmarks)."""
-    if character.landmarks is None:
+def drive_rig(character: Character, shapes: str = "auto", *, need_landmarks: bool = True) -> DriveRig:
+    """Choose the shapes that drive (``--shapes``) and build the solve rig.
+
+    With the landmarks, shapes that move none of them and near-duplicates stay at rest and the rig carries
+    the 68 points as vertices; ``need_landmarks=False`` (a target rig of key-model sets) builds it without
+    them when they are not known."""
+    if character.landmarks is None and need_landmarks:
         raise InvalidDataError(f"{character.name}: the landmarks are not known yet (load_character finds them)")
     chans = channels(character)
-    motion = character._landmark_deltas(chans)
+    motion = None if character.landmarks is None else character._landmark_deltas(chans)
     choice = choose_shapes(chans, shapes, motion, who=str(character.path or character.name))
     return DriveRig(face_rig(character, chans, choice.drive), chans, choice, character)
+
+
+def character_weights(drive: DriveRig, weights: np.ndarray, names: list[str]) -> np.ndarray:
+    """``(T, C)`` weights of every channel of the character from curves named by ``names`` (ARKit names or
+    the character's own shape names: each matched by any spelling, as :meth:`Rig.map_weights` does)."""
+    return drive.full_weights(drive.rig.map_weights(list(names), np.asarray(weights, dtype=np.float64),
+                                                    source=drive.character.name, warn=False))
+
+
+# ------------------------------------------------------------------------------------- preview
+def look_rig(drive: DriveRig, *, margin: float = 0.7) -> tuple[Rig, np.ndarray, np.ndarray]:
+    """The character as it looks around its face, for preview videos: every mesh cropped to a sphere
+    about the face (the face region's extent times ``1 + margin``), face meshes moving with the driving
+    channels, the others still; colours from the textures (sampled at each vertex's UVs) or materials.
+
+    Returns
+    -------
+    rig : Rig
+        Head frame (+Y up, +Z out of the face), metres; the driving channels' shapes in
+        ``drive.rig``'s order.
+    colors : (V, 3) float
+        sRGB 0..1 per vertex.
+    pivot : (3,) float
+        The head joint (or the face region's centre), head frame: the centre of the preview's head
+        rotations.
+    """
+    from ..capture import face_region
+    from ..character import character_frame
+    from ..mesh import Mesh
+
+    ch = drive.character
+    F = character_frame(ch)
+    reg = face_region(ch)
+    c = (reg.min(axis=0) + reg.max(axis=0)) / 2.0
+    radius = 0.5 * float(np.ptp(reg, axis=0).max()) * (1.0 + margin)
+    verts, counts, idx, cols, parts = [], [], [], [], []
+    n = 0
+    for mi, m in enumerate(ch.meshes):
+        tri = m.mesh.triangles()
+        if not len(tri):
+            continue
+        inside = np.linalg.norm(m.mesh.vertices - c, axis=1) < radius
+        keep_t = inside[tri].all(axis=1)
+        if not keep_t.any():
+            continue
+        used = np.unique(tri[keep_t])
+        remap = np.full(m.mesh.n_vertices, -1, np.int64)
+        remap[used] = np.arange(len(used)) + n
+        verts.append(m.mesh.vertices[used])
+        counts.append(np.full(int(keep_t.sum()), 3))
+        idx.append(remap[tri[keep_t]].reshape(-1))
+        cols.append(_vertex_colors(m, used, tri, keep_t))
+        parts.append((mi, used, n))
+        n += len(used)
+    if not parts:
+        raise InvalidDataError(f"{ch.name}: nothing to show around the face")
+    D = np.zeros((len(drive.choice.drive), n, 3))
+    for r, c_i in enumerate(drive.choice.drive):
+        for mi, k in drive.channels[c_i].binds:
+            for pmi, used, off in parts:
+                if pmi == mi:
+                    D[r, off:off + len(used)] = ch.meshes[mi].deltas[k][used]
+    V = np.concatenate(verts) @ F.T
+    rig = Rig(Mesh(V, np.concatenate(counts), np.concatenate(idx), name=ch.name), list(drive.rig.names), D @ F.T,
+              unit="m", name=ch.name, keep_names=True)
+    head = ch.joint("head")
+    pivot = (head.position if head is not None and np.linalg.norm(head.position - c) < 2 * radius else c) @ F.T
+    return rig, np.clip(np.concatenate(cols), 0.0, 1.0), pivot
+
+
+def _vertex_colors(m, used: np.ndarray, tri: np.ndarray, keep_t: np.ndarray) -> np.ndarray:
+    """sRGB colour of each kept vertex: its material's texture at its UV, or the material's colour."""
+    mats = m.materials or []
+    tm = m.triangle_material
+    out = np.full((m.mesh.n_vertices, 3), 0.8)
+    tuv = m.mesh.triangle_uv_indices() if m.mesh.uvs is not None else None
+    mat_of = tm if tm is not None and len(mats) else np.zeros(len(tri), np.int64)
+    for k in np.unique(mat_of[keep_t]):
+        sel = np.flatnonzero(keep_t & (mat_of == k))
+        mat = mats[int(k)] if len(mats) else None
+        base = np.array([0.8, 0.8, 0.8]) if mat is None else _to_srgb(np.asarray(mat.color, float)[:3])
+        vs = tri[sel].reshape(-1)
+        img = mat.image if mat is not None and tuv is not None else None
+        if img is None:
+            out[vs] = base
+            continue
+        uv = m.mesh.uvs[tuv[sel].reshape(-1)]
+        h, w = img.shape[:2]
+        px = img[np.mod((uv[:, 1] * h).astype(np.int64), h), np.mod((uv[:, 0] * w).astype(np.int64), w), :3]
+        out[vs] = px / 255.0 * base
+    return out[used]
+
+
+def _to_srgb(c: np.ndarray) -> np.ndarray:
+    c = np.clip(c, 0.0, 1.0)
+    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
 
 
 # ------------------------------------------------------------------------------------- inspect

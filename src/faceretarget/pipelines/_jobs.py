@@ -7,7 +7,7 @@ Layout (docs/batch.md has a full example)::
                                             # character, take, job, operation, parent)
     manifest = "out/batch.jsonl"            # default: batch.jsonl beside the jobs file
 
-    [characters.ict]                        # a character: a rig folder (or .npz / .glb rig) ...
+    [characters.ict]                        # a character: a rig folder, a .npz rig or a character file ...
     rig = "/work/shared/data/ict-face"
     [characters.bo]                         # ... a procedural demo character ...
     demo = "bo"
@@ -224,7 +224,8 @@ JOB_OPTIONS: dict[str, dict[str, tuple[str, Callable, object]]] = {
 # ------------------------------------------------------------------------------------ the spec
 @dataclass(frozen=True)
 class Character:
-    """A character of the jobs file: its own rig (``rig`` folder / ``.npz`` / ``.glb``, or a procedural
+    """A character of the jobs file: its own rig (``rig`` folder / ``.npz`` / a character file such as ``.glb``,
+    ``.vrm``, ``.fbx``, ``.blend``, ``.usd``, read as :class:`faceretarget.character.Character`, or a procedural
     ``demo`` character), and / or key-model or keyshape pairs (``source_keys`` / ``target_keys``
     folders, paired by file or shape name).  Paths are absolute."""
 
@@ -474,6 +475,12 @@ def _input_exts(op: str) -> tuple[str, ...]:
     return (".wav",)
 
 
+def _writes_back(rig: Path, out: Path) -> bool:
+    from ..io import is_character_file, writes_back
+
+    return is_character_file(rig) and writes_back(rig, out)
+
+
 def _output_exts(op: str) -> tuple[str, ...]:
     from ..io import HEAD_FORMATS, WRITERS
 
@@ -612,8 +619,12 @@ def read_jobs(path: str | os.PathLike) -> BatchSpec:
             for c in chars:
                 out = _resolve(root, out_t.format(character=c, take=f.stem, job=name, operation=op,
                                                   parent=f.parent.name))
-                if out.suffix.lower() not in exts:
+                rig = characters[c].rig
+                if out.suffix.lower() not in exts and not (op != "headmotion-synth" and rig is not None
+                                                           and _writes_back(rig, out)):
                     raise InvalidDataError(f"{where}, key 'out': {out}: {op} writes {', '.join(exts)}")
+                if rig is not None and out.resolve() == rig.resolve():
+                    raise InvalidDataError(f"{where}, key 'out': {out} is the character's own file")
                 job = Job(f"{name}:{c}:{shown}", name, op, c, source, f, out, fit, apply)
                 if out in outputs:
                     o = outputs[out]

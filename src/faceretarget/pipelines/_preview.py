@@ -228,7 +228,8 @@ def _decoded(video: Path, max_frames: int | None, size: int, stop: threading.Eve
 def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, rig: Rig, weights: np.ndarray,
                             times: np.ndarray, head: HeadPose | None = None, *,
                             frame_times: np.ndarray | None = None, size: int = 512, backend: str = "auto",
-                            progress: bool = False, log: Callable[..., None] = print) -> dict:
+                            progress: bool = False, colors: np.ndarray | None = None, pivot: np.ndarray | None = None,
+                            log: Callable[..., None] = print) -> dict:
     """Write an mp4 of ``video`` beside the character playing the take, with the video's audio.
 
     Parameters
@@ -258,6 +259,10 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
         The renderer (:class:`~faceretarget.render.MeshRenderer`).
     progress : bool
         Show a progress bar.
+    colors : (V, 3) float, optional
+        sRGB colour per vertex (a character's textures sampled at its vertices; default grey).
+    pivot : (3,) float, optional
+        Centre of the head's rotation, rig units (default the neutral's centroid).
     log : callable
         Receives one line naming the renderer in use (and why the fast one is not, if so).
 
@@ -297,7 +302,9 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
     info = probe_video(video)
     fps = info.fps
     audio_s = len(ft) / fps if ft is not None else (info.duration or None)
-    with MeshRenderer(rig.neutral, (size, size), backend=backend, mm_per_unit=rig.mm_per_unit) as renderer:
+    extra = {} if colors is None else {"color": colors}
+    with MeshRenderer(rig.neutral, (size, size), backend=backend, mm_per_unit=rig.mm_per_unit, pivot=pivot,
+                      **extra) as renderer:
         if renderer.reason:
             log(f"preview: rendering with {renderer.backend} (slow), not OpenGL: {renderer.reason}")
         else:

@@ -422,7 +422,7 @@ def check_result_path(path: str | os.PathLike, *, keys: Rig | None = None, bake:
 
 
 def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", bake: bool = False,
-                 log: Callable[..., None] = _quiet) -> Path:
+                 character=None, neck_share: float = 0.0, log: Callable[..., None] = _quiet) -> Path:
     """Write a cloned or retargeted take in the format ``path`` asks for.
 
     ``.glb`` holds the target keys as morph targets and the weights as their animation, with the
@@ -443,6 +443,12 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
         left out with ``"auto"``.
     bake : bool
         USD only: time-sampled mesh points instead of blend shapes and weights.
+    character : DriveRig, optional
+        The target as a character file (:func:`~faceretarget.pipelines.drive_rig`): an output in its own
+        format gets the animation written back into a copy of that file, the ARKit curves of the result
+        (:func:`arkit_curves`) on the character's shapes and the head motion on its head joint.
+    neck_share : float
+        With ``character``: the share of the head rotation its neck joint takes.
 
     Raises
     ------
@@ -451,6 +457,11 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
         ARKit definition; nothing is written.
     """
     own = _own_target(transfer)
+    if character is not None:
+        from ..io import writes_back
+
+        if writes_back(character.character, path):
+            return _write_back(Path(path), transfer, character, head, neck_share, log)
     path = check_result_path(path, bake=bake, target=own)
     res, model = transfer.result, transfer.model
     has_head = own.holds_head(path) if own is not None else holds_head(path)
@@ -483,6 +494,21 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
     note = None if bake else _slider_note(path, res.weights)
     if note:
         log(note)
+    return out
+
+
+def _write_back(path: Path, transfer: Transfer, drive, head, neck_share: float, log) -> Path:
+    """The result written back into a copy of the target character's own file."""
+    from ..io import write_character_animation
+    from ._character import character_weights
+
+    res = transfer.result
+    W, names = arkit_curves(transfer, path=path, log=log)
+    full = character_weights(drive, W, names)
+    pose, _ = result_head(transfer, head)
+    out = write_character_animation(path, drive.character, drive.channels, full, res.times, head=pose,
+                                    audio=res.audio, audio_rate=res.audio_rate, neck_share=neck_share, log=log)
+    log(f"wrote {path} ({len(res.times)} frames of {len(names)} ARKit curves on {drive.character.name}'s own shapes)")
     return out
 
 
