@@ -619,7 +619,7 @@ def read_jobs(path: str | os.PathLike) -> BatchSpec:
             for c in chars:
                 out = _resolve(root, out_t.format(character=c, take=f.stem, job=name, operation=op,
                                                   parent=f.parent.name))
-                rig = characters[c].rig
+                rig = characters[c].rig if c in characters else None
                 if out.suffix.lower() not in exts and not (op != "headmotion-synth" and rig is not None
                                                            and _writes_back(rig, out)):
                     raise InvalidDataError(f"{where}, key 'out': {out}: {op} writes {', '.join(exts)}")
