@@ -273,8 +273,8 @@ def usd_checks(out: Path, weights: dict[str, np.ndarray], times: np.ndarray) -> 
                         found += 1
             xc0 = UsdGeom.XformCache(Usd.TimeCode(0.0))
             xc1 = UsdGeom.XformCache(Usd.TimeCode(float(codes[-1])))
-            a = np.array(q.ComputeJointWorldTransforms(xc0, Usd.TimeCode(0.0)))
-            b = np.array(q.ComputeJointWorldTransforms(xc1, Usd.TimeCode(float(codes[-1]))))
+            a = np.array(q.ComputeJointWorldTransforms(xc0))
+            b = np.array(q.ComputeJointWorldTransforms(xc1))
             moved = float(np.abs(a - b).max()) if moved is None else max(moved, float(np.abs(a - b).max()))
     ok = found > 0 and worst <= 1e-6
     return {"ok": bool(ok), "weights_compared": found, "weight_max_err": worst, "joint_world_change": moved}

@@ -253,7 +253,7 @@ def _one_head(character: Character, mesh: str | None) -> None:
         return
     from ..capture import face_region
 
-    big = [i for i in face if character.meshes[i].n_shapes >= max(3, character.meshes[face[0]].n_shapes // 2)]
+    big = [i for i in face if character.meshes[i].n_shapes >= max(1, character.meshes[face[0]].n_shapes // 2)]
     regions = [face_region(character, i) for i in big]
     heads = [big[0]]
     for i, r in zip(big[1:], regions[1:], strict=True):

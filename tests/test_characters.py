@@ -1,0 +1,455 @@
+"""Characters as users bring them (issue 22): every reader and writer route on the shared characters,
+the compressed glTF variants checked against the uncompressed truth, the landmarks found against the
+reference ones, the animation written back and read by the programs that consume it, and each bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from faceretarget.character import Channel, channels, choose_shapes, is_viseme, joint_rotations
+from faceretarget.errors import (
+    FaceNotFoundError,
+    InputFileError,
+    InvalidDataError,
+    MissingShapeError,
+    OutputError,
+)
+from faceretarget.headpose import HeadPose
+from faceretarget.io import read_character, write_character_animation, write_glb
+from faceretarget.pipelines import animate, capture_take, load_character
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+import _character_checks as checks  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    """Landmarks are cached in a folder of the test session, never beside the shared files."""
+    monkeypatch.setenv("FACERETARGET_CACHE", str(tmp_path_factory.getbasetemp() / "landmark-cache"))
+
+
+@pytest.fixture(scope="module")
+def chars(data_dir) -> Path:
+    return data_dir / "characters"
+
+
+@pytest.fixture(scope="module")
+def take(data_dir):
+    """60 frames of a shared video, captured once."""
+    pytest.importorskip("mediapipe")
+    return capture_take(data_dir / "video" / "WDA_KatieHill_000.mp4", neutral_percentile=5.0, max_frames=60)
+
+
+def _tools(*need):
+    node = shutil.which("node")
+    missing = [n for n in need if not (checks.TOOLS / n / "package.json").is_file()]
+    return node is not None and not missing
+
+
+# ------------------------------------------------------------------------------------------ glTF reader
+def _glb(path: Path, js: dict, binchunk: bytes) -> Path:
+    body = json.dumps(js).encode()
+    body += b" " * ((-len(body)) % 4)
+    binchunk += b"\0" * ((-len(binchunk)) % 4)
+    with open(path, "wb") as f:
+        f.write(struct.pack("<III", 0x46546C67, 2, 12 + 8 + len(body) + 8 + len(binchunk)))
+        f.write(struct.pack("<II", len(body), 0x4E4F534A) + body)
+        f.write(struct.pack("<II", len(binchunk), 0x004E4942) + binchunk)
+    return path
+
+
+def _tiny(tmp_path: Path, variant: str) -> tuple[Path, np.ndarray, np.ndarray, np.ndarray]:
+    """A two-node glTF of one quad mesh with two morph targets, written plainly or with quantized, meshopt,
+    sparse or Draco-compressed data; returns the file, the world positions, the deltas and the triangles."""
+    rng = np.random.default_rng(3)
+    P = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0], [0, 0, 0.5]], np.float32) * 0.1
+    T = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]], np.uint16)
+    D = np.zeros((2, 5, 3), np.float32)
+    D[0, 4] = [0, 0.02, 0.01]
+    D[1, [0, 1]] = rng.normal(0, 0.01, (2, 3))
+    views, accessors, chunks = [], [], []
+
+    def add(data: bytes, extra=None):
+        off = sum(len(c) for c in chunks)
+        chunks.append(data + b"\0" * ((-len(data)) % 4))
+        views.append({"buffer": 0, "byteOffset": off, "byteLength": len(data), **(extra or {})})
+        return len(views) - 1
+
+    def acc(arr, type_, ctype, **kw):
+        a = {"bufferView": add(np.ascontiguousarray(arr).tobytes()), "componentType": ctype, "count": len(arr),
+             "type": type_, **kw}
+        accessors.append(a)
+        return len(accessors) - 1
+
+    prim: dict = {"mode": 4}
+    used = []
+    if variant == "quantized":                       # KHR_mesh_quantization: normalized int16 + node scale
+        s = 0.1
+        q = np.round(P / s * 32767).astype(np.int16)
+        pos = acc(np.c_[q, np.zeros(5, np.int16)], "VEC3", 5122, normalized=True, byteOffset=0)
+        views[-1]["byteStride"] = 8
+        accessors[-1]["count"] = 5
+        tq = [acc(np.c_[np.round(d / s * 32767).astype(np.int16), np.zeros(5, np.int16)], "VEC3", 5122,
+                  normalized=True) for d in D]
+        for k in tq:
+            views[accessors[k]["bufferView"]]["byteStride"] = 8
+        used = ["KHR_mesh_quantization"]
+        node_scale = [s, s, s]
+        P_q = q.astype(np.float64) / 32767                   # the normalized values; the node scales them
+        D_true = np.stack([np.round(d / s * 32767) / 32767 for d in D])
+        prim["attributes"] = {"POSITION": pos}
+        prim["targets"] = [{"POSITION": k} for k in tq]
+        prim["indices"] = acc(T.reshape(-1), "SCALAR", 5123)
+        P_true = P_q
+    else:
+        node_scale = [1, 1, 1]
+        P_true, D_true = P.astype(np.float64), D.astype(np.float64)
+        if variant == "meshopt":
+            import meshopt
+
+            used = ["EXT_meshopt_compression"]
+            chunks.append(b"")
+
+            def moacc(arr, type_, ctype, mode="ATTRIBUTES"):
+                arr = np.ascontiguousarray(arr)
+                stride = arr.itemsize * (arr.shape[1] if arr.ndim == 2 and mode == "ATTRIBUTES" else 1)
+                enc = meshopt.encode_gltf_buffer(arr if mode == "ATTRIBUTES" else arr.astype(np.uint32), mode)
+                count = len(arr) if mode == "ATTRIBUTES" else arr.size
+                off = sum(len(c) for c in chunks)
+                chunks.append(enc + b"\0" * ((-len(enc)) % 4))
+                views.append({"buffer": 1, "byteOffset": 0, "byteLength": arr.nbytes,
+                              "extensions": {"EXT_meshopt_compression": {
+                                  "buffer": 0, "byteOffset": off, "byteLength": len(enc), "byteStride": stride,
+                                  "count": count, "mode": mode}}})
+                accessors.append({"bufferView": len(views) - 1, "componentType": ctype, "count": len(arr),
+                                  "type": type_})
+                return len(accessors) - 1
+            prim["attributes"] = {"POSITION": moacc(P, "VEC3", 5126)}
+            accessors[-1].update(min=P.min(0).tolist(), max=P.max(0).tolist())
+            prim["targets"] = [{"POSITION": moacc(d, "VEC3", 5126)} for d in D]
+            idx = T.reshape(-1, 3).astype(np.uint16)
+            prim["indices"] = moacc(idx.reshape(-1, 3), "SCALAR", 5123, mode="TRIANGLES")
+            accessors[-1]["count"] = idx.size
+        elif variant == "sparse":
+            prim["attributes"] = {"POSITION": acc(P, "VEC3", 5126, min=P.min(0).tolist(), max=P.max(0).tolist())}
+            tg = []
+            for d in D:
+                nz = np.flatnonzero(np.abs(d).sum(1) > 0).astype(np.uint16)
+                a = {"componentType": 5126, "count": 5, "type": "VEC3",
+                     "sparse": {"count": len(nz), "indices": {"bufferView": add(nz.tobytes()), "componentType": 5123},
+                                "values": {"bufferView": add(np.ascontiguousarray(d[nz]).tobytes())}}}
+                accessors.append(a)
+                tg.append({"POSITION": len(accessors) - 1})
+            prim["targets"] = tg
+            prim["indices"] = acc(T.reshape(-1), "SCALAR", 5123)
+        elif variant == "draco":
+            import DracoPy
+
+            used = ["KHR_draco_mesh_compression"]
+            enc = DracoPy.encode(P, T.astype(np.uint32), quantization_bits=0)
+            dm = DracoPy.decode(enc)                  # Draco may reorder the points: the truth is its order
+            P_true = np.asarray(dm.points, np.float64)
+            order = [int(np.argmin(np.linalg.norm(P - p, axis=1))) for p in P_true]
+            D_true = D[:, order].astype(np.float64)
+            pa = {"componentType": 5126, "count": 5, "type": "VEC3", "min": P.min(0).tolist(),
+                  "max": P.max(0).tolist()}
+            accessors.append(pa)
+            prim["attributes"] = {"POSITION": len(accessors) - 1}
+            prim["targets"] = [{"POSITION": acc(D_true[k].astype(np.float32), "VEC3", 5126)} for k in range(2)]
+            accessors.append({"componentType": 5123, "count": 12, "type": "SCALAR"})
+            prim["indices"] = len(accessors) - 1
+            prim["extensions"] = {"KHR_draco_mesh_compression": {"bufferView": add(bytes(enc)),
+                                                                  "attributes": {"POSITION": 0}}}
+            T = np.asarray(dm.faces)
+        else:
+            prim["attributes"] = {"POSITION": acc(P, "VEC3", 5126, min=P.min(0).tolist(), max=P.max(0).tolist())}
+            prim["targets"] = [{"POSITION": acc(d, "VEC3", 5126)} for d in D]
+            prim["indices"] = acc(T.reshape(-1), "SCALAR", 5123)
+    js = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+          "nodes": [{"name": "Head", "children": [1], "translation": [0, 1.5, 0]},
+                    {"name": "face", "mesh": 0, "scale": node_scale}],
+          "meshes": [{"name": "face", "primitives": [prim], "extras": {"targetNames": ["viseme_sil", "jawOpen"]}}],
+          "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": sum(len(c) for c in chunks)}]}
+    if used:
+        js["extensionsUsed"] = js["extensionsRequired"] = used
+    if variant == "meshopt":
+        js["buffers"].append({"byteLength": 4096, "extensions": {"EXT_meshopt_compression": {"fallback": True}}})
+    world = P_true * np.array(node_scale) + [0, 1.5, 0]
+    return _glb(tmp_path / f"{variant}.glb", js, b"".join(chunks)), world, D_true * np.array(node_scale), T
+
+
+@pytest.mark.parametrize("variant", ["plain", "quantized", "meshopt", "sparse", "draco"])
+def test_glb_variants_read_the_same_mesh_and_shapes(tmp_path, variant):
+    path, world, deltas, _ = _tiny(tmp_path, variant)
+    ch = read_character(path)
+    assert [m.name for m in ch.meshes] == ["face"]
+    m = ch.meshes[0]
+    assert m.shape_names == ["viseme_sil", "jawOpen"]             # names exactly as in the file
+    np.testing.assert_allclose(m.mesh.vertices, world, atol=1e-6)
+    np.testing.assert_allclose(m.deltas, deltas, atol=1e-6)
+    assert ch.roles == {"head": 0}
+
+
+def test_unsupported_required_extension_is_named(tmp_path):
+    path, *_ = _tiny(tmp_path, "plain")
+    data = path.read_bytes()
+    n = struct.unpack_from("<I", data, 12)[0]
+    js = json.loads(data[20:20 + n])
+    js["extensionsRequired"] = js["extensionsUsed"] = ["EXT_made_up_compression"]
+    bad = _glb(tmp_path / "bad.glb", js, data[20 + n + 8:])
+    with pytest.raises(InputFileError, match="EXT_made_up_compression"):
+        read_character(bad)
+    (tmp_path / "x.txt").write_text("x")
+    with pytest.raises(InputFileError, match="not a character format"):
+        read_character(tmp_path / "x.txt")
+
+
+def test_valid_avatar_read_whole(chars):
+    ch = read_character(chars / "valid" / "AIAN_F_1_Busi.glb")
+    assert ch.format == "gltf" and "EXT_meshopt_compression" in ch.route
+    assert len(ch.meshes) == 8
+    face = [ch.meshes[i].name for i in ch.face_meshes()]
+    assert face == ["H_DDS_HighRes", "h_TeethDown"]
+    body = ch.meshes[ch.primary]
+    assert body.n_shapes == 65 and body.shape_names[0] == "h_expressions.AE_AA_h"
+    height = np.ptp(body.mesh.vertices[:, 1])
+    assert 1.6 < height < 1.8                                      # metres, skinned at rest (quantized + IBMs)
+    assert {r: ch.joints[i].name for r, i in ch.roles.items()} == {
+        "neck": "Neck", "head": "Head", "leftEye": "LeftEye", "rightEye": "RightEye"}
+    chans = channels(ch)
+    tied = [c for c in chans if len(c.binds) == 2]
+    # the lower teeth's 19 viseme shapes (t_AE_AA_h ...) follow the face's; t_MPB_h has no partner (MPB_Up_h, MPB_Down_h)
+    assert len(tied) == 18 and tied[0].name == "h_expressions.AE_AA_h"
+    assert any(c.name == "t_MPB_h" and len(c.binds) == 1 for c in chans)
+    eye = next(m for m in ch.meshes if m.name == "h_L_eye")
+    assert eye.joint == "LeftEye"                                  # a rigid eyeball follows its joint
+
+
+def test_robot_three_primitives_and_its_moods(chars):
+    ch = read_character(chars / "robot" / "RobotExpressive.glb")
+    head = ch.meshes[ch.primary]
+    assert head.name == "Head" and head.shape_names == ["Angry", "Surprised", "Sad"]
+    assert head.mesh.n_vertices == 302 + 876 + 564                 # every primitive of the mesh
+    with pytest.raises(FaceNotFoundError, match="--landmarks"):
+        load_character(chars / "robot" / "RobotExpressive.glb")
+
+
+def test_fbx_by_ufbx_equals_blender_importer(chars):
+    """ufbx (the default route) and Blender's FBX importer read the same vertices and shapes."""
+    path = chars / "rocketbox" / "Female_Adult_01_facial.fbx"
+    a = read_character(path)
+    assert a.route == "ufbx" and a.source_unit == "cm"
+    m = a.meshes[0]
+    assert m.n_shapes == 175 and m.shape_names[24] == "blendShape1.AK_10_EyeBlinkRight"
+    assert 1.70 < np.ptp(m.mesh.vertices[:, 1]) < 1.78            # centimetres -> metres
+    assert a.joint("head").name == "Bip01 Head"
+    pytest.importorskip("bpy")
+    b = read_character(path, prefer="blender")
+    mb = b.meshes[0]
+    from faceretarget.io._blender import BLENDER_AXES
+
+    np.testing.assert_allclose(mb.mesh.vertices, m.mesh.vertices @ BLENDER_AXES.T, atol=2e-5)
+    k = mb.shape_names.index("AK_25_JawOpen")
+    np.testing.assert_allclose(mb.deltas[k], m.deltas[m.shape_names.index("blendShape1.AK_25_JawOpen")]
+                               @ BLENDER_AXES.T, atol=2e-5)
+
+
+# ------------------------------------------------------------------------------------------ shapes
+def test_shape_choice_arkit_visemes_names_and_duplicates():
+    names = ["blendShape1.AK_25_JawOpen", "blendShape1.SR_21_Jaw_Open", "blendShape1.AA_VI_10_aa", "Fcl_MTH_A",
+             "viseme_sil", "h_expressions.Chew_h"] + [f"blendShape1.AK_{i:02d}_{n}" for i, n in enumerate(
+                 ["EyeBlinkLeft", "EyeBlinkRight", "MouthSmileLeft", "MouthSmileRight", "BrowInnerUp", "CheekPuff",
+                  "MouthFunnel", "MouthPucker", "NoseSneerLeft"])]
+    chans = [Channel(n, ((0, i),)) for i, n in enumerate(names)]
+    c = choose_shapes(chans)
+    assert c.basis == "arkit" and names.index("blendShape1.AK_25_JawOpen") in c.drive
+    assert names.index("blendShape1.SR_21_Jaw_Open") not in c.drive   # same ARKit name, worse spelt
+    v = choose_shapes(chans, "visemes")
+    assert [names[i] for i in v.drive] == ["blendShape1.AA_VI_10_aa", "Fcl_MTH_A", "viseme_sil"]
+    n = choose_shapes(chans, "viseme_*,*chew*")
+    assert [names[i] for i in n.drive] == ["viseme_sil", "h_expressions.Chew_h"]
+    with pytest.raises(MissingShapeError, match="no shape named 'smile'"):
+        choose_shapes(chans, "smile")
+    M = np.zeros((len(names), 68, 3))
+    M[:, 10, 0] = 1.0                                   # every shape moves one landmark the same way ...
+    M[5] = 0.0                                          # ... but Chew_h, which moves none
+    a = choose_shapes(chans, "all", M)
+    assert a.drive == [0] and "near-duplicates" in a.rest and a.rest["move no landmark"] == ["h_expressions.Chew_h"]
+    assert is_viseme("blendShape1.AA_VI_01_PP") and not is_viseme("blendShape1.AK_25_JawOpen")
+
+
+def test_joint_rotations_turn_the_head_by_the_pose(chars):
+    """The keys written on the head (and neck) joint give the head exactly R_w times its rest world rotation."""
+    from scipy.spatial.transform import Rotation
+
+    from faceretarget.character import character_frame
+
+    ch = read_character(chars / "valid" / "Black_M_2_Busi.glb")
+    ch.front = np.array([0.0, 0.0, 1.0])
+    R = Rotation.from_euler("xyz", [[10, 20, -5], [-15, 5, 30]], degrees=True)
+    pose = HeadPose.from_rotation(R)
+    F = character_frame(ch)
+    head, neck = ch.joint("head"), ch.joint("neck")
+    for share in (0.0, 0.4):
+        qh = joint_rotations(ch, pose, "head", 1.0 - share)
+        qn = joint_rotations(ch, pose, "neck", share) if share else None
+        for t in range(2):
+            Ln = neck.local.copy()
+            if qn is not None:
+                Ln[:3, :3] = Rotation.from_quat(qn[t]).as_matrix() * np.linalg.norm(neck.local[:3, :3], axis=0)
+            Lh = head.local.copy()
+            Lh[:3, :3] = Rotation.from_quat(qh[t]).as_matrix() * np.linalg.norm(head.local[:3, :3], axis=0)
+            parent = ch.joints[neck.parent].world
+            world = parent @ Ln @ Lh                       # Head is Neck's child in this skeleton
+            U, _, Vt = np.linalg.svd(world[:3, :3])
+            G = np.linalg.svd(head.world[:3, :3])
+            G = G[0] @ G[2]
+            want = F.T @ R[t].as_matrix() @ F @ G
+            np.testing.assert_allclose(U @ Vt, want, atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------------ landmarks
+def test_landmarks_found_near_the_reference_and_cached(tmp_path, data_dir, ict_rig):
+    """ict-face as a .glb without its landmark file: the 68 found are within the targets (inner <= 5 %,
+    contour <= 10 % of the eye-corner distance), and the second load reads them from the cache."""
+    pytest.importorskip("mediapipe")
+    p = write_glb(tmp_path / "ict.glb", ict_rig, np.zeros((1, ict_rig.n_shapes)), np.zeros(1))
+    ch = load_character(p)
+    assert ch.landmarks.source == "found on a render" and np.allclose(ch.front, [0, 0, 1])
+    ref = ict_rig.neutral.vertices[ict_rig.landmarks] / 100.0
+    e = np.linalg.norm(ch.landmark_positions() - ref, axis=1) / np.linalg.norm(ref[36] - ref[45])
+    print(f"ict-face landmarks: inner {e[17:].mean():.3f}, contour {e[:17].mean():.3f}")
+    assert e[17:].mean() <= 0.05 and e[:17].mean() <= 0.10
+    again = load_character(p)
+    assert again.timings["landmarks"] < 0.5 and again.search is None
+    np.testing.assert_allclose(again.landmark_positions(), ch.landmark_positions(), atol=1e-9)
+    # --landmarks: 68 vertex indices of the face mesh override the cache
+    idx = tmp_path / "lm.txt"
+    idx.write_text(" ".join(map(str, range(68))))
+    own = load_character(p, landmarks=idx)
+    np.testing.assert_allclose(own.landmark_positions(), own.meshes[0].mesh.vertices[:68])
+    with pytest.raises(InputFileError, match="68 vertex indices"):
+        idx.write_text("1 2 3")
+        load_character(p, landmarks=idx)
+
+
+# ------------------------------------------------------------------------------------------ the main job
+def test_animate_writes_back_into_the_glb(tmp_path, chars, take):
+    src = chars / "valid" / "Black_M_2_Busi.glb"
+    out = tmp_path / "busi.glb"
+    res = animate(take, src, out=out)
+    assert res.mouth_corr >= 0.9
+    d = res.drive
+    assert {d.character.meshes[i].name for i in d.character.face_meshes()} == {"H_DDS_HighRes", "h_TeethDown"}
+    assert 0.0 <= res.weights.min() and res.weights.max() <= 1.0
+    k = checks.kept(src, out)
+    assert k["ok"] and k["images_identical"], k
+    w = checks.written_gltf(out)
+    assert set(w["weights"]) == {"H_DDS_HighRes", "h_TeethDown"} and w["head_node"] is not None
+    full = d.full_weights(res.weights)
+    ci = next(i for i, c in enumerate(d.channels) if c.name == "h_expressions.MouthOpen_h")
+    np.testing.assert_allclose(w["weights"]["H_DDS_HighRes"][:, 26], full[:, ci], atol=1e-6)
+    teeth = dict(d.channels[ci].binds)
+    np.testing.assert_allclose(w["weights"]["h_TeethDown"][:, teeth[5]], full[:, ci], atol=1e-6)
+    errs, why = checks.validator_errors(out)
+    if errs is not None:
+        assert errs == 0
+    if _tools("three"):
+        three = checks.three_checks(out, "faceretarget", w["weights"], w["times"], w["head_node"], w["head_keys"],
+                                    max_times=12)
+        assert three["ok"], three
+    with pytest.raises(OutputError, match="character's own file"):
+        write_character_animation(src, d.character, d.channels, full, res.times)
+
+
+def test_animate_writes_back_with_blender(tmp_path, chars, take):
+    pytest.importorskip("bpy")
+    src = chars / "rocketbox" / "Female_Adult_01_facial.fbx"
+    for ext in (".blend", ".fbx"):
+        out = tmp_path / f"rb{ext}"
+        res = animate(take, src, out=out)
+        assert res.mouth_corr >= 0.9
+        b = checks.blender_checks(src, out, 25.0, len(res.times))
+        assert b["ok"], b
+        assert b["outside_slider"] == 0 and b["head_rotation_curves"] >= 4
+
+
+def test_usd_layer_over_the_asset(tmp_path, chars, take):
+    """A USD character (Rocketbox exported by Blender): the written layer composes over the untouched asset
+    and UsdSkel evaluates the written weights."""
+    pytest.importorskip("pxr")
+    bpy = pytest.importorskip("bpy")
+    from faceretarget.io._blender import _blender_output
+
+    asset = tmp_path / "asset" / "rocketbox.usdc"
+    asset.parent.mkdir()
+    with _blender_output():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.import_scene.fbx(filepath=str(chars / "rocketbox" / "Female_Adult_01_facial.fbx"))
+        bpy.ops.wm.usd_export(filepath=str(asset), export_armatures=True, export_shapekeys=True,
+                              export_animation=False, export_textures=False)
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+    before = asset.read_bytes()
+    out = tmp_path / "anim.usda"
+    res = animate(take, asset, out=out)
+    assert asset.read_bytes() == before
+    full = res.drive.full_weights(res.weights)
+    names = {res.drive.character.meshes[mi].shape_names[k]: full[:, c]
+             for c, ch in enumerate(res.drive.channels) for mi, k in ch.binds}
+    u = checks.usd_checks(out, names, res.times)
+    assert u["ok"] and u["weights_compared"] > 1000 and u["joint_world_change"] > 1e-4, u
+
+
+# ------------------------------------------------------------------------------------------ bad input
+def test_no_face_shapes_two_heads_and_the_cli(tmp_path, chars, arkit_rig):
+    plain, *_ = _tiny(tmp_path, "plain")
+    data = plain.read_bytes()
+    n = struct.unpack_from("<I", data, 12)[0]
+    js = json.loads(data[20:20 + n])
+    del js["meshes"][0]["primitives"][0]["targets"]
+    del js["meshes"][0]["extras"]
+    flat = _glb(tmp_path / "flat.glb", js, data[20 + n + 8:])
+    with pytest.raises(MissingShapeError, match="no face shapes.*character shapes"):
+        load_character(flat)
+    # two copies of one head side by side: two heads
+    two = tmp_path / "two.glb"
+    js2 = json.loads(json.dumps(json.loads(data[20:20 + n])))
+    js2["nodes"][0]["name"] = "Root"                     # no head joint to tell which head is the character's
+    js2["nodes"].append({"name": "face2", "mesh": 0, "translation": [1.0, 0, 0]})
+    js2["scenes"][0]["nodes"].append(2)
+    _glb(two, js2, data[20 + n + 8:])
+    with pytest.raises(InvalidDataError, match="--mesh"):
+        load_character(two, find=False)
+    assert load_character(two, find=False, mesh="face2").face_meshes()[0] == 1
+    run = [sys.executable, "-m", "faceretarget.cli._main"]
+    r = subprocess.run(run + ["character", "inspect", str(flat)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "no face shapes" in r.stderr and "Traceback" not in r.stderr
+    r = subprocess.run(run + ["animate", str(chars / "video.mp4"), "--character", str(plain), "--out",
+                              str(tmp_path / "x.vrm")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+
+
+def test_character_inspect_cli(tmp_path, chars):
+    pytest.importorskip("mediapipe")
+    pic = tmp_path / "check.png"
+    r = subprocess.run([sys.executable, "-m", "faceretarget.cli._main", "character", "inspect",
+                        str(chars / "valid" / "Black_M_2_Busi.glb"), "--out", str(pic), "--json"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout.strip().splitlines()[-1])
+    assert rep["face_meshes"] == ["H_DDS_HighRes", "h_TeethDown"] and rep["joints"]["head"] == "Head"
+    assert len(rep["drive"]) == 58 and "mouth" in rep["regions"]
+    from PIL import Image
+
+    with Image.open(pic) as im:
+        assert im.size == (512, 512)
