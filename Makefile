@@ -8,6 +8,8 @@ GLTF_VALIDATOR_VERSION ?= 2.0.0-dev.3.10
 # three.js + puppeteer-core for tests/test_browser.py (puppeteer-core 25 needs Node >= 22.12)
 THREE_VERSION ?= 0.187.0
 PUPPETEER_CORE_VERSION ?= 24.43.1
+# three-vrm and three-vrm-animation for the VRM playback check (tests/test_characters.py, bench/characters.py)
+THREE_VRM_VERSION ?= 3.5.5
 
 .PHONY: venv install capture fast batch extras demo test lint bench tools browser gl blender clean
 
@@ -49,11 +51,12 @@ $(TOOLS)/node_modules/gltf-validator/package.json:
 	else echo "npm not found: glTF validation tests will be skipped"; fi
 
 # three.js and puppeteer-core (never downloads a browser) for the headless-Chromium playback check.
-BROWSER_JS := $(TOOLS)/node_modules/.faceretarget-three-$(THREE_VERSION)-puppeteer-core-$(PUPPETEER_CORE_VERSION)
+BROWSER_JS := $(TOOLS)/node_modules/.faceretarget-three-$(THREE_VERSION)-puppeteer-core-$(PUPPETEER_CORE_VERSION)-vrm-$(THREE_VRM_VERSION)
 $(BROWSER_JS):
 	@if command -v npm >/dev/null 2>&1; then \
 		mkdir -p $(TOOLS) && PUPPETEER_SKIP_DOWNLOAD=1 npm install --silent --no-audit --no-fund --save-exact \
-			--prefix $(TOOLS) three@$(THREE_VERSION) puppeteer-core@$(PUPPETEER_CORE_VERSION) && touch $@ ; \
+			--prefix $(TOOLS) three@$(THREE_VERSION) puppeteer-core@$(PUPPETEER_CORE_VERSION) \
+			@pixiv/three-vrm@$(THREE_VRM_VERSION) @pixiv/three-vrm-animation@$(THREE_VRM_VERSION) && touch $@ ; \
 	else echo "npm not found: browser (three.js) tests will be skipped"; fi
 
 tools: $(TOOLS)/node_modules/gltf-validator/package.json $(BROWSER_JS)

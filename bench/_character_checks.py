@@ -102,15 +102,18 @@ def _world_rotation(js: dict, node: int, local_rot: dict[int, np.ndarray]) -> np
 
 
 def three_checks(out: Path, clip: str, weights: dict[str, np.ndarray], times: np.ndarray,
-                 head_node: int | None, head_keys: np.ndarray | None, vrm: bool = False, max_times: int = 40) -> dict:
+                 head_node: int | None, head_keys: np.ndarray | None, vrm: bool = False, max_times: int = 40,
+                 vrma: Path | None = None) -> dict:
     """Play ``out`` in three.js; compare morph influences to ``weights`` ({node name: (T, K)}) and the head
-    node's world rotation to what the keys give, at up to ``max_times`` key times."""
+    node's world rotation to what the keys give, at up to ``max_times`` key times.  ``vrm``: through three-vrm
+    (which sets the targets its expressions bind itself: those are not compared); ``vrma``: playing that VRM
+    Animation through three-vrm instead of the file's clip (everything compared)."""
     node = shutil.which("node")
     chromium = os.environ.get("CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
     if node is None or not (TOOLS / "three" / "package.json").is_file() or not Path(chromium).is_file():
         return {"ok": None, "why": "node, three.js or Chromium missing (make tools browser)"}
-    if vrm and not (TOOLS / "@pixiv" / "three-vrm" / "package.json").is_file():
-        return {"ok": None, "why": "three-vrm missing (make tools)"}
+    if (vrm or vrma is not None) and not (TOOLS / "@pixiv" / "three-vrm-animation" / "package.json").is_file():
+        return {"ok": None, "why": "three-vrm or three-vrm-animation missing (make tools)"}
     t32 = (times - times[0]).astype(np.float32).astype(np.float64)
     pick = np.unique(np.linspace(0, len(t32) - 1, min(max_times, len(t32))).round().astype(int))
     js, _ = _glb_json(out)
@@ -119,7 +122,9 @@ def three_checks(out: Path, clip: str, weights: dict[str, np.ndarray], times: np
             "--times", ",".join(f"{t:.9g}" for t in t32[pick])]
     if head_name:
         args += ["--world", head_name]
-    if vrm:
+    if vrma is not None:
+        args += ["--vrma", str(vrma)]
+    elif vrm:
         args += ["--vrm"]
     env = dict(os.environ, CHROMIUM=str(chromium))
     r = subprocess.run(args, capture_output=True, text=True, timeout=240, env=env)
@@ -128,12 +133,14 @@ def three_checks(out: Path, clip: str, weights: dict[str, np.ndarray], times: np
     rep = json.loads(r.stdout)
     worst = 0.0
     missing = []
+    bound = _expression_bound(js) if vrm and vrma is None else {}
     for name, W in weights.items():
         got = rep["morphs"].get(name)
         if got is None:
             missing.append(name)
             continue
-        worst = max(worst, float(np.abs(np.asarray(got) - W[pick].astype(np.float32)).max()))
+        cols = [k for k in range(W.shape[1]) if k not in bound.get(name, ())]
+        worst = max(worst, float(np.abs(np.asarray(got)[:, cols] - W[pick][:, cols].astype(np.float32)).max()))
     ang = None
     if head_name and head_keys is not None:
         from scipy.spatial.transform import Rotation
@@ -143,8 +150,27 @@ def three_checks(out: Path, clip: str, weights: dict[str, np.ndarray], times: np
                          for k in pick])
         ang = float((Rotation.from_quat(got) * Rotation.from_quat(want).inv()).magnitude().max())
     ok = not missing and worst <= 1e-6 and (ang is None or ang <= 1e-6)
-    return {"ok": bool(ok), "morph_max_err": worst, "head_max_err_rad": ang, "missing": missing,
-            "times": int(len(pick)), "three": rep.get("three")}
+    out = {"ok": bool(ok), "morph_max_err": worst, "head_max_err_rad": ang, "missing": missing,
+           "times": int(len(pick)), "three": rep.get("three")}
+    if vrm and vrma is None:        # three-vrm's expression manager sets these itself on every update
+        out["expression_bound_targets"] = int(sum(len(v) for v in _expression_bound(js).values()))
+    return out
+
+
+def _expression_bound(js: dict) -> dict[str, set[int]]:
+    """``{node name: {morph target index}}`` of the targets a VRM's expressions bind."""
+    out: dict[str, set[int]] = {}
+    ext = js.get("extensions", {})
+    nodes = js.get("nodes", [])
+    for e in ext.get("VRMC_vrm", {}).get("expressions", {}).get("preset", {}).values():
+        for b in e.get("morphTargetBinds", []):
+            out.setdefault(nodes[b["node"]].get("name"), set()).add(int(b["index"]))
+    for g in ext.get("VRM", {}).get("blendShapeMaster", {}).get("blendShapeGroups", []):
+        for b in g.get("binds", []):
+            for n in nodes:
+                if n.get("mesh") == b.get("mesh"):
+                    out.setdefault(n.get("name"), set()).add(int(b["index"]))
+    return out
 
 
 def gltf_checks(inp: Path, out: Path, written: dict) -> dict:
@@ -155,7 +181,12 @@ def gltf_checks(inp: Path, out: Path, written: dict) -> dict:
     res = {"validator_errors": None if eout is None else {"input": ein, "output": eout, "added": eout - (ein or 0)},
            "kept": kept(inp, out)}
     res["three"] = three_checks(out, written["clip"], written["weights"], written["times"], written["head_node"],
-                                written["head_keys"], vrm=out.suffix.lower() == ".vrm")
+                                written["head_keys"])
+    if out.suffix.lower() == ".vrm":     # a VRM as VRM apps play it: three-vrm, the .vrma beside it
+        vrma = out.with_suffix(".vrma")
+        res["three_vrm"] = three_checks(out, written["clip"], written["weights"], written["times"],
+                                        written["head_node"], written["head_keys"], vrm=True,
+                                        vrma=vrma if vrma.is_file() else None)
     if eout is None:
         res["validator_why"] = why or why2
     return res

@@ -162,12 +162,11 @@ def output_checks(inp: Path, out: Path, res, caps) -> dict:
         fps = len(res.times) / max(res.times[-1] - res.times[0], 1e-9) * (len(res.times) - 1) / len(res.times)
         oc["blender"] = checks.blender_checks(inp, out, fps, len(res.times))
     elif ext in (".usda", ".usdc", ".usd"):
+        from faceretarget.io import mesh_columns
+
         d = res.drive
-        full = d.full_weights(res.weights)
-        names = {}
-        for c, chn in enumerate(d.channels):
-            for mi, k in chn.binds:
-                names[d.character.meshes[mi].shape_names[k]] = full[:, c]
+        names = {d.character.meshes[mi].shape_names[k]: col
+                 for mi, cols in mesh_columns(d.channels, d.full_weights(res.weights)).items() for k, col in cols.items()}
         oc["usd"] = checks.usd_checks(out, names, res.times)
     return oc
 

@@ -29,6 +29,9 @@ from faceretarget.pipelines import animate, capture_take, load_character
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 import _character_checks as checks  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _vrm import make_vrm  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -453,3 +456,38 @@ def test_character_inspect_cli(tmp_path, chars):
 
     with Image.open(pic) as im:
         assert im.size == (512, 512)
+
+
+@pytest.mark.parametrize("version", ["0", "1"])
+def test_vrm_read_driven_and_written_back(tmp_path, chars, take, version):
+    """VRM 0.x (facing -Z) and 1.0: the humanoid map gives the joints, the front is the file's, the
+    animation is written back into a .vrm that three.js plays (with three-vrm: every target its expressions
+    do not bind)."""
+    src = make_vrm(chars / "valid" / "Black_M_2_Busi.glb", tmp_path / f"busi{version}.vrm", version,
+                   {"aa": "h_expressions.AE_AA_h", "oh": "h_expressions.UH_OO_h", "ih": "h_expressions.TD_I_h",
+                    "blinkLeft": "h_expressions.LeyeClose_h", "lookUp": "h_expressions.LbrowUp_h"})
+    ch = read_character(src)
+    assert ch.format == f"vrm{version}" and ch.named_roles["head"] == ch.roles["head"]
+    assert np.allclose(ch.front, [0, 0, -1] if version == "0" else [0, 0, 1])
+    assert set(ch.expressions) == {"aa", "oh", "ih", "blinkLeft", "lookUp"}
+    out = tmp_path / f"out{version}.vrm"
+    res = animate(take, src, out=out, shapes="all")            # the raw morph targets: a .vrm alone
+    assert res.mouth_corr >= 0.9 and not out.with_suffix(".vrma").exists()
+    assert checks.kept(src, out)["ok"]
+    tools = _tools("three", "@pixiv/three-vrm", "@pixiv/three-vrm-animation")
+    if tools:
+        w = checks.written_gltf(out)
+        plain = checks.three_checks(out, "faceretarget", w["weights"], w["times"], w["head_node"], w["head_keys"],
+                                    max_times=8)
+        assert plain["ok"], plain
+    # through the expressions (the default for a VRM): the same animation as a .vrma for VRM runtimes
+    out = tmp_path / f"expr{version}.vrm"
+    res = animate(take, src, out=out)
+    assert res.drive.choice.basis == "VRM expressions" and set(res.names) == {"aa", "oh", "ih", "blinkLeft"}
+    assert res.drive.choice.rest == {"set by the VRM look-at": ["lookUp"]}
+    assert out.with_suffix(".vrma").is_file()
+    if tools:
+        w = checks.written_gltf(out)
+        vrm = checks.three_checks(out, "faceretarget", w["weights"], w["times"], w["head_node"], w["head_keys"],
+                                  vrma=out.with_suffix(".vrma"), max_times=8)
+        assert vrm["ok"], vrm

@@ -44,11 +44,14 @@ from .names import find_joints, is_arkit, normalize_name
 from .rig import Rig
 
 __all__ = ["EncodedImage", "Material", "SceneMesh", "Joint", "SurfacePoints", "Channel", "Character", "ShapeChoice",
-           "channels", "choose_shapes", "face_rig", "joint_rotations", "character_frame", "head_joints", "is_viseme", "shape_key", "SHAPE_SETS"]
+           "channels", "expression_channels", "choose_shapes", "face_rig", "joint_rotations", "character_frame", "head_joints", "is_viseme", "shape_key", "SHAPE_SETS"]
 
 #: What ``--shapes`` takes besides a list of names: the character's ARKit shapes, its visemes, every
-#: face shape, or ``auto`` (ARKit when it has at least 10 ARKit shapes, else every face shape).
-SHAPE_SETS = ("auto", "arkit", "visemes", "all")
+#: face shape, a VRM's expressions, or ``auto`` (a VRM's expressions when it has them; else ARKit when it
+#: has at least 10 ARKit shapes, else every face shape).
+SHAPE_SETS = ("auto", "arkit", "visemes", "all", "expressions")
+#: VRM expressions a VRM runtime sets itself (gaze) or that stand for no expression.
+_RUNTIME_EXPRESSIONS = frozenset({"lookUp", "lookDown", "lookLeft", "lookRight", "neutral"})
 _MIN_ARKIT = 10
 
 
@@ -264,18 +267,28 @@ class SurfacePoints:
 
 @dataclass(frozen=True)
 class Channel:
-    """One weight curve of the character: a primary shape and the shapes of other meshes tied to it.
+    """One weight curve of the character: a primary shape and the shapes of other meshes tied to it, or a
+    VRM expression and the morph targets it binds.
 
     Attributes
     ----------
     name : str
-        The primary shape's exact name (what outputs call the curve).
+        The primary shape's exact name, or the expression's (what outputs call the curve).
     binds : tuple of (mesh, shape) pairs
         Every shape this curve drives (mesh index in :attr:`Character.meshes`, shape index in it).
+    weights : tuple of float, optional
+        How much of each bound shape the curve plays at weight 1 (a VRM expression's bind weights); 1 for
+        every shape when None.
     """
 
     name: str
     binds: tuple[tuple[int, int], ...]
+    weights: tuple[float, ...] | None = None
+
+    def weighted(self):
+        """``(mesh, shape, weight)`` of every bound shape."""
+        w = self.weights if self.weights is not None else (1.0,) * len(self.binds)
+        return [(mi, k, float(x)) for (mi, k), x in zip(self.binds, w, strict=True)]
 
 
 @dataclass(eq=False)
@@ -297,7 +310,8 @@ class Character:
         The character's up and facing directions in the world frame when known.
     landmarks : SurfacePoints, optional
     expressions : dict
-        VRM expressions: ``{name: [(mesh, shape, weight), ...]}``.
+        VRM expressions by their VRM 1.0 names: ``{name: {"binds": [(mesh, shape, weight), ...], "preset",
+        "binary", "overrides", "colors"}}``.
     notes : list of str
         What the reader skipped or assumed, one line each.
     source_unit : str
@@ -436,9 +450,9 @@ class Character:
         out = np.zeros((len(chans), len(lm), 3))
         d = self.meshes[lm.mesh].deltas
         for c, ch in enumerate(chans):
-            for mi, k in ch.binds:
+            for mi, k, w in ch.weighted():
                 if mi == lm.mesh:
-                    out[c] += lm.positions(d[k].astype(np.float64))
+                    out[c] += w * lm.positions(d[k].astype(np.float64))
         return out
 
     def summary(self) -> str:
@@ -509,6 +523,22 @@ def channels(character: Character) -> list[Channel]:
                 by_key.setdefault(shape_key(n), len(out))
                 out.append([name, [(mi, k)]])
     return [Channel(n, tuple(b)) for n, b in out]
+
+
+def expression_channels(character: Character) -> tuple[list[Channel], dict[str, str]]:
+    """A VRM's expressions as channels (each the morph targets it binds, with their weights), and why the
+    others are left out: gaze expressions (the VRM runtime's look-at sets them), binary ones, those that
+    override others or change material colours (a runtime would not play them as a plain sum of targets)."""
+    out, skipped = [], {}
+    for name, e in character.expressions.items():
+        why = ("set by the VRM look-at" if name in _RUNTIME_EXPRESSIONS else "binary" if e["binary"]
+               else "overrides other expressions" if e["overrides"] else "changes material colours" if e["colors"]
+               else "binds no morph target" if not e["binds"] else None)
+        if why:
+            skipped[name] = why
+            continue
+        out.append(Channel(name, tuple((mi, k) for mi, k, _ in e["binds"]), tuple(w for _, _, w in e["binds"])))
+    return out, skipped
 
 
 # ------------------------------------------------------------------------------------- shape sets
@@ -730,15 +760,15 @@ def face_rig(character: Character, chans: list[Channel] | None = None, drive: li
     V = n + P
     D = np.zeros((len(drive), V, 3))
     for r, c in enumerate(drive):
-        for mi, k in chans[c].binds:
+        for mi, k, w in chans[c].weighted():
             if mi in offsets:
                 m = character.meshes[mi]
-                D[r, offsets[mi]:offsets[mi] + m.mesh.n_vertices] += m.deltas[k]
+                D[r, offsets[mi]:offsets[mi] + m.mesh.n_vertices] += w * m.deltas[k]
         if lm is not None:
             d = character.meshes[lm.mesh].deltas
-            for mi, k in chans[c].binds:
+            for mi, k, w in chans[c].weighted():
                 if mi == lm.mesh:
-                    D[r, n:] += lm.positions(d[k].astype(np.float64))
+                    D[r, n:] += w * lm.positions(d[k].astype(np.float64))
     vertices = np.concatenate(verts) if verts else np.zeros((0, 3))
     R = character_frame(character) if frame else np.eye(3)
     vertices = vertices @ R.T

@@ -26,7 +26,9 @@
 // multi-primitive mesh's primitives are three.js child meshes: the first one's influences); --world
 // N1,N2 adds "world": {node: [[x,y,z,w] world quaternion per time]}; --vrm loads through three-vrm's
 // VRMLoaderPlugin ($THREE_VRM_DIR, else .tools/node_modules/@pixiv/three-vrm) and calls vrm.update(0)
-// after each setTime, as an app does, so what the VRM runtime shows is what is read.
+// after each setTime, as an app does, so what the VRM runtime shows is what is read; with --vrma F.vrma it
+// plays that VRM Animation instead of the file's clip (three-vrm-animation's createVRMAnimationClip), the way
+// three-vrm apps animate expressions and the humanoid.
 // Exit status: 0 on success, 2 on bad arguments or missing tools, 3 when loading or playing fails,
 // 4 on timeout (default 60 s).
 import { createServer } from "node:http";
@@ -54,6 +56,7 @@ let clipName = null;
 let morphsAll = false;
 let worldNodes = [];
 let vrm = false;
+let vrma = null;
 for (let i = 0; i < args.length; i++) {
   const a = args[i];
   const next = () => {
@@ -75,6 +78,7 @@ for (let i = 0; i < args.length; i++) {
   else if (a === "--morphs") morphsAll = next() === "all";
   else if (a === "--world") worldNodes = next().split(",").filter((s) => s !== "");
   else if (a === "--vrm") vrm = true;
+  else if (a === "--vrma") { vrm = true; vrma = resolve(next()); }
   else if (a.startsWith("--")) fail(2, `unknown option ${a}`);
   else if (glb === null) glb = resolve(a);
   else fail(2, `unexpected argument ${a}`);
@@ -96,6 +100,7 @@ if (!existsSync(resolve(puppeteerDir, "package.json"))) {
   fail(2, `puppeteer-core not found at ${puppeteerDir} (run \`make tools\`)`);
 }
 const vrmDir = resolve(process.env.THREE_VRM_DIR || resolve(repo, ".tools", "node_modules", "@pixiv", "three-vrm"));
+const vrmaDir = resolve(repo, ".tools", "node_modules", "@pixiv", "three-vrm-animation");
 if (vrm && !existsSync(resolve(vrmDir, "lib", "three-vrm.module.js"))) {
   fail(2, `three-vrm not found at ${vrmDir} (run \`make tools\`)`);
 }
@@ -107,7 +112,8 @@ const PAGE = `<!doctype html>
 <html><head><meta charset="utf-8"><title>faceretarget three.js check</title>
 <script type="importmap">
 {"imports": {"three": "/three/build/three.module.js", "three/addons/": "/three/examples/jsm/",
- "@pixiv/three-vrm": "/vrm/lib/three-vrm.module.js"}}
+ "@pixiv/three-vrm": "/vrm/lib/three-vrm.module.js",
+ "@pixiv/three-vrm-animation": "/vrma-lib/lib/three-vrm-animation.module.js"}}
 </script>
 <script type="module">
 import * as THREE from "three";
@@ -125,8 +131,15 @@ window.playGlb = async (url, times, faceName, headName, opts) => {
   const scene = gltf.scene;
   const theVrm = gltf.userData.vrm || null;
   if (!gltf.animations.length) throw new Error(url + ": no animation");
-  const clip = opts.clip ? gltf.animations.find((c) => c.name === opts.clip) : gltf.animations[0];
+  let clip = opts.clip ? gltf.animations.find((c) => c.name === opts.clip) : gltf.animations[0];
   if (!clip) throw new Error(url + ": no clip named " + opts.clip);
+  if (opts.vrma) {
+    const { VRMAnimationLoaderPlugin, createVRMAnimationClip } = await import("@pixiv/three-vrm-animation");
+    const al = new GLTFLoader();
+    al.register((parser) => new VRMAnimationLoaderPlugin(parser));
+    const va = await al.loadAsync(opts.vrma);
+    clip = createVRMAnimationClip(va.userData.vrmAnimations[0], theVrm);
+  }
   let face = null;
   if (faceName) {
     face = scene.getObjectByName(faceName) || null;
@@ -192,9 +205,10 @@ window.threeReady = true;
 // ------------------------------------------------------------------------------ static server
 const TYPES = { ".js": "text/javascript", ".mjs": "text/javascript", ".html": "text/html",
   ".glb": "model/gltf-binary", ".vrm": "model/gltf-binary", ".json": "application/json",
-  ".wasm": "application/wasm" };
+  ".wasm": "application/wasm", ".vrma": "model/gltf-binary" };
 const glbDir = dirname(glb);
-const roots = { "/three/": threeDir, "/glb/": glbDir, "/vrm/": vrmDir };
+const roots = { "/three/": threeDir, "/glb/": glbDir, "/vrm/": vrmDir, "/vrma-lib/": vrmaDir,
+  "/vrma/": vrma ? dirname(vrma) : glbDir };
 
 function serveFile(res, root, rel) {
   const p = resolve(root, decodeURIComponent(rel));
@@ -272,7 +286,8 @@ try {
   await page.goto(`http://127.0.0.1:${port}/`);
   await page.waitForFunction(() => window.threeReady === true);
   const url = `/glb/${encodeURIComponent(basename(glb))}`;
-  const opts = { clip: clipName, morphsAll, world: worldNodes, vrm };
+  const opts = { clip: clipName, morphsAll, world: worldNodes, vrm,
+    vrma: vrma ? `/vrma/${encodeURIComponent(basename(vrma))}` : null };
   const out = await page.evaluate((u, ts, f, h, o) => window.playGlb(u, ts, f, h, o), url, times, faceName,
     headName, opts);
   out.browser = await browser.version();

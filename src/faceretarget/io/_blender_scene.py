@@ -319,11 +319,12 @@ def _animate_scene(bpy, out: Path, character: Character, chans: list[Channel], W
     strip = action.layers.new("Layer").strips.new(type="KEYFRAME")
     co = np.empty((len(t), 2), np.float32)
     co[:, 0] = frames
+    from ._character_write import mesh_columns
+
     per_obj: dict[str, list[tuple[str, np.ndarray]]] = {}
-    for c, ch in enumerate(chans):
-        for mi, k in ch.binds:
-            m = character.meshes[mi]
-            per_obj.setdefault(m.ref, []).append((m.shape_names[k], W[:, c]))
+    for mi, cols in mesh_columns(chans, W).items():
+        m = character.meshes[mi]
+        per_obj.setdefault(m.ref, []).extend((m.shape_names[k], col) for k, col in cols.items())
     missing = []
     keyed = 0
     for obj_name, shapes in per_obj.items():

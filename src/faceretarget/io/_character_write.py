@@ -40,7 +40,7 @@ from ..errors import InvalidDataError, OutputError
 from ..files import atomic_path, check_output_path
 from ..headpose import HeadPose
 
-__all__ = ["write_character_animation", "writes_back", "WRITE_BACK"]
+__all__ = ["write_character_animation", "writes_back", "WRITE_BACK", "mesh_columns", "write_vrma"]
 
 #: Output extensions that write back into the user's file, per character format.
 WRITE_BACK = {"gltf": (".glb", ".gltf"), "vrm0": (".vrm", ".glb"), "vrm1": (".vrm", ".glb"),
@@ -109,6 +109,12 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
     fmt = character.format
     if fmt in ("gltf", "vrm0", "vrm1"):
         path = _write_gltf(out, character, chans, W, t, head, neck_share, name, log)
+        if fmt.startswith("vrm") and chans and all(c.name in character.expressions for c in chans):
+            vrma = out.with_suffix(".vrma")
+            check_output_path(vrma)
+            write_vrma(vrma, character, chans, W, t, head=head, neck_share=neck_share, name=name)
+            log(f"wrote {vrma} (the same animation as VRM expressions and humanoid head rotation, for VRM runtimes "
+                "such as three-vrm, which set the expression-bound morph targets and the bones themselves)")
     elif fmt in ("fbx", "blend"):
         from ._blender_scene import write_blender_animation
 
@@ -130,13 +136,83 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
     return path
 
 
+# ----------------------------------------------------------------------------------------- VRM animation
+#: VRM 1.0 expression presets (the names a ``.vrma`` may use under ``preset``).
+VRM_PRESETS = frozenset({"happy", "angry", "sad", "relaxed", "surprised", "aa", "ih", "ou", "ee", "oh", "blink",
+                         "blinkLeft", "blinkRight", "lookUp", "lookDown", "lookLeft", "lookRight", "neutral"})
+
+
+def write_vrma(path: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray, *,
+               head: HeadPose | None = None, neck_share: float = 0.0, name: str = "faceretarget") -> Path:
+    """A VRM Animation (``.vrma``, the ``VRMC_vrm_animation`` extension) of expression weights and head rotation.
+
+    Each channel must be one of the character's VRM expressions: an expression node per channel whose
+    ``translation.x`` is the weight; the humanoid ``hips``, ``neck`` and ``head`` nodes at rest with identity
+    rotations (VRM's normalized humanoid), the head (and neck) keyed with the head pose's rotation in the head
+    frame (+Z out of the face, as VRM 1.0 faces; VRM runtimes turn it for a VRM 0.x model), split by
+    ``neck_share``.
+    """
+    from scipy.spatial.transform import Rotation
+
+    from ..headpose import continuous_quaternions
+
+    t32 = (t - t[0]).astype(np.float32)
+    nodes = [{"name": "hips", "translation": [0.0, 1.0, 0.0], "children": [1]},
+             {"name": "neck", "translation": [0.0, 0.45, 0.0], "children": [2]},
+             {"name": "head", "translation": [0.0, 0.1, 0.0]}]
+    chunks: list[bytes] = []
+    views, accessors, samplers, channels_ = [], [], [], []
+
+    def add(arr: np.ndarray, type_: str, minmax: bool = False) -> int:
+        data = np.ascontiguousarray(arr, dtype=np.float32).tobytes()
+        off = sum(len(c) for c in chunks)
+        chunks.append(data)
+        views.append({"buffer": 0, "byteOffset": off, "byteLength": len(data)})
+        acc = {"bufferView": len(views) - 1, "componentType": _FLOAT, "count": len(arr), "type": type_}
+        if minmax:
+            acc["min"], acc["max"] = [float(np.min(arr))], [float(np.max(arr))]
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    t_acc = add(t32, "SCALAR", minmax=True)
+    if head is not None:
+        for node, share in ((2, 1.0 - neck_share), (1, neck_share)):
+            if share <= 0:
+                continue
+            q = continuous_quaternions(Rotation.from_rotvec(head.rotation.as_rotvec() * share).as_quat())
+            samplers.append({"input": t_acc, "output": add(q, "VEC4"), "interpolation": "LINEAR"})
+            channels_.append({"sampler": len(samplers) - 1, "target": {"node": node, "path": "rotation"}})
+    preset, custom = {}, {}
+    for c, ch in enumerate(chans):
+        nodes.append({"name": f"expression_{ch.name}"})
+        (preset if ch.name in VRM_PRESETS else custom)[ch.name] = {"node": len(nodes) - 1}
+        v = np.zeros((len(t), 3))
+        v[:, 0] = W[:, c]
+        samplers.append({"input": t_acc, "output": add(v, "VEC3"), "interpolation": "LINEAR"})
+        channels_.append({"sampler": len(samplers) - 1, "target": {"node": len(nodes) - 1, "path": "translation"}})
+    binchunk = b"".join(chunks)
+    js = {"asset": {"version": "2.0", "generator": "faceretarget"},
+          "extensionsUsed": ["VRMC_vrm_animation"],
+          "extensions": {"VRMC_vrm_animation": {
+              "specVersion": "1.0",
+              "humanoid": {"humanBones": {"hips": {"node": 0}, "neck": {"node": 1}, "head": {"node": 2}}},
+              "expressions": {"preset": preset, "custom": custom}}},
+          "scene": 0, "scenes": [{"nodes": [0] + list(range(3, len(nodes)))}], "nodes": nodes,
+          "animations": [{"name": name, "samplers": samplers, "channels": channels_}],
+          "buffers": [{"byteLength": len(binchunk)}], "bufferViews": views, "accessors": accessors}
+    _write_glb(path, js, binchunk)
+    return path
+
+
 # ----------------------------------------------------------------------------------------- glTF
-def _mesh_columns(character: Character, chans: list[Channel], W: np.ndarray) -> dict[int, dict[int, np.ndarray]]:
-    """``{scene mesh: {shape index: (T,) weights}}`` of every shape a channel drives."""
+def mesh_columns(chans: list[Channel], W: np.ndarray) -> dict[int, dict[int, np.ndarray]]:
+    """``{scene mesh: {shape index: (T,) weight}}`` of every shape a channel drives (the sum over the
+    channels that bind it, each times its bind weight)."""
     out: dict[int, dict[int, np.ndarray]] = {}
     for c, ch in enumerate(chans):
-        for mi, k in ch.binds:
-            out.setdefault(mi, {})[k] = W[:, c]
+        for mi, k, w in ch.weighted():
+            col = out.setdefault(mi, {})
+            col[k] = col[k] + w * W[:, c] if k in col else w * W[:, c]
     return out
 
 
@@ -170,7 +246,7 @@ def _write_gltf(out: Path, character: Character, chans: list[Channel], W: np.nda
         raise InvalidDataError(f"{out}: frame times do not increase in float32 seconds")
     t_acc = add(t32, "SCALAR", minmax=True)
     samplers, channels_ = [], []
-    cols = _mesh_columns(character, chans, W)
+    cols = mesh_columns(chans, W)
     nodes = js.get("nodes", [])
     done = 0
     for mi, shapes in cols.items():

@@ -637,7 +637,10 @@ def _vrm1(js: dict, meshes: list[SceneMesh]) -> tuple[dict, dict]:
         for name, e in exprs.get(group, {}).items():
             binds = [(by_node[int(b["node"])], int(b["index"]), float(b.get("weight", 1.0)))
                      for b in e.get("morphTargetBinds", []) if int(b.get("node", -1)) in by_node]
-            out[name] = binds
+            overrides = any(e.get(k, "none") not in ("none", None) for k in ("overrideBlink", "overrideLookAt",
+                                                                             "overrideMouth"))
+            out[name] = {"binds": binds, "preset": group == "preset", "binary": bool(e.get("isBinary", False)),
+                         "overrides": overrides, "colors": bool(e.get("materialColorBinds"))}
     return out, roles
 
 
@@ -654,11 +657,20 @@ def _vrm0(js: dict, meshes: list[SceneMesh]) -> tuple[dict, dict]:
         mesh_nodes.setdefault(int(js["nodes"][node]["mesh"]), []).append(i)
     out = {}
     for g in ext.get("blendShapeMaster", {}).get("blendShapeGroups", []):
-        name = g.get("presetName") if g.get("presetName") not in (None, "", "unknown") else g.get("name")
+        preset = g.get("presetName") not in (None, "", "unknown")
+        name = _VRM0_PRESETS.get(g.get("presetName"), g.get("presetName")) if preset else g.get("name")
         binds = []
         for b in g.get("binds", []):
             for mi in mesh_nodes.get(int(b.get("mesh", -1)), []):
                 binds.append((mi, int(b["index"]), float(b.get("weight", 100.0)) / 100.0))
         if name:
-            out[str(name)] = binds
+            out[str(name)] = {"binds": binds, "preset": preset, "binary": bool(g.get("isBinary", False)),
+                              "overrides": False, "colors": bool(g.get("materialValues"))}
     return out, roles
+
+
+#: VRM 0.x expression presets by their VRM 1.0 names (as three-vrm maps them).
+_VRM0_PRESETS = {"a": "aa", "i": "ih", "u": "ou", "e": "ee", "o": "oh", "joy": "happy", "angry": "angry",
+                 "sorrow": "sad", "fun": "relaxed", "blink": "blink", "blink_l": "blinkLeft", "blink_r": "blinkRight",
+                 "lookup": "lookUp", "lookdown": "lookDown", "lookleft": "lookLeft", "lookright": "lookRight",
+                 "neutral": "neutral"}

@@ -254,11 +254,12 @@ def write_usd_animation(out: Path, character: Character, chans: list[Channel], W
     fps = _nice_fps(infer_fps(t, default=30.0))
     codes = (t - t[0]) * fps
     # the weight of every bound blend shape, per mesh prim
+    from ._character_write import mesh_columns
+
     per_mesh: dict[str, dict[str, np.ndarray]] = {}
-    for c, ch in enumerate(chans):
-        for mi, k in ch.binds:
-            m = character.meshes[mi]
-            per_mesh.setdefault(m.ref, {})[m.shape_names[k]] = W[:, c]
+    for mi, cols in mesh_columns(chans, W).items():
+        m = character.meshes[mi]
+        per_mesh.setdefault(m.ref, {}).update({m.shape_names[k]: col for k, col in cols.items()})
     from pxr import Tf
 
     with atomic_path(out) as tmp:

@@ -35,7 +35,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..character import Character, ShapeChoice, SurfacePoints, channels, choose_shapes, face_rig
+from ..character import (
+    Character,
+    ShapeChoice,
+    SurfacePoints,
+    channels,
+    choose_shapes,
+    expression_channels,
+    face_rig,
+)
 from ..errors import FaceNotFoundError, InputFileError, InvalidDataError, MissingShapeError
 from ..files import atomic_path
 from ..rig import Rig
@@ -380,9 +388,26 @@ def drive_rig(character: Character, shapes: str = "auto", *, need_landmarks: boo
     them when they are not known."""
     if character.landmarks is None and need_landmarks:
         raise InvalidDataError(f"{character.name}: the landmarks are not known yet (load_character finds them)")
-    chans = channels(character)
+    spec = (shapes or "auto").strip()
+    who = str(character.path or character.name)
+    chans, skipped = None, {}
+    if spec in ("auto", "expressions") and character.format.startswith("vrm"):
+        ex, why = expression_channels(character)
+        if len(ex) >= 3 or spec == "expressions":        # a VRM is driven through its expressions, as VRM apps do
+            if not ex:
+                raise MissingShapeError(f"{who}: --shapes expressions: no VRM expression binds morph targets")
+            chans, spec, skipped = ex, "all", {"_": ""} | why
+    if chans is None:
+        if spec == "expressions":
+            raise MissingShapeError(f"{who}: --shapes expressions: not a VRM with expressions")
+        chans = channels(character)
     motion = None if character.landmarks is None else character._landmark_deltas(chans)
-    choice = choose_shapes(chans, shapes, motion, who=str(character.path or character.name))
+    choice = choose_shapes(chans, spec, motion, who=who)
+    if skipped:
+        choice.basis = "VRM expressions"
+        for name, why in skipped.items():
+            if name != "_":
+                choice.rest.setdefault(why, []).append(name)
     return DriveRig(face_rig(character, chans, choice.drive), chans, choice, character)
 
 
@@ -442,10 +467,10 @@ def look_rig(drive: DriveRig, *, margin: float = 0.7) -> tuple[Rig, np.ndarray, 
         raise InvalidDataError(f"{ch.name}: nothing to show around the face")
     D = np.zeros((len(drive.choice.drive), n, 3))
     for r, c_i in enumerate(drive.choice.drive):
-        for mi, k in drive.channels[c_i].binds:
+        for mi, k, w in drive.channels[c_i].weighted():
             for pmi, used, off in parts:
                 if pmi == mi:
-                    D[r, off:off + len(used)] = ch.meshes[mi].deltas[k][used]
+                    D[r, off:off + len(used)] += w * ch.meshes[mi].deltas[k][used]
     V = np.concatenate(verts) @ F.T
     rig = Rig(Mesh(V, np.concatenate(counts), np.concatenate(idx), name=ch.name), list(drive.rig.names), D @ F.T,
               unit="m", name=ch.name, keep_names=True)
