@@ -162,7 +162,7 @@ def output_checks(inp: Path, out: Path, res, caps) -> dict:
         fps = len(res.times) / max(res.times[-1] - res.times[0], 1e-9) * (len(res.times) - 1) / len(res.times)
         oc["blender"] = checks.blender_checks(inp, out, fps, len(res.times))
     elif ext in (".usda", ".usdc", ".usd"):
-        from faceretarget.io import mesh_columns
+        from faceretarget.character import mesh_columns
 
         d = res.drive
         names = {d.character.meshes[mi].shape_names[k]: col

@@ -44,7 +44,8 @@ from .names import find_joints, is_arkit, normalize_name
 from .rig import Rig
 
 __all__ = ["EncodedImage", "Material", "SceneMesh", "Joint", "SurfacePoints", "Channel", "Character", "ShapeChoice",
-           "channels", "expression_channels", "choose_shapes", "face_rig", "joint_rotations", "character_frame", "head_joints", "is_viseme", "shape_key", "SHAPE_SETS"]
+           "channels", "expression_channels", "mesh_columns", "choose_shapes", "face_rig", "joint_rotations",
+           "character_frame", "head_joints", "is_viseme", "shape_key", "SHAPE_SETS"]
 
 #: What ``--shapes`` takes besides a list of names: the character's ARKit shapes, its visemes, every
 #: face shape, a VRM's expressions, or ``auto`` (a VRM's expressions when it has them; else ARKit when it
@@ -846,3 +847,14 @@ def head_joints(character: Character, neck_share: float) -> list[tuple[str, floa
     head alone, or the head ``1 - s`` and the neck ``s``; roles the character has no joint for are left out."""
     roles = (("head", 1.0 - neck_share), ("neck", neck_share)) if neck_share > 0 else (("head", 1.0),)
     return [(r, s, character.joint(r)) for r, s in roles if character.joint(r) is not None]
+
+
+def mesh_columns(chans: list[Channel], W: np.ndarray) -> dict[int, dict[int, np.ndarray]]:
+    """``{scene mesh: {shape index: (T,) weight}}`` of every shape a channel drives (the sum over the
+    channels that bind it, each times its bind weight)."""
+    out: dict[int, dict[int, np.ndarray]] = {}
+    for c, ch in enumerate(chans):
+        for mi, k, w in ch.weighted():
+            col = out.setdefault(mi, {})
+            col[k] = col[k] + w * W[:, c] if k in col else w * W[:, c]
+    return out

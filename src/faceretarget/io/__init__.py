@@ -36,7 +36,7 @@ from ._character import (
     is_character_file,
     read_character,
 )
-from ._character_write import WRITE_BACK, mesh_columns, write_character_animation, writes_back
+from ._character_write import WRITE_BACK, write_character_animation, write_vrma, writes_back
 from ._controls import (
     CONTROL_TABLE_FORMATS,
     ControlTable,
@@ -109,7 +109,7 @@ from ._video import VideoInfo, iter_frames, probe_video, read_video_audio, write
 __all__ = [
     "read_character", "character_from_rig", "is_character_file", "CHARACTER_EXTENSIONS", "read_gltf_character",
     "character_format", "check_character_route",
-    "GltfDocument", "write_character_animation", "writes_back", "WRITE_BACK", "mesh_columns",
+    "GltfDocument", "write_character_animation", "writes_back", "WRITE_BACK", "write_vrma",
     "read_obj", "read_obj_vertices", "write_obj", "read_obj_sequence", "write_obj_sequence",
     "read_rig", "write_rig", "write_rig_npz", "read_rig_npz",
     "read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo",

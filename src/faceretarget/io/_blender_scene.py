@@ -319,7 +319,7 @@ def _animate_scene(bpy, out: Path, character: Character, chans: list[Channel], W
     strip = action.layers.new("Layer").strips.new(type="KEYFRAME")
     co = np.empty((len(t), 2), np.float32)
     co[:, 0] = frames
-    from ._character_write import mesh_columns
+    from ..character import mesh_columns
 
     per_obj: dict[str, list[tuple[str, np.ndarray]]] = {}
     for mi, cols in mesh_columns(chans, W).items():

@@ -35,12 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..character import Channel, Character, head_joints, joint_rotations
+from ..character import Channel, Character, head_joints, joint_rotations, mesh_columns
 from ..errors import InvalidDataError, OutputError
 from ..files import atomic_path, check_output_path
 from ..headpose import HeadPose
 
-__all__ = ["write_character_animation", "writes_back", "WRITE_BACK", "mesh_columns", "write_vrma"]
+__all__ = ["write_character_animation", "writes_back", "WRITE_BACK", "write_vrma"]
 
 #: Output extensions that write back into the user's file, per character format.
 WRITE_BACK = {"gltf": (".glb", ".gltf"), "vrm0": (".vrm", ".glb"), "vrm1": (".vrm", ".glb"),
@@ -205,17 +205,6 @@ def write_vrma(path: Path, character: Character, chans: list[Channel], W: np.nda
 
 
 # ----------------------------------------------------------------------------------------- glTF
-def mesh_columns(chans: list[Channel], W: np.ndarray) -> dict[int, dict[int, np.ndarray]]:
-    """``{scene mesh: {shape index: (T,) weight}}`` of every shape a channel drives (the sum over the
-    channels that bind it, each times its bind weight)."""
-    out: dict[int, dict[int, np.ndarray]] = {}
-    for c, ch in enumerate(chans):
-        for mi, k, w in ch.weighted():
-            col = out.setdefault(mi, {})
-            col[k] = col[k] + w * W[:, c] if k in col else w * W[:, c]
-    return out
-
-
 def _write_gltf(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
                 head: HeadPose | None, neck_share: float, name: str, log) -> Path:
     from ._gltf_scene import GltfDocument

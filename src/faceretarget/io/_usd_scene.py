@@ -254,7 +254,7 @@ def write_usd_animation(out: Path, character: Character, chans: list[Channel], W
     fps = _nice_fps(infer_fps(t, default=30.0))
     codes = (t - t[0]) * fps
     # the weight of every bound blend shape, per mesh prim
-    from ._character_write import mesh_columns
+    from ..character import mesh_columns
 
     per_mesh: dict[str, dict[str, np.ndarray]] = {}
     for mi, cols in mesh_columns(chans, W).items():
