@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from faceretarget.character import Channel, channels, choose_shapes, is_viseme, joint_rotations
+from faceretarget.character import Channel, channels, choose_shapes, is_viseme, joint_motions, joint_rotations
 from faceretarget.errors import (
     FaceNotFoundError,
     InputFileError,
@@ -304,8 +304,8 @@ def test_joint_rotations_turn_the_head_by_the_pose(chars):
     F = character_frame(ch)
     head, neck = ch.joint("head"), ch.joint("neck")
     for share in (0.0, 0.4):
-        qh = joint_rotations(ch, pose, "head", 1.0 - share)
-        qn = joint_rotations(ch, pose, "neck", share) if share else None
+        moves = {role: joint_rotations(ch, j, rot) for role, j, rot in joint_motions(ch, pose, share)}
+        qh, qn = moves["head"], moves.get("neck")
         for t in range(2):
             Ln = neck.local.copy()
             if qn is not None:
@@ -371,8 +371,27 @@ def test_animate_writes_back_into_the_glb(tmp_path, chars, take):
         three = checks.three_checks(out, "faceretarget", w["weights"], w["times"], w["head_node"], w["head_keys"],
                                     max_times=12)
         assert three["ok"], three
+    # gaze on the eye joints (the avatar has no eyeLook shapes): rotation channels on LeftEye and RightEye
+    js, _ = checks._glb_json(out)
+    anim = js["animations"][-1]
+    rotated = {js["nodes"][c["target"]["node"]]["name"] for c in anim["channels"] if c["target"]["path"] == "rotation"}
+    assert rotated == {"Head", "LeftEye", "RightEye"} and set(res.gaze) == {"leftEye", "rightEye"}
     with pytest.raises(OutputError, match="character's own file"):
         write_character_animation(src, d.character, d.channels, full, res.times)
+
+
+def test_gaze_scores_turn_the_eyes():
+    """eyeLookOutLeft = 1 turns the left eye 30 degrees toward the character's left (+X); eyeLookUpRight = 1
+    turns the right eye up (+Y) by 25 degrees."""
+    from faceretarget.pipelines import gaze_rotations
+
+    names = ["eyeLookOutLeft", "eyeLookUpRight", "jawOpen"]
+    g = gaze_rotations(names, np.array([[1.0, 1.0, 0.3]]))
+    left = g["leftEye"].apply([0, 0, 1])[0]
+    right = g["rightEye"].apply([0, 0, 1])[0]
+    np.testing.assert_allclose(left, [np.sin(np.radians(30)), 0, np.cos(np.radians(30))], atol=1e-12)
+    np.testing.assert_allclose(right, [0, np.sin(np.radians(25)), np.cos(np.radians(25))], atol=1e-12)
+    assert gaze_rotations(["jawOpen"], np.zeros((2, 1))) == {}
 
 
 def test_animate_writes_back_with_blender(tmp_path, chars, take):

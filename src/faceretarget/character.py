@@ -45,7 +45,7 @@ from .rig import Rig
 
 __all__ = ["EncodedImage", "Material", "SceneMesh", "Joint", "SurfacePoints", "Channel", "Character", "ShapeChoice",
            "channels", "expression_channels", "mesh_columns", "choose_shapes", "face_rig", "joint_rotations",
-           "character_frame", "head_joints", "is_viseme", "shape_key", "SHAPE_SETS"]
+           "character_frame", "joint_motions", "is_viseme", "shape_key", "SHAPE_SETS"]
 
 #: What ``--shapes`` takes besides a list of names: the character's ARKit shapes, its visemes, every
 #: face shape, a VRM's expressions, or ``auto`` (a VRM's expressions when it has them; else ARKit when it
@@ -814,39 +814,51 @@ def _rotation_part(M: np.ndarray) -> np.ndarray:
     return R
 
 
-def joint_rotations(character: Character, head, role: str, share: float) -> np.ndarray | None:
-    """Local rotation keys of the joint playing ``role`` that turn the head by ``share`` of a head pose.
+def joint_rotations(character: Character, joint: Joint, rotation) -> np.ndarray:
+    """Local rotation keys of ``joint`` that turn it by ``rotation`` (head frame) about its rest pose.
 
-    ``local(t) = local_rest * (G^-1 R_w(t)^share G)``: ``G`` the joint's rest world rotation, ``R_w`` the
-    head pose's rotation (:class:`~faceretarget.headpose.HeadPose`, head frame) in the file's world frame.
-    With the neck taking ``s`` and the head ``1 - s`` of it, the head ends exactly at ``R_w`` times its
-    rest world rotation (the two turn about one axis).
+    ``local(t) = local_rest * (G^-1 R_w(t) G)``: ``G`` the joint's rest world rotation and ``R_w`` the rotation
+    (a :class:`scipy.spatial.transform.Rotation` of ``T`` keys in the head frame: +Y up, +Z out of the face)
+    in the file's world frame.  The joint then ends at ``R_w`` times its rest world rotation, turned further by
+    whatever turns its parents (an eye with the head).
 
     Returns
     -------
-    (T, 4) float or None
-        Quaternions ``x, y, z, w`` (consecutive keys on one hemisphere); None without such a joint.
+    (T, 4) float
+        Quaternions ``x, y, z, w`` (consecutive keys on one hemisphere).
     """
     from scipy.spatial.transform import Rotation
 
-    j = character.joint(role)
-    if j is None:
-        return None
     F = character_frame(character)
-    rel = head.rotation
-    rv = rel.as_rotvec() * share
-    Rw = F.T @ Rotation.from_rotvec(rv).as_matrix() @ F               # (T, 3, 3) in the world frame
-    G = _rotation_part(j.world)
-    L = _rotation_part(j.local if j.local is not None else np.eye(4))
+    Rw = F.T @ rotation.as_matrix() @ F                              # (T, 3, 3) in the world frame
+    G = _rotation_part(joint.world)
+    L = _rotation_part(joint.local if joint.local is not None else np.eye(4))
     local = L @ (G.T @ Rw @ G)
     return continuous_quaternions(Rotation.from_matrix(local).as_quat())
 
 
-def head_joints(character: Character, neck_share: float) -> list[tuple[str, float, Joint]]:
-    """The joints a head rotation goes on, with the share of it each takes: ``(role, share, joint)`` for the
-    head alone, or the head ``1 - s`` and the neck ``s``; roles the character has no joint for are left out."""
-    roles = (("head", 1.0 - neck_share), ("neck", neck_share)) if neck_share > 0 else (("head", 1.0),)
-    return [(r, s, character.joint(r)) for r, s in roles if character.joint(r) is not None]
+def joint_motions(character: Character, head=None, neck_share: float = 0.0, gaze: dict | None = None) -> list:
+    """Which joints of the character move and how: ``(role, joint, rotation)``, the rotation (head frame, a
+    :class:`scipy.spatial.transform.Rotation` per frame) relative to the joint's rest pose.
+
+    The head pose (a :class:`~faceretarget.headpose.HeadPose`) goes on the head joint, ``neck_share`` of it on
+    the neck (the head ends at the whole rotation: the two turn about one axis); ``gaze``
+    (``{"leftEye": Rotation, "rightEye": Rotation}``, each relative to the head) on the eye joints.  Roles the
+    character has no joint for are left out."""
+    from scipy.spatial.transform import Rotation
+
+    out = []
+    if head is not None:
+        roles = (("head", 1.0 - neck_share), ("neck", neck_share)) if neck_share > 0 else (("head", 1.0),)
+        for role, share in roles:
+            j = character.joint(role)
+            if j is not None:
+                out.append((role, j, Rotation.from_rotvec(head.rotation.as_rotvec() * share)))
+    for role, rot in (gaze or {}).items():
+        j = character.joint(role)
+        if j is not None:
+            out.append((role, j, rot))
+    return out
 
 
 def mesh_columns(chans: list[Channel], W: np.ndarray) -> dict[int, dict[int, np.ndarray]]:

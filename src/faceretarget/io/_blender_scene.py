@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..character import Channel, Character, EncodedImage, Joint, Material, SceneMesh, head_joints, shape_key
+from ..character import Channel, Character, EncodedImage, Joint, Material, SceneMesh, joint_motions, shape_key
 from ..errors import InputFileError, OutputError
 from ..files import atomic_path
 from ..headpose import HeadPose, continuous_quaternions
@@ -248,7 +248,7 @@ def _image(bpy, image, images, notes) -> EncodedImage | None:
 # ------------------------------------------------------------------------------------------ writing
 def write_blender_animation(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
                             *, head: HeadPose | None = None, audio=None, audio_rate=None, neck_share: float = 0.0,
-                            name: str = "faceretarget", log=None) -> Path:
+                            gaze: dict | None = None, name: str = "faceretarget", log=None) -> Path:
     """Open the character's own file in Blender, add the action, save ``out`` (.blend or .fbx)."""
     log = log or (lambda *_: None)
     with _blender_output():
@@ -260,7 +260,7 @@ def write_blender_animation(out: Path, character: Character, chans: list[Channel
     try:
         with _blender_output():
             _open(bpy, Path(character.path))
-            _animate_scene(bpy, out, character, chans, W, t, head, neck_share, name, sound, scratch,
+            _animate_scene(bpy, out, character, chans, W, t, head, neck_share, gaze, name, sound, scratch,
                            start=1.0 if kind == ".blend" else 0.0, msgs=msgs)
             tmp_out = scratch / out.name
             if kind == ".blend":
@@ -307,7 +307,7 @@ def _key_block(obj, want: str):
 
 
 def _animate_scene(bpy, out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
-                   head: HeadPose | None, neck_share: float, name: str, sound, scratch: Path, start: float,
+                   head: HeadPose | None, neck_share: float, gaze, name: str, sound, scratch: Path, start: float,
                    msgs: list) -> None:
     scene = bpy.context.scene
     fps, base, frames = blender_timebase(t, start)
@@ -352,14 +352,15 @@ def _animate_scene(bpy, out: Path, character: Character, chans: list[Channel], W
     if missing:
         raise OutputError(f"{out}: Blender's copy of the character lacks {', '.join(missing[:4])}"
                           f"{' ...' if len(missing) > 4 else ''} (a name the file reader and Blender read differently)")
-    if head is not None:
-        _head_action(bpy, out, character, head, neck_share, action, strip, frames, linear, msgs)
+    motions = joint_motions(character, head, neck_share, gaze)
+    if motions:
+        _joint_action(bpy, out, character, motions, action, strip, frames, linear, msgs)
     if sound is not None:
         _sound_strip(bpy, scene, out, sound, scratch)
     msgs.append(f"keyed {keyed} shape key(s) on {len(per_obj)} object(s)")
 
 
-def _head_action(bpy, out, character, head: HeadPose, neck_share, action, strip, frames, linear, msgs) -> None:
+def _joint_action(bpy, out, character, motions: list, action, strip, frames, linear, msgs) -> None:
     from scipy.spatial.transform import Rotation
 
     from ..character import character_frame
@@ -369,7 +370,7 @@ def _head_action(bpy, out, character, head: HeadPose, neck_share, action, strip,
     # the character's world frame -> Blender's world: identity for a Blender read, Y-up -> Z-up for ufbx
     A = np.eye(3) if character.route.startswith("Blender") else BLENDER_AXES
     placed = []
-    for role, share, j in head_joints(character, neck_share):
+    for role, j, rot in motions:
         bone = j.ref.split("/")[-1] if "/" in j.ref else j.name
         arm = next((o for o in bpy.data.objects if o.type == "ARMATURE" and bone in o.pose.bones), None)
         if arm is None:
@@ -378,8 +379,7 @@ def _head_action(bpy, out, character, head: HeadPose, neck_share, action, strip,
         G = _m(arm.matrix_world)[:3, :3] @ _m(pb.matrix)[:3, :3]
         U, _, Vt = np.linalg.svd(G)
         G = U @ Vt
-        Rh = Rotation.from_rotvec(head.rotation.as_rotvec() * share).as_matrix()
-        Rb = A @ F.T @ Rh @ F @ A.T
+        Rb = A @ F.T @ rot.as_matrix() @ F @ A.T
         P0 = Rotation.from_quat(np.r_[pb.rotation_quaternion[1:], pb.rotation_quaternion[0]]).as_matrix() \
             if pb.rotation_mode == "QUATERNION" else np.array(pb.matrix_basis.to_3x3())
         wxyz = continuous_quaternions(Rotation.from_matrix(P0 @ (G.T @ Rb @ G)).as_quat())[:, [3, 0, 1, 2]]
@@ -397,6 +397,6 @@ def _head_action(bpy, out, character, head: HeadPose, neck_share, action, strip,
             co[:, 1] = wxyz[:, i]
             _fcurve(bag, f'pose.bones["{bpy.utils.escape_identifier(bone)}"].rotation_quaternion', i, co, linear)
         placed.append(f"{bone} ({role})")
-    msgs.append(f"head rotation on the bone(s) {', '.join(placed)}" if placed else
+    msgs.append(f"head and gaze rotation on the bone(s) {', '.join(placed)}" if placed else
                 f"{character.name}: no head bone; the head motion is left out")
 

@@ -35,12 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..character import Channel, Character, head_joints, joint_rotations, mesh_columns
+from ..character import Channel, Character, joint_motions, joint_rotations, mesh_columns
 from ..errors import InvalidDataError, OutputError
 from ..files import atomic_path, check_output_path
 from ..headpose import HeadPose
 
-__all__ = ["write_character_animation", "writes_back", "WRITE_BACK", "write_vrma"]
+__all__ = ["write_character_animation", "writes_back", "WRITE_BACK", "write_vrma", "check_motion"]
 
 #: Output extensions that write back into the user's file, per character format.
 WRITE_BACK = {"gltf": (".glb", ".gltf"), "vrm0": (".vrm", ".glb"), "vrm1": (".vrm", ".glb"),
@@ -67,7 +67,8 @@ def writes_back(character, out: str | os.PathLike) -> bool:
 def write_character_animation(out: str | os.PathLike, character: Character, chans: list[Channel],
                               weights: np.ndarray, times: np.ndarray, *, head: HeadPose | None = None,
                               audio: np.ndarray | None = None, audio_rate: float | None = None,
-                              neck_share: float = 0.0, name: str = "faceretarget", log=None) -> Path:
+                              neck_share: float = 0.0, gaze: dict | None = None, name: str = "faceretarget",
+                              log=None) -> Path:
     """Write the animation back into a copy of the character's own file (module docstring).
 
     Parameters
@@ -87,6 +88,8 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
         Written beside the file as ``<out>.wav`` (glTF) or into the scene (Blender) / a sound prim (USD).
     neck_share : float
         Share of the head rotation the neck joint takes (0..1).
+    gaze : dict, optional
+        ``{"leftEye": Rotation, "rightEye": Rotation}`` (head frame, relative to the head): on the eye joints.
     """
     log = log or (lambda *_: None)
     out = check_output_path(out)
@@ -106,9 +109,10 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
     if not writes_back(character, out):
         raise OutputError(f"{out}: a {character.format} character is written back as "
                           f"{' or '.join(WRITE_BACK.get(character.format, ()))}")
+    check_motion(out, len(t), head, gaze)
     fmt = character.format
     if fmt in ("gltf", "vrm0", "vrm1"):
-        path = _write_gltf(out, character, chans, W, t, head, neck_share, name, log)
+        path = _write_gltf(out, character, chans, W, t, head, neck_share, gaze, name, log)
         if fmt.startswith("vrm") and chans and all(c.name in character.expressions for c in chans):
             vrma = out.with_suffix(".vrma")
             check_output_path(vrma)
@@ -119,12 +123,12 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
         from ._blender_scene import write_blender_animation
 
         return write_blender_animation(out, character, chans, W, t, head=head, audio=audio, audio_rate=audio_rate,
-                                       neck_share=neck_share, name=name, log=log)
+                                       neck_share=neck_share, gaze=gaze, name=name, log=log)
     else:
         from ._usd_scene import write_usd_animation
 
         return write_usd_animation(out, character, chans, W, t, head=head, audio=audio, audio_rate=audio_rate,
-                                   neck_share=neck_share, name=name, log=log)
+                                   neck_share=neck_share, gaze=gaze, name=name, log=log)
     if audio is not None and audio_rate:
         from ._audio import checked_audio, write_wav
 
@@ -206,7 +210,7 @@ def write_vrma(path: Path, character: Character, chans: list[Channel], W: np.nda
 
 # ----------------------------------------------------------------------------------------- glTF
 def _write_gltf(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
-                head: HeadPose | None, neck_share: float, name: str, log) -> Path:
+                head: HeadPose | None, neck_share: float, gaze: dict | None, name: str, log) -> Path:
     from ._gltf_scene import GltfDocument
 
     doc = GltfDocument(character.path)
@@ -252,21 +256,15 @@ def _write_gltf(out: Path, character: Character, chans: list[Channel], W: np.nda
         samplers.append({"input": t_acc, "output": add(M.reshape(-1), "SCALAR"), "interpolation": "LINEAR"})
         channels_.append({"sampler": len(samplers) - 1, "target": {"node": node_i, "path": "weights"}})
         done += 1
-    if head is not None:
-        if head.n_frames != len(t) or not head.valid.all():
-            raise InvalidDataError(f"{out}: the head pose needs one valid rotation per frame ({len(t)})")
-        placed = []
-        for role, share, j in head_joints(character, neck_share):
-            q = joint_rotations(character, head, role, share)
-            ni = int(j.ref.split(":")[1])
-            _trs(nodes[ni])
-            samplers.append({"input": t_acc, "output": add(q, "VEC4"), "interpolation": "LINEAR"})
-            channels_.append({"sampler": len(samplers) - 1, "target": {"node": ni, "path": "rotation"}})
-            placed.append(f"{j.name} ({role})")
-        if placed:
-            log(f"head rotation on the character's joint(s): {', '.join(placed)}")
-        else:
-            log(f"{character.name}: no head joint; the head motion is left out of {out.name}")
+    placed = []
+    for role, j, rot in joint_motions(character, head, neck_share, gaze):
+        q = joint_rotations(character, j, rot)
+        ni = int(j.ref.split(":")[1])
+        _trs(nodes[ni])
+        samplers.append({"input": t_acc, "output": add(q, "VEC4"), "interpolation": "LINEAR"})
+        channels_.append({"sampler": len(samplers) - 1, "target": {"node": ni, "path": "rotation"}})
+        placed.append(f"{j.name} ({role})")
+    _log_joints(log, character, out, head, gaze, placed)
     js.setdefault("animations", []).append({"name": name, "samplers": samplers, "channels": channels_})
     if to_glb:
         binchunk = _attach_glb_buffer(js, doc, bytes(new))
@@ -276,6 +274,22 @@ def _write_gltf(out: Path, character: Character, chans: list[Channel], W: np.nda
     log(f"wrote {out} ({len(t)} frames on {done} face mesh node(s); everything else of {Path(character.path).name} "
         "kept)")
     return out
+
+
+def check_motion(out: Path, T: int, head: HeadPose | None, gaze: dict | None) -> None:
+    """The head pose and gaze rotations, one valid rotation per frame."""
+    if head is not None and (head.n_frames != T or not head.valid.all()):
+        raise InvalidDataError(f"{out}: the head pose needs one valid rotation per frame ({T})")
+    for role, rot in (gaze or {}).items():
+        if len(rot) != T:
+            raise InvalidDataError(f"{out}: the {role} gaze has {len(rot)} rotations for {T} frames")
+
+
+def _log_joints(log, character: Character, out: Path, head, gaze, placed: list[str]) -> None:
+    if placed:
+        log(f"head{' and gaze' if gaze else ''} rotation on the character's joint(s): {', '.join(placed)}")
+    elif head is not None:
+        log(f"{character.name}: no head joint; the head motion is left out of {out.name}")
 
 
 def _trs(node: dict) -> None:

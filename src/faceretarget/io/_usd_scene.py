@@ -34,7 +34,7 @@ from ..character import (
     Joint,
     Material,
     SceneMesh,
-    head_joints,
+    joint_motions,
     joint_rotations,
 )
 from ..errors import InputFileError, OutputError
@@ -235,7 +235,7 @@ def _material(prim, path, notes, images, UsdShade) -> Material:
 # ------------------------------------------------------------------------------------------ writing
 def write_usd_animation(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray, *,
                         head: HeadPose | None = None, audio=None, audio_rate=None, neck_share: float = 0.0,
-                        name: str = "faceretarget", log=None) -> Path:
+                        gaze: dict | None = None, name: str = "faceretarget", log=None) -> Path:
     """A layer over the character's USD asset that adds the animation (module docstring)."""
     from ._audio import checked_audio, write_wav
     from ._usd import _nice_fps, _write_audio
@@ -284,11 +284,8 @@ def write_usd_animation(out: Path, character: Character, chans: list[Channel], W
                         if n not in names:
                             names.append(n)
                             weights.append(col)
-                jroles = []
-                if head is not None:
-                    for role, share, j in head_joints(character, neck_share):
-                        if j.ref.startswith(f"{skel.GetPath()}|"):
-                            jroles.append((j, joint_rotations(character, head, role, share)))
+                jroles = [(j, joint_rotations(character, j, rot)) for _, j, rot in
+                          joint_motions(character, head, neck_share, gaze) if j.ref.startswith(f"{skel.GetPath()}|")]
                 if not names and not jroles:
                     continue
                 anim = UsdSkel.Animation.Define(stage, root_prim.GetPath().AppendChild(f"{name}_anim"))

@@ -27,10 +27,12 @@
 """
 
 from ._animate import (
+    GAZE_DEG,
     HEAD_SOURCES,
     VIDEO_EXTENSIONS,
     AnimateResult,
     animate,
+    gaze_rotations,
     drives_by_landmarks,
     face_take,
     face_takes,
@@ -91,6 +93,8 @@ from ._transfer import (
 )
 
 __all__ = [
+    "gaze_rotations",
+    "GAZE_DEG",
     "load_character",
     "drive_rig",
     "character_weights",

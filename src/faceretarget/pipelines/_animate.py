@@ -42,7 +42,7 @@ from ..retarget import LandmarkSolver, neutral_face, similarity_fit
 from ..rig import Rig
 from ..timebase import infer_fps
 
-__all__ = ["FACE_EYE_MM", "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks"]
+__all__ = ["FACE_EYE_MM", "GAZE_DEG", "gaze_rotations", "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks"]
 
 #: Where ``animate``'s head motion comes from.
 HEAD_SOURCES = ("video", "speech", "off")
@@ -100,6 +100,7 @@ class AnimateResult:
     alpha: np.ndarray | None = None
     emotions: list = field(default_factory=list)
     drive: object = None
+    gaze: dict = field(default_factory=dict)
 
     @property
     def mouth_corr(self) -> float:
@@ -295,6 +296,39 @@ def _speech_head(db_path, audio, rate, times, amplitude: float, log) -> HeadPose
     take = res.take
     log(f"head motion synthesized from the speech: {res.info.segmentation.n_segments} segment(s)")
     return take.head.resample(take.times, np.clip(times - times[0], take.times[0], take.times[-1]))
+
+
+#: The eye rotations (degrees) the tracker's ARKit gaze scores stand for at 1: looking out or in, up, down.
+GAZE_DEG = {"out": 30.0, "in": 30.0, "up": 25.0, "down": 30.0}
+
+
+def gaze_rotations(names: list[str], scores: np.ndarray) -> dict:
+    """Each eye's rotation relative to the head (head frame) from the tracker's ``eyeLook*`` scores.
+
+    ``out``/``in`` turn an eye about the head's up axis (the left eye's "out" toward the character's left,
+    +X), ``up``/``down`` about its left-right axis, by :data:`GAZE_DEG` times the score.
+
+    Returns
+    -------
+    dict
+        ``{"leftEye": Rotation, "rightEye": Rotation}`` of ``T`` keys; ``{}`` when the scores have no gaze.
+    """
+    from scipy.spatial.transform import Rotation
+
+    from ..names import normalize_name
+
+    col = {normalize_name(n): i for i, n in enumerate(names)}
+    S = np.nan_to_num(np.asarray(scores, dtype=np.float64), nan=0.0)
+    if not any(f"eyeLook{d}Left" in col for d in ("In", "Out", "Up", "Down")):
+        return {}
+    out = {}
+    for side, sign in (("Left", 1.0), ("Right", -1.0)):
+        def s(name):
+            return S[:, col[name]] if name in col else np.zeros(len(S))
+        yaw = sign * (GAZE_DEG["out"] * s(f"eyeLookOut{side}") - GAZE_DEG["in"] * s(f"eyeLookIn{side}"))
+        pitch = GAZE_DEG["up"] * s(f"eyeLookUp{side}") - GAZE_DEG["down"] * s(f"eyeLookDown{side}")
+        out[f"{side.lower()}Eye"] = Rotation.from_euler("YX", np.stack([yaw, -pitch], axis=1), degrees=True)
+    return out
 
 
 # --------------------------------------------------------------------------------------- animate
@@ -493,9 +527,10 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
         elif drive is not None and _writes_back(drive.character, out):
             from ..io import write_character_animation
 
+            res.gaze = _eye_joints(drive, take) if speech_audio is None else {}
             res.outputs.append(write_character_animation(
                 out, drive.character, drive.channels, drive.full_weights(res.weights), res.times, head=res.head,
-                audio=res.audio, audio_rate=res.audio_rate, neck_share=neck_share, log=log))
+                audio=res.audio, audio_rate=res.audio_rate, neck_share=neck_share, gaze=res.gaze, log=log))
         else:
             res.outputs.append(_write(out, play, res, bake, log))
         timings["write"] = time.perf_counter() - t0
@@ -517,6 +552,17 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
         timings["preview"] = time.perf_counter() - t0
     log(res.summary())
     return res
+
+
+def _eye_joints(drive, take: Performance) -> dict:
+    """Gaze on the character's eye joints, when it has them and no gaze shapes drive (``eyeLook*``)."""
+    ch = drive.character
+    if take.weights is None or not (ch.joint("leftEye") or ch.joint("rightEye")):
+        return {}
+    driven = {n for n in drive.rig.normalized_names}
+    if any(n.startswith("eyeLook") for n in driven):
+        return {}
+    return gaze_rotations(take.names, take.weights)
 
 
 def _writes_back(character, out) -> bool:
