@@ -32,10 +32,10 @@ from ._animate import (
     VIDEO_EXTENSIONS,
     AnimateResult,
     animate,
-    gaze_rotations,
     drives_by_landmarks,
     face_take,
     face_takes,
+    gaze_rotations,
     parse_emotion,
     tracked_take,
 )
