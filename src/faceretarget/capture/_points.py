@@ -16,14 +16,10 @@ from ..errors import InvalidDataError
 
 __all__ = ["MEDIAPIPE_68", "face_points", "mouth_opening"]
 
-#: MediaPipe Face Landmarker index of each of the 68 Multi-PIE landmarks, in Multi-PIE order.  The
-#: jaw line's ends (0, 16) are MediaPipe's 127 / 356 and the brows' outer ends (17, 26) its 70 / 300: on
-#: renders of four faces with independently made Multi-PIE landmarks (ICT-FaceKit, the ARKit face and the
-#: two demo characters) these were nearer the reference on every face than 162 / 389 and 71 / 301
-#: (the lower brow edge), by 3-15 % of the eye-corner distance.
+#: MediaPipe Face Landmarker index of each of the 68 Multi-PIE landmarks, in Multi-PIE order.
 MEDIAPIPE_68 = np.array([
-    127, 234, 93, 58, 172, 136, 149, 148, 152, 377, 378, 365, 397, 288, 323, 454, 356,   # jaw 0-16
-    70, 63, 105, 66, 107, 336, 296, 334, 293, 300,                                      # brows 17-26
+    162, 234, 93, 58, 172, 136, 149, 148, 152, 377, 378, 365, 397, 288, 323, 454, 389,   # jaw 0-16
+    71, 63, 105, 66, 107, 336, 296, 334, 293, 301,                                      # brows 17-26
     168, 197, 5, 4, 75, 97, 2, 326, 305,                                                # nose 27-35
     33, 160, 158, 133, 153, 144, 362, 385, 387, 263, 373, 380,                          # eyes 36-47
     61, 39, 37, 0, 267, 269, 291, 405, 314, 17, 84, 181,                                # outer lips 48-59

@@ -488,10 +488,16 @@ def _pose(doc: GltfDocument, node_i: int, node: dict, pos: np.ndarray, deltas: n
 
 
 def _apply_linear(L: np.ndarray, deltas: np.ndarray) -> np.ndarray:
-    """Per-vertex linear maps ``L`` (V, 3, 3) applied to deltas (K, V, 3), one row of L at a time."""
-    out = np.empty_like(deltas)
+    """Per-vertex linear maps ``L`` (V, 3, 3) applied to deltas (K, V, 3), on the vertices some shape moves
+    (a body mesh's face shapes move a fraction of it), one row of L at a time."""
+    out = np.zeros(deltas.shape, np.float32)
+    if not deltas.size:
+        return out
+    moved = np.flatnonzero(np.abs(deltas).max(axis=(0, 2)) > 0)
+    d = deltas[:, moved].astype(np.float32)
+    Lm = L[moved].astype(np.float32)
     for m in range(3):
-        out[..., m] = (deltas * L[None, :, m, :]).sum(axis=2)
+        out[:, moved, m] = (d * Lm[None, :, m, :]).sum(axis=2)
     return out
 
 
