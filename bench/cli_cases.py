@@ -88,6 +88,15 @@ CASES: tuple[Case, ...] = (
     _c("animate-missing-head-db", "animate {video} --character {ada} --out {out}/a.glb --head speech "
        "--head-db {d}/nope.npz", "--head-db"),
     _c("animate-no-neutral", "animate {video} --character {noneutral} --out {out}/a.glb", "--neutral"),
+    _c("animate-character-out-ext", "animate {video} --character {glb} --out {out}/a.vrm", ".vrm"),
+    _c("animate-character-txt", "animate {video} --character {junk} --out {out}/a.glb", "junk.csv"),
+    _c("animate-neck-share", "animate {video} --character {glb} --out {out}/a.glb --neck-share 2", "--neck-share"),
+    _c("animate-shapes-on-folder", "animate {video} --character {ada} --out {out}/a.glb --shapes all", "--shapes"),
+    _c("animate-character-landmarks-missing", "animate {video} --character {glb} --out {out}/a.glb "
+       "--landmarks {d}/nope.txt", "nope.txt"),
+    _c("character-inspect-missing", "character inspect {d}/nope.glb", "nope.glb"),
+    _c("character-inspect-out-ext", "character inspect {glb} --out {out}/check.jpg", "check.jpg"),
+    _c("character-inspect-not-a-character", "character inspect {junk}", "not a character format"),
     _c("animate-existing-out", "animate {video} --character {ada} --out {out}/old.glb --head-amplitude -1",
        "--head-amplitude", existing="{out}/old.glb"),
     # ---- live
@@ -282,6 +291,10 @@ def make_inputs(d: Path) -> dict[str, str]:
     (d / "clip.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(64))
     (d / "model.npz").write_bytes(b"PK\x05\x06" + bytes(18))
     (d / "db.npz").write_bytes(b"PK\x05\x06" + bytes(18))
+    from faceretarget.io import write_glb
+
+    ada = make_demo_character("ada")
+    write_glb(d / "ada.glb", ada, [[0.0] * ada.n_shapes], [0.0])     # a character file (never read: the checks fail first)
     (d / "out").mkdir()
     real = DATA / "emotion-video" / "mead" / "M030_front_angry_level3_001.mp4"
     return {"d": str(d), "out": str(d / "out"), "missing": str(d / "missing"), "ro": str(_unwritable(d)),
@@ -289,7 +302,7 @@ def make_inputs(d: Path) -> dict[str, str]:
             "bo_keys": str(d / "bo_keys"), "noneutral": str(d / "noneutral"), "take": str(d / "take.csv"),
             "take2": str(d / "take2.csv"), "junk": str(d / "junk.csv"), "wav": str(d / "speech.wav"), "bvh": str(d / "motion.bvh"),
             "video": str(d / "clip.mp4"), "model": str(d / "model.npz"), "db": str(d / "db.npz"),
-            "realvideo": str(real)}
+            "realvideo": str(real), "glb": str(d / "ada.glb")}
 
 
 def missing_need(case: Case, paths: dict[str, str]) -> str | None:

@@ -477,10 +477,10 @@ def _read_npz_rig(path):
 
 
 def _read_glb(path):
-    from faceretarget.io import read_glb_rig, read_glb_weights, read_head_motion
+    from faceretarget.io import read_glb_rig, read_glb_weights, read_gltf_character, read_head_motion
 
     out = []
-    for f in (read_head_motion, read_glb_weights, read_glb_rig):
+    for f in (read_head_motion, read_glb_weights, read_glb_rig, read_gltf_character):
         try:
             out.append(f(path))
         except FaceRetargetError as e:
@@ -491,8 +491,13 @@ def _read_glb(path):
 
 
 def _check_glb(res) -> str | None:
-    head, weights, rig = res
+    head, weights, rig, character = res
     problems = []
+    if not isinstance(character, Exception):
+        for m in character.meshes:
+            problems += [_finite(m.mesh.vertices, f"{m.name} vertices"), _finite(m.deltas, f"{m.name} deltas"),
+                         None if m.deltas.shape == (m.n_shapes, m.mesh.n_vertices, 3) else f"{m.name} deltas shape"]
+        problems += [_finite(j.world, f"joint {j.name}") for j in character.joints]
     if not isinstance(head, Exception):
         problems.append(check_performance(head))
     if not isinstance(weights, Exception):

@@ -510,3 +510,26 @@ def test_vrm_read_driven_and_written_back(tmp_path, chars, take, version):
         vrm = checks.three_checks(out, "faceretarget", w["weights"], w["times"], w["head_node"], w["head_keys"],
                                   vrma=out.with_suffix(".vrma"), max_times=8)
         assert vrm["ok"], vrm
+
+
+def test_gltf_json_copy_keeps_the_files_where_they_are(tmp_path, chars):
+    """A .gltf written back: the JSON beside the binary chunk it came from and NAME.anim.bin, read whole
+    again with the same meshes and the new animation."""
+    src = chars / "valid" / "Black_M_2_Busi.glb"
+    ch = read_character(src)
+    chans = channels(ch)
+    T = 5
+    W = np.linspace(0, 1, T)[:, None] * np.ones((1, len(chans)))
+    out = tmp_path / "copy" / "busi.gltf"
+    out.parent.mkdir()
+    write_character_animation(out, ch, chans, W, np.arange(T) / 25.0)
+    assert (out.parent / "busi.bin").is_file() and (out.parent / "busi.anim.bin").is_file()
+    back = read_character(out)
+    assert [m.name for m in back.meshes] == [m.name for m in ch.meshes]
+    np.testing.assert_allclose(back.meshes[0].mesh.vertices, ch.meshes[0].mesh.vertices, atol=1e-7)
+    from faceretarget.io import GltfDocument
+
+    doc = GltfDocument(out)
+    anim = doc.json["animations"][-1]
+    w = doc.accessor(anim["samplers"][0]["output"]).reshape(T, -1)
+    np.testing.assert_allclose(w[:, 0], W[:, 0], atol=1e-7)
