@@ -185,7 +185,7 @@ VARIANT_KNOWN = {
     "no-analog-rate": {"ezc3d": "ezc3d_frame_size"},
     "no-rates": {"ezc3d": "ezc3d_frame_size"},
     "header-scale-sign": {"py-c3d": "fails"},
-    "header-11-points": {"ezc3d": "ezc3d_header_points", "py-c3d": "fails"},
+    "header-11-points": {"ezc3d": "ezc3d_frame_size", "py-c3d": "fails"},
     "no-parameters": {"ezc3d": "fails", "py-c3d": "fails"},
 }
 

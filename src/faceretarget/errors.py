@@ -28,6 +28,7 @@ __all__ = [
     "OutputError",
     "NotFittedError",
     "MissingDependencyError",
+    "NotAFaceError",
     "FaceRetargetWarning",
     "DataWarning",
     "FitWarning",
@@ -59,6 +60,10 @@ class MissingShapeError(FaceRetargetError, KeyError):
 
 class InvalidDataError(FaceRetargetError, ValueError):
     """Array data is malformed: wrong shape, NaN or infinite values, bad times."""
+
+
+class NotAFaceError(InvalidDataError):
+    """A take or mesh that is not a face: its size or its marker labels say so (a full-body capture)."""
 
 
 class SingularKeysError(FaceRetargetError, ValueError):

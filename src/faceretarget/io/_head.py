@@ -191,7 +191,9 @@ def read_marker_head(perf: Performance, subset=None, n_auto: int = 8) -> Perform
         cluster's reference pose (its robust median), so a torso-fixed capture gives the head
         relative to the torso.
     subset : labels or indices, optional
-        Markers moving with the skull; chosen automatically when omitted.
+        Markers moving with the skull; chosen automatically when omitted, among the markers of a take
+        that is a face (:func:`~faceretarget.numerics.face_markers`: a full-body take is refused, stray
+        and mostly-missing markers are left out with a warning).
     n_auto : int
         Size of the automatic subset.
 
@@ -202,8 +204,15 @@ def read_marker_head(perf: Performance, subset=None, n_auto: int = 8) -> Perform
         millimetres assumed when it is unknown); frames without a pose are interpolated from
         their neighbours.
     """
-    from ..numerics import RigidAligner
+    from ..numerics import RigidAligner, face_markers, select_rigid_markers
 
+    if subset is None and perf.points is not None and perf.points.shape[2] == 3:
+        # chosen automatically: only on a face (a full-body take's most rigid markers are a leg), without strays
+        chk = face_markers(perf.points, perf.labels, perf.unit, source=perf.source)
+        if not chk.keep.all():
+            warnings.warn(chk.message(perf.source), DataWarning, stacklevel=2)
+            subset = [int(i) for i in select_rigid_markers(perf.points[:, chk.keep], min(n_auto, int(chk.keep.sum())))]
+            subset = [int(np.flatnonzero(chk.keep)[i]) for i in subset]
     al = RigidAligner(subset=subset, n_auto=n_auto)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
