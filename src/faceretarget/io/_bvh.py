@@ -25,13 +25,14 @@ frame are exactly yaw, pitch and roll in degrees, intrinsic Y-X-Z) and, when a t
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import InputFileError, InvalidDataError, excerpt
+from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
 from ..files import atomic_path, check_output_path, input_file, read_text
 from ..headpose import HeadPose
 
@@ -365,6 +366,9 @@ def _motion_rows(path: Path, lines: list[str], start: int, n_frames: int, C: int
     rows_text = [(j + 1, lines[j]) for j in range(start, len(lines)) if lines[j].strip() and not _comment(lines[j])]
     if len(rows_text) < n_frames:
         raise InputFileError(f"{path}: 'Frames: {n_frames}' but only {len(rows_text)} frame rows")
+    if len(rows_text) > n_frames:
+        warnings.warn(f"{path}: {len(rows_text)} frame rows but 'Frames: {n_frames}'; the first {n_frames} are read "
+                      f"(line {rows_text[n_frames][0]} on is not)", DataWarning, stacklevel=3)
     rows_text = rows_text[:n_frames]
     try:
         flat = np.array(" ".join(r for _, r in rows_text).split(), dtype=np.float64)
@@ -396,6 +400,11 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
         Missing file, malformed hierarchy (naming the line), unknown channel names or a negative
         channel count, a frame row with the wrong number of values, a non-numeric, non-finite or
         absurd (beyond +-1e15) value (naming the line), or fewer frames than ``Frames:`` announces.
+
+    Warns
+    -----
+    DataWarning
+        More frame rows than ``Frames:`` announces (the first are read), or one name for several joints.
     """
     path = input_file(path)
     text = read_text(path)
@@ -406,6 +415,13 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
     n_frames, frame_time, first_row = _motion_header(path, lines, motion_line)
     C = sum(len(j.channels) for j in joints)
     motion = _motion_rows(path, lines, first_row, n_frames, C)
+    seen: dict[str, int] = {}
+    for j in joints:
+        seen[j.name] = seen.get(j.name, 0) + 1
+    twice = [n for n, k in seen.items() if k > 1]
+    if twice:
+        warnings.warn(f"{path}: joint name(s) {', '.join(excerpt(n, bare=True) for n in twice[:8])} used by more than "
+                      "one joint; a name finds the first of them (head motion, key frames)", DataWarning, stacklevel=2)
     return Bvh(joints, frame_time, motion, source=str(path))
 
 

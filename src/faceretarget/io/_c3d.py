@@ -31,6 +31,7 @@ from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError,
 from ..files import atomic_path, check_output_path, input_file
 from ..optional import optional_import
 from ..performance import Performance
+from ..units import normalize_unit
 
 __all__ = ["read_c3d", "write_c3d"]
 
@@ -519,6 +520,13 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
     point = {name: {"value": v} for (g, name), v in c.params.items() if g == "POINT"}
     units = _param(point, "UNITS")
     unit = str(units[0]).strip() if units and isinstance(units[0], str) and units[0].strip() else None
+    if unit is not None:
+        try:
+            unit = normalize_unit(unit)
+        except InvalidDataError:
+            warnings.warn(f"{path}: POINT:UNITS is {excerpt(unit)}, not a length unit (mm, cm, m, in); the points "
+                          "are taken as millimetres, C3D's default", DataWarning, stacklevel=2)
+            unit = None
     labels, dup = _labels(point, c.n_points)
     if dup:
         warnings.warn(f"{path}: repeated marker label(s) {', '.join(excerpt(d, bare=True) for d in dup[:20])}"
@@ -544,7 +552,10 @@ def _marker_points(path: Path, xyz: np.ndarray, residual: np.ndarray, labels: li
         missing |= (pts == 0.0).all(axis=2)
     pts[missing] = np.nan
     never = np.flatnonzero(missing.all(axis=0))
-    if never.size:
+    if never.size and never.size == len(labels):
+        warnings.warn(f"{path}: no marker is present in any frame (every sample invalid): the file holds no "
+                      "usable point", DataWarning, stacklevel=3)
+    elif never.size:
         shown = ", ".join(excerpt(labels[i], bare=True) for i in never[:20]) + (
             f" and {never.size - 20} more" if never.size > 20 else "")
         warnings.warn(f"{path}: marker(s) missing in every frame: {shown}", DataWarning, stacklevel=3)
