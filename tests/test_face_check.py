@@ -147,3 +147,13 @@ def test_head_motion_from_markers_needs_a_face(data_dir):
     with pytest.raises(NotAFaceError, match="not a face"):
         read_head_motion(data_dir / WALK)
     assert read_head_motion(data_dir / "facial-mocap" / "Jaw.c3d").head.valid.all()
+
+
+def test_tracked_landmarks_in_pixels_are_not_judged_by_size():
+    """Video landmarks carry unit 'px' (or are 2-D): no length scale, so the span is not checked (a face fills a
+    1080p frame at 900 px); strays are still found."""
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 900, (20, 68, 3))
+    chk = face_markers(pts, [f"lm{i}" for i in range(68)], "px", source="video")
+    assert chk.keep.all() and np.isnan(chk.span_mm)
+    assert np.isnan(face_mesh(pts, "px")) and np.isnan(face_markers(pts[..., :2], None, None).span_mm)

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import NotAFaceError, excerpt
+from ..errors import InvalidDataError, NotAFaceError, excerpt
 from ..names import marker_region
 from ..units import mm_per_unit, normalize_unit
 
@@ -102,7 +102,8 @@ def face_markers(points: np.ndarray, labels: list[str] | None, unit: str | None,
         Markers, NaN where missing.  2-D points (pixels) get the presence and distance checks only.
     labels : list of str, optional
     unit : str, optional
-        The points' length unit; None is taken as millimetres (C3D's default).
+        The points' length unit; None is taken as millimetres (C3D's default); a unit that is not a
+        length (``"px"``: tracked landmarks) leaves the span unchecked.
     source : str
         For messages.
 
@@ -143,8 +144,8 @@ def face_markers(points: np.ndarray, labels: list[str] | None, unit: str | None,
     regions = {"face": [s for s in kept if marker_region(s) == "face"],
                "body": [s for s in kept if marker_region(s) == "body"]}
     out = FaceMarkers(keep, dropped, float("nan"), regions)
-    if X.shape[2] == 3:
-        mm = mm_per_unit(normalize_unit(unit, what=source)) if unit else 1.0
+    mm = _mm(unit)
+    if X.shape[2] == 3 and mm is not None:
         out.span_mm = _span(X[:, keep]) * mm
     bodyish = len(regions["body"]) >= max(3, 0.5 * len(kept)) and not regions["face"]
     if out.span_mm > FACE_MAX_MM or bodyish:
@@ -159,6 +160,16 @@ def face_markers(points: np.ndarray, labels: list[str] | None, unit: str | None,
     return out
 
 
+def _mm(unit: str | None) -> float | None:
+    """Millimetres per ``unit`` (None: C3D's default, mm); None for a unit that is not a length."""
+    if unit is None:
+        return 1.0
+    try:
+        return mm_per_unit(normalize_unit(unit))
+    except (InvalidDataError, ValueError, TypeError):
+        return None
+
+
 def face_mesh(vertices: np.ndarray, unit: str | None, *, source: str = "mesh", moving: np.ndarray | None = None
               ) -> float:
     """Check that a mesh take (or a set of key shapes) is a face by the span of its moving part.
@@ -168,7 +179,7 @@ def face_mesh(vertices: np.ndarray, unit: str | None, *, source: str = "mesh", m
     vertices : (T, V, 3) float
         Frames of a mesh (or a neutral and its key shapes).
     unit : str, optional
-        Their length unit (None: no check, the scale is unknown).
+        Their length unit (None, or not a length: no check, the scale is unknown).
     moving : (V,) float, optional
         How far each vertex moves (default: its range over the frames).
 
@@ -183,7 +194,8 @@ def face_mesh(vertices: np.ndarray, unit: str | None, *, source: str = "mesh", m
         It spans more than :data:`MESH_FACE_MAX_MM`.
     """
     X = np.asarray(vertices, dtype=np.float64)
-    if unit is None or X.ndim != 3 or len(X) == 0:
+    mm = None if unit is None else _mm(unit)
+    if mm is None or X.ndim != 3 or len(X) == 0:
         return float("nan")
     with np.errstate(invalid="ignore"):
         m = np.linalg.norm(np.nanmax(X, axis=0) - np.nanmin(X, axis=0), axis=1) if moving is None else np.asarray(moving)
@@ -191,7 +203,7 @@ def face_mesh(vertices: np.ndarray, unit: str | None, *, source: str = "mesh", m
         return float("nan")
     part = X[0][m > 0.1 * np.nanmax(m)]
     part = part[np.isfinite(part).all(axis=1)]
-    span = float(np.ptp(part, axis=0).max()) * mm_per_unit(normalize_unit(unit, what=source)) if len(part) else np.nan
+    span = float(np.ptp(part, axis=0).max()) * mm if len(part) else np.nan
     if span > MESH_FACE_MAX_MM:
         raise NotAFaceError(f"{source}: not a face: the part of the mesh that moves spans {span:,.0f} mm; a face is "
                             f"150-300 mm across (at most {MESH_FACE_MAX_MM:.0f} mm is taken for a stylised one; "

@@ -96,7 +96,8 @@ def check_face_keys(keys: Rig) -> None:
     (markers) by their span, mesh keys by the span of the part their shapes move."""
     frames = np.concatenate([keys.neutral.vertices[None], keys.neutral.vertices + keys.deltas])
     if keys.neutral.n_faces == 0:
-        face_markers(frames, None, keys.unit, source=keys.name)
+        flat = not np.any(frames[..., 2])                  # keys of 2-D tracks (z = 0): pixels, no scale to judge
+        face_markers(frames[..., :2] if flat else frames, None, keys.unit, source=keys.name)
     else:
         face_mesh(frames, keys.unit, source=keys.name, moving=np.abs(keys.deltas).max(axis=(0, 2)) if keys.n_shapes
                   else None)
