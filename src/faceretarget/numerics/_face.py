@@ -1,7 +1,7 @@
 """Is this take a face?  Sizes, label vocabularies, presence and distance from the face centre.
 
-A human face is about 150-300 mm across (the shared facial takes span 185-245 mm, a head-mounted set
-with its reference markers a little more) and its markers have recognisable names (brow, eye, nose,
+A human face is about 150-300 mm across (the shared facial takes span 185-188 mm, c3d.org's
+Facial-Sing with its head and neck markers 243 mm) and its markers have recognisable names (brow, eye, nose,
 mouth, jaw...); a full-body capture spans 900-1,800 mm and its labels name the pelvis, knees and
 ankles.  Keyshape selection, rigid head-motion removal and the solves all assume a face: fed a walking
 take they return keyshapes of legs with a reconstruction error in the thousands of percent, and exit 0.
