@@ -145,6 +145,9 @@ CASES: tuple[Case, ...] = (
     _c("select-k", "keys select --performance {take} --source-rig {ada} --k 0 --out {out}/sel", "--k"),
     _c("select-fps", "keys select --performance {take} --source-rig {ada} --fps -30 --out {out}/sel", "--fps"),
     _c("select-missing-take", "keys select --performance {d}/nope.csv --source-rig {ada} --out {out}/sel", "nope.csv"),
+    _c("select-not-a-face", "keys select --performance {body} --k 3 --out {out}/sel", "not a face"),
+    _c("retarget-not-a-face", "retarget --performance {body} --source-keys {ada_keys} --target-keys {bo_keys} "
+       "--out {out}/r.glb", "not a face"),
     _c("select-out-is-file", "keys select --performance {take} --source-rig {ada} --out {take2}", "take2.csv"),
     _c("select-out-missing-folder", "keys select --performance {take} --source-rig {ada} --out {missing}/sel",
        "missing"),
@@ -295,6 +298,7 @@ def make_inputs(d: Path) -> dict[str, str]:
 
     ada = make_demo_character("ada")
     write_glb(d / "ada.glb", ada, [[0.0] * ada.n_shapes], [0.0])     # a character file (never read: the checks fail first)
+    _write_body(d / "body.c3d")
     (d / "out").mkdir()
     real = DATA / "emotion-video" / "mead" / "M030_front_angry_level3_001.mp4"
     return {"d": str(d), "out": str(d / "out"), "missing": str(d / "missing"), "ro": str(_unwritable(d)),
@@ -302,7 +306,22 @@ def make_inputs(d: Path) -> dict[str, str]:
             "bo_keys": str(d / "bo_keys"), "noneutral": str(d / "noneutral"), "take": str(d / "take.csv"),
             "take2": str(d / "take2.csv"), "junk": str(d / "junk.csv"), "wav": str(d / "speech.wav"), "bvh": str(d / "motion.bvh"),
             "video": str(d / "clip.mp4"), "model": str(d / "model.npz"), "db": str(d / "db.npz"),
-            "realvideo": str(real), "glb": str(d / "ada.glb")}
+            "realvideo": str(real), "glb": str(d / "ada.glb"), "body": str(d / "body.c3d")}
+
+
+def _write_body(path: Path) -> None:
+    """A full-body marker take (Plug-in Gait labels, 1.7 m tall, walking 1 m): 'not a face'."""
+    import numpy as np
+
+    from faceretarget.io import write_c3d
+    from faceretarget.performance import Performance
+
+    labels = ["LFHD", "RFHD", "C7", "LSHO", "RSHO", "LASI", "RASI", "LKNE", "RKNE", "LANK", "RANK", "LTOE", "RTOE"]
+    height = np.array([1650, 1650, 1450, 1400, 1400, 950, 950, 500, 500, 80, 80, 20, 20], float)
+    side = np.array([-80, 80, 0, -180, 180, -120, 120, -100, 100, -100, 100, -100, 100], float)
+    rest = np.stack([side, height, np.zeros(len(labels))], axis=1)
+    walk = np.linspace(0, 1000, 30)[:, None, None] * np.array([0.0, 0.0, 1.0])
+    write_c3d(path, Performance.from_points(rest[None] + walk, labels, fps=30.0, unit="mm"))
 
 
 def missing_need(case: Case, paths: dict[str, str]) -> str | None:

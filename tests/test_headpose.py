@@ -76,13 +76,14 @@ def test_producer_capture_matrices():
 
 
 def test_producer_bvh_reader(tmp_path):
-    """A Neck > Neck1 > Head chain with the motion on the Head joint's Y-X-Z channels (degrees, cm)."""
+    """A Neck > Neck1 > Head chain with the motion on the Head joint's Y-X-Z channels (degrees, cm); its
+    position channels hold the full local translation (the offset), as exporters write them."""
     lines = ["HIERARCHY", "ROOT Neck", "{", "OFFSET 0 0 0", "CHANNELS 3 Zrotation Xrotation Yrotation",
              "JOINT Neck1", "{", "OFFSET 0 5 0", "CHANNELS 3 Zrotation Xrotation Yrotation", "JOINT Head", "{",
              "OFFSET 0 5 0", "CHANNELS 6 Xposition Yposition Zposition Yrotation Xrotation Zrotation",
              "End Site", "{", "OFFSET 0 10 0", "}", "}", "}", "}", "MOTION", "Frames: 4", "Frame Time: 0.033333"]
     for ypr in YPR_DEG:
-        lines.append(" ".join(["0"] * 6 + ["0", "0", "0"] + [f"{x:.9f}" for x in ypr]))
+        lines.append(" ".join(["0"] * 6 + ["0", "5", "0"] + [f"{x:.9f}" for x in ypr]))
     p = tmp_path / "head.bvh"
     p.write_text("\n".join(lines) + "\n")
     take = read_bvh_head(p)

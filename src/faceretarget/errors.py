@@ -29,6 +29,7 @@ __all__ = [
     "NotFittedError",
     "MissingDependencyError",
     "FaceNotFoundError",
+    "NotAFaceError",
     "FaceRetargetWarning",
     "DataWarning",
     "FitWarning",
@@ -60,6 +61,10 @@ class MissingShapeError(FaceRetargetError, KeyError):
 
 class InvalidDataError(FaceRetargetError, ValueError):
     """Array data is malformed: wrong shape, NaN or infinite values, bad times."""
+
+
+class NotAFaceError(InvalidDataError):
+    """A take or mesh that is not a face: its size or its marker labels say so (a full-body capture)."""
 
 
 class SingularKeysError(FaceRetargetError, ValueError):

@@ -30,6 +30,7 @@ __all__ = [
     "JOINT_ROLES",
     "joint_role",
     "find_joints",
+    "marker_region",
 ]
 
 #: The 52 ARKit blendshape names in the order Live Link Face writes them.
@@ -321,3 +322,44 @@ def find_joints(names, parents=None) -> dict[str, int]:
             else:
                 del out["neck"]
     return out
+
+
+# ------------------------------------------------------------------------------------- marker labels
+#: Words of facial marker labels (found inside a label: ``Leye_Up``, ``NoseTop``, ``Mouth_Lend``).
+_FACE_WORDS = ("brow", "eye", "lid", "lash", "cheek", "nose", "nostril", "nasal", "mouth", "lip", "jaw", "chin",
+               "forehead", "philtrum", "temple", "dimple", "smile", "mentalis", "zygo")
+#: Whole tokens of body marker labels: Vicon Plug-in Gait's codes (``LASI``, ``RKNE``, ``C7``, ``STRN``...,
+#: with or without the side letter), and body parts (``L_THIGH_1``, ``R.Heel``, ``LeftKnee``).
+_BODY_CODES = frozenset({"asi", "psi", "asis", "psis", "thi", "kne", "tib", "ank", "hee", "toe", "sho", "upa", "elb",
+                         "frm", "wra", "wrb", "fin", "bak", "c7", "t8", "t10", "clav", "strn", "sacr", "mt", "mt1",
+                         "mt2", "mt5", "mh1", "mh5", "gt", "lepi", "mepi", "lmal", "mmal"})
+_BODY_WORDS = frozenset({"thigh", "knee", "shank", "tibia", "shin", "ankle", "heel", "toe", "toes", "foot", "feet",
+                         "pelvis", "hip", "hips", "sacrum", "spine", "thorax", "chest", "sternum", "clavicle",
+                         "shoulder", "acromion", "arm", "upperarm", "forearm", "elbow", "wrist", "hand", "finger",
+                         "thumb", "leg", "calf", "femur", "trochanter", "malleolus", "waist", "navel", "belly",
+                         "scapula", "iliac", "knuckle", "metatarsal"})
+
+
+def marker_region(label: str) -> str | None:
+    """Whether a marker label names a place on the face (``"face"``), on the body (``"body"``), or neither.
+
+    Examples
+    --------
+    >>> [marker_region(s) for s in ("Leye_Up", "NoseTop", "Mouth_Lend", "LASI", "RKNE", "L_THIGH_1", "C7", "M001")]
+    ['face', 'face', 'face', 'body', 'body', 'body', 'body', None]
+    """
+    if not isinstance(label, str) or not label.strip():
+        return None
+    low = label.lower()
+    if any(w in low for w in _FACE_WORDS):
+        return "face"
+    words = re.sub(r"([a-z])([A-Z])", r"\1 \2", label.strip())
+    tokens = [t for t in re.split(r"[^a-z0-9]+", words.lower()) if t]
+    for t in tokens:
+        core = re.sub(r"\d+$", "", t)
+        if t in _BODY_CODES or t in _BODY_WORDS or core in _BODY_WORDS or (
+                len(t) > 2 and t[0] in "lr" and (t[1:] in _BODY_CODES or t[1:] in _BODY_WORDS)):
+            return "body"
+        if t in ("left", "right", "l", "r") or t.isdigit():
+            continue
+    return None

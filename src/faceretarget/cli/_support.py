@@ -249,7 +249,8 @@ def warnings_to_log(log):
 
 
 def run_command(args) -> int:
-    """Run ``args.func(args, log)``: errors a user can act on as one line and exit code 2."""
+    """Run ``args.func(args, log)``: errors a user can act on (a ``FaceRetargetError``, or an ``OSError`` the system
+    raised for a file) as one line and exit code 2."""
     log = Log(getattr(args, "quiet", False))
     try:
         with warnings_to_log(log):          # every command prints warnings the same way: one line each
@@ -264,9 +265,9 @@ def run_command(args) -> int:
         print("faceretarget: error: out of memory (try a smaller take, fewer frames or a smaller size)",
               file=sys.stderr)
         return 1
-    except OSError as e:
+    except OSError as e:                    # the system refused a file (permission, a folder, disk full): bad input
         print(f"faceretarget: error: {e.filename or ''}: {_one_line(e.strerror or e)}", file=sys.stderr)
-        return 1
+        return 2
 
 
 def parse_and_run(parser: argparse.ArgumentParser, argv=None) -> int:

@@ -51,6 +51,7 @@ from ._gltf_skin import GlbSkeleton, read_glb_skeleton, write_glb_skeleton
 from ._head import (
     HEAD_READ_FORMATS,
     read_bvh_head,
+    read_glb_skin_head,
     read_head_motion,
     read_head_take,
     read_marker_head,
@@ -130,7 +131,7 @@ __all__ = [
     "Drawing", "read_svg_drawing", "read_point_set", "write_svg_animation", "write_svg_frames", "read_svg_animation",
     "render_drawing", "write_drawing_preview", "DRAWING_FORMATS", "POINT_SET_FORMATS",
     "write_head_motion", "HEAD_FORMATS", "HEAD_READ_FORMATS", "read_head_motion", "read_head_take",
-    "read_bvh_head", "read_smplx_head", "read_marker_head",
+    "read_bvh_head", "read_glb_skin_head", "read_smplx_head", "read_marker_head",
     "write_keyshapes", "read_keyshapes", "read_marker_labels", "is_keyshape_folder", "keyshape_filename", "read_keys",
     "VideoInfo", "probe_video", "iter_frames", "read_video_audio", "write_video",
     "atomic_path", "atomic_dir", "check_output_path", "input_file", "load_npz_arrays", "save_npz_arrays",

@@ -48,7 +48,8 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
     -----
     DataWarning
         A truncated file (a data chunk larger than the rest of the file): the samples it holds are
-        read.
+        read.  Float samples beyond +-1 (clipped), channels that cancel when averaged, silence (peak
+        under :data:`SILENCE_DBFS`) or a rate under :data:`MIN_SPEECH_RATE`: one line each.
     """
     from scipy.io import wavfile
 
@@ -59,6 +60,7 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
         got = read_video_audio(path)
         if got is None:
             raise InputFileError(f"{path}: no audio stream could be decoded")
+        _check_heard(path, got[0], float(got[1]))
         return got[0], float(got[1])
     source = _wav_source(path)
     try:
@@ -82,14 +84,52 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
     else:
         raise InputFileError(f"{path}: unsupported WAV sample type {data.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
-        if x.ndim == 2:
-            x = x.mean(axis=1, dtype=x.dtype)
-        x = np.clip(x, -1.0, 1.0).astype(np.float32)
+        if data.dtype.kind == "f" and (np.abs(x) > 1.0).any():
+            warnings.warn(f"{path}: {(np.abs(x) > 1.0).mean():.2%} of the float samples lie beyond +-1 (peak "
+                          f"{np.abs(x).max():.3g}) and are clipped to +-1", DataWarning, stacklevel=2)
+        mix = x.mean(axis=1, dtype=x.dtype) if x.ndim == 2 else x
+        if x.ndim == 2 and x.shape[1] > 1:
+            _check_mix(path, x, mix)
+        x = np.clip(mix, -1.0, 1.0).astype(np.float32)
     if not np.isfinite(x).all():
         raise InputFileError(f"{path}: the WAV file holds non-finite samples")
     if not rate or rate <= 0:
         raise InputFileError(f"{path}: invalid sampling rate {rate}")
+    _check_heard(path, x, float(rate))
     return x, float(rate)
+
+
+#: Peak level (dBFS) under which a recording is taken for silence: 16-bit dither is about -90 dBFS, a quiet
+#: room recorded with speech gain about -60 dBFS, speech -30 to -3 dBFS.
+SILENCE_DBFS = -60.0
+#: Lowest sampling rate of speech audio (telephone speech is 8 kHz).
+MIN_SPEECH_RATE = 8000.0
+
+
+def _dbfs(x: np.ndarray) -> float:
+    peak = float(np.abs(x).max()) if x.size else 0.0
+    return 20.0 * np.log10(peak) if peak > 0 else -np.inf
+
+
+def _check_heard(path: Path, x: np.ndarray, rate: float) -> None:
+    """One warning line when the audio holds nothing a speech method can use: silence, or a rate below speech's."""
+    level = _dbfs(x)
+    if level < SILENCE_DBFS:
+        warnings.warn(f"{path}: the audio is silent (peak {level:.0f} dBFS, under {SILENCE_DBFS:.0f}): no speech to "
+                      "drive head motion or emotion", DataWarning, stacklevel=3)
+    if rate < MIN_SPEECH_RATE:
+        warnings.warn(f"{path}: sampled at {rate:g} Hz, under the {MIN_SPEECH_RATE:g} Hz of telephone speech: pitch "
+                      "and speech features will not be found", DataWarning, stacklevel=3)
+
+
+def _check_mix(path: Path, x: np.ndarray, mix: np.ndarray) -> None:
+    """One warning line when averaging the channels cancels them (out of phase): the mono mix is not what was heard."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        ch = float(np.sqrt(np.mean(x.astype(np.float64) ** 2)))
+        mono = float(np.sqrt(np.mean(mix.astype(np.float64) ** 2)))
+    if ch > 10 ** (SILENCE_DBFS / 20) and mono < 0.1 * ch:
+        warnings.warn(f"{path}: its {x.shape[1]} channels cancel when averaged to mono ({20 * np.log10(max(mono, 1e-12) / ch):.0f} dB; "
+                      "out of phase?); give one channel", DataWarning, stacklevel=3)
 
 
 def _wav_source(path: Path):

@@ -6,9 +6,13 @@ Conventions (the ones every common exporter follows):
   ``CHANNELS 3 Zrotation Xrotation Yrotation`` means the local rotation ``R = Rz @ Rx @ Ry`` (column
   vectors; scipy's intrinsic ``Rotation.from_euler("ZXY", [z, x, y])``).  Each joint's own channel
   order is honoured.
-* A joint's local transform is its ``OFFSET`` (plus position channels, when it has them) followed
-  by its rotation: a point ``p`` in the joint's frame is at ``offset + position + R @ p`` in the
-  parent's frame.
+* A joint's local transform is its translation followed by its rotation: a point ``p`` in the
+  joint's frame is at ``t + R @ p`` in the parent's frame.  The translation is the ``OFFSET``, except
+  on the axes the joint has position channels for: those hold the full local translation (not a
+  displacement added to the offset), as Blender, three.js, bvhio and every exporter we know read and
+  write them.  The two readings differ when an ``OFFSET`` with position channels is not zero: a root
+  offset (the feet float by it) or every joint with six channels (Bandai Namco's takes: bones twice
+  their length).
 * In the rest pose every joint frame is parallel to the world frame, so composed rotations are
   expressed in the rest-pose axes (Y up in the shared takes, X the character's left, +Z forward).
 
@@ -21,13 +25,14 @@ frame are exactly yaw, pitch and roll in degrees, intrinsic Y-X-Z) and, when a t
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import InputFileError, InvalidDataError, excerpt
+from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
 from ..files import atomic_path, check_output_path, input_file, read_text
 from ..headpose import HeadPose
 
@@ -121,7 +126,7 @@ class Bvh:
 
     def local_rotations(self, joint: str | int) -> np.ndarray:
         """(T, 3, 3) local rotation matrices of a joint (identity when it has no rotation channels)."""
-        i = joint if isinstance(joint, int) else self.index(joint)
+        i = int(joint) if isinstance(joint, int | np.integer) else self.index(joint)
         j = self.joints[i]
         cols = [(self._start[i] + k, _ROT[c.lower()]) for k, c in enumerate(j.channels) if c.lower() in _ROT]
         T = self.n_frames
@@ -132,13 +137,14 @@ class Bvh:
         return Rotation.from_euler(seq, ang, degrees=True).as_matrix().reshape(T, 3, 3)
 
     def local_translations(self, joint: str | int) -> np.ndarray:
-        """(T, 3) the joint's offset plus its position channels (when it has them)."""
-        i = joint if isinstance(joint, int) else self.index(joint)
+        """(T, 3) the joint's local translation: its position channels where it has them, its offset
+        on the other axes (module docstring)."""
+        i = int(joint) if isinstance(joint, int | np.integer) else self.index(joint)
         j = self.joints[i]
         out = np.broadcast_to(np.asarray(j.offset, np.float64), (self.n_frames, 3)).copy()
         for k, c in enumerate(j.channels):
             if c.lower() in _POS:
-                out[:, _POS[c.lower()]] += self.motion[:, self._start[i] + k]
+                out[:, _POS[c.lower()]] = self.motion[:, self._start[i] + k]
         return out
 
 
@@ -200,12 +206,20 @@ def _hierarchy_tokens(path: Path, lines: list[str]) -> tuple[list[tuple[str, int
         if line.strip().upper().startswith("MOTION"):
             motion_line = i
             break
+        if _comment(line):
+            continue
         toks.extend((t, i + 1) for t in line.replace("{", " { ").replace("}", " } ").split())
     if not toks or toks[0][0].upper() != "HIERARCHY":
         raise InputFileError(f"{path}: not a BVH file (it must start with 'HIERARCHY')")
     if motion_line is None:
         raise InputFileError(f"{path}: no MOTION section")
     return toks, motion_line
+
+
+def _comment(line: str) -> bool:
+    """A whole-line comment (``#`` or ``//``), which some exporters write and every reader skips."""
+    t = line.lstrip()
+    return t.startswith(("#", "//"))
 
 
 def _token(path: Path, toks: list[tuple[str, int]], j: int, what: str) -> tuple[str, int]:
@@ -272,13 +286,18 @@ def _parse_hierarchy(path: Path, toks: list[tuple[str, int]]) -> list[BvhJoint]:
         u = t.upper()
         if u in ("ROOT", "JOINT"):
             name, _ = _token(path, toks, k + 1, "a joint name")
+            if name in ("{", "}"):
+                raise InputFileError(f"{path}: line {ln}: {u} without a joint name")
+            k += 2
+            while k < n and toks[k][1] == ln and toks[k][0] not in ("{", "}"):   # 'Bip01 Head': one name
+                name += " " + toks[k][0]
+                k += 1
             if u == "JOINT" and not stack:
                 raise InputFileError(f"{path}: line {ln}: JOINT outside of any ROOT")
             parent = -1 if u == "ROOT" else next((s for s in reversed(stack) if s >= 0), -1)
             if not (name.isprintable() and len(name) <= 200):
                 raise InputFileError(f"{path}: line {ln}: joint name {excerpt(name)} is not a name")
             pending = (name, parent)
-            k += 2
         elif u == "END":
             nxt, _ = _token(path, toks, k + 1, "'Site'")
             if nxt.upper() != "SITE":
@@ -320,7 +339,7 @@ def _motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int,
     header: dict[str, tuple[str, int]] = {}
     while i < len(lines) and len(header) < 2:
         s = lines[i].strip()
-        if s:
+        if s and not _comment(s):
             key, _, val = s.partition(":")
             key = key.strip().lower()
             if key not in ("frames", "frame time"):
@@ -344,9 +363,12 @@ def _motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int,
 
 def _motion_rows(path: Path, lines: list[str], start: int, n_frames: int, C: int) -> np.ndarray:
     """The (n_frames, C) channel values of the frame rows from ``lines[start]`` on."""
-    rows_text = [(j + 1, lines[j]) for j in range(start, len(lines)) if lines[j].strip()]
+    rows_text = [(j + 1, lines[j]) for j in range(start, len(lines)) if lines[j].strip() and not _comment(lines[j])]
     if len(rows_text) < n_frames:
         raise InputFileError(f"{path}: 'Frames: {n_frames}' but only {len(rows_text)} frame rows")
+    if len(rows_text) > n_frames:
+        warnings.warn(f"{path}: {len(rows_text)} frame rows but 'Frames: {n_frames}'; the first {n_frames} are read "
+                      f"(line {rows_text[n_frames][0]} on is not)", DataWarning, stacklevel=3)
     rows_text = rows_text[:n_frames]
     try:
         flat = np.array(" ".join(r for _, r in rows_text).split(), dtype=np.float64)
@@ -378,6 +400,11 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
         Missing file, malformed hierarchy (naming the line), unknown channel names or a negative
         channel count, a frame row with the wrong number of values, a non-numeric, non-finite or
         absurd (beyond +-1e15) value (naming the line), or fewer frames than ``Frames:`` announces.
+
+    Warns
+    -----
+    DataWarning
+        More frame rows than ``Frames:`` announces (the first are read), or one name for several joints.
     """
     path = input_file(path)
     text = read_text(path)
@@ -388,6 +415,13 @@ def read_bvh(path: str | os.PathLike) -> Bvh:
     n_frames, frame_time, first_row = _motion_header(path, lines, motion_line)
     C = sum(len(j.channels) for j in joints)
     motion = _motion_rows(path, lines, first_row, n_frames, C)
+    seen: dict[str, int] = {}
+    for j in joints:
+        seen[j.name] = seen.get(j.name, 0) + 1
+    twice = [n for n, k in seen.items() if k > 1]
+    if twice:
+        warnings.warn(f"{path}: joint name(s) {', '.join(excerpt(n, bare=True) for n in twice[:8])} used by more than "
+                      "one joint; a name finds the first of them (head motion, key frames)", DataWarning, stacklevel=2)
     return Bvh(joints, frame_time, motion, source=str(path))
 
 
@@ -478,17 +512,16 @@ def bvh_pose(bvh: Bvh) -> tuple[np.ndarray, np.ndarray]:
         Local rotations as unit quaternions ``x, y, z, w`` (identity for a joint without rotation
         channels), composed in each joint's own channel order.
     positions : (T, J, 3) float
-        The position channels' values in the file's length unit (0 where a joint has none); a joint
-        sits at ``offset + position`` in its parent's frame.
+        Every joint's local translation in the file's length unit (:meth:`Bvh.local_translations`:
+        the position channels where a joint has them, its offset elsewhere); a joint sits at
+        ``position`` in its parent's frame.
     """
     T, J = bvh.n_frames, len(bvh.joints)
     rot = np.empty((T, J, 4))
-    pos = np.zeros((T, J, 3))
-    for i, j in enumerate(bvh.joints):
+    pos = np.empty((T, J, 3))
+    for i in range(J):
         rot[:, i] = Rotation.from_matrix(bvh.local_rotations(i)).as_quat()
-        for k, c in enumerate(j.channels):
-            if c.lower() in _POS:
-                pos[:, i, _POS[c.lower()]] = bvh.motion[:, bvh._start[i] + k]
+        pos[:, i] = bvh.local_translations(i)
     return rot, pos
 
 
@@ -503,7 +536,7 @@ def bvh_world_positions(bvh: Bvh, rotations: np.ndarray | None = None,
     rotations : (T, J, 4) float, optional
         Local rotations (quaternions ``x, y, z, w``), as :func:`bvh_pose` gives them.
     positions : (T, J, 3) float, optional
-        Position channel values.
+        Local translations (:func:`bvh_pose`).
 
     Returns
     -------
@@ -524,7 +557,7 @@ def bvh_world_positions(bvh: Bvh, rotations: np.ndarray | None = None,
     world_R = np.empty((T, J, 3, 3))
     world_p = np.empty((T, J, 3))
     for i, j in enumerate(bvh.joints):
-        t = np.asarray(j.offset, dtype=np.float64) + pos[:, i]
+        t = pos[:, i]
         if j.parent < 0:
             world_R[:, i] = local[:, i]
             world_p[:, i] = t
@@ -548,7 +581,7 @@ def bvh_with_pose(bvh: Bvh, rotations: np.ndarray, positions: np.ndarray, frame_
     rotations : (T, J, 4) float
         Local rotations, quaternions ``x, y, z, w``.
     positions : (T, J, 3) float
-        Position channel values (only the axes a joint has channels for are written).
+        Local translations (only the axes a joint has position channels for are written).
     frame_time : float, optional
         Seconds per frame (default ``bvh``'s).
     """

@@ -2,9 +2,10 @@
 
 Written with `ezc3d <https://github.com/pyomeca/ezc3d>`_; read here, in Python, with every count
 and pointer of the header and parameter section checked against the file first (ezc3d trusts them
-and crashed or hung on fuzzed files), the point data giving the values ezc3d gives.  Only the point
-(marker) data are used; analog channels, force plates and events are skipped on read and not
-written.  Big-endian (MIPS) files are not supported.
+and crashed or hung on fuzzed files), the point data giving the values ezc3d and py-c3d give
+(``tests/test_conformance.py``, docs/conformance.md).  Intel, DEC (VAX) and SGI/MIPS (big-endian)
+processor types, integer and float storage.  Only the point (marker) data are used; analog channels,
+force plates and events are read past (they size the frames) and not written.
 
 A C3D sample whose residual is negative is invalid (the marker was occluded); such samples become
 NaN.  Some systems instead write a gap as a point at exactly ``(0, 0, 0)``; with
@@ -30,6 +31,7 @@ from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError,
 from ..files import atomic_path, check_output_path, input_file
 from ..optional import optional_import
 from ..performance import Performance
+from ..units import normalize_unit
 
 __all__ = ["read_c3d", "write_c3d"]
 
@@ -74,11 +76,25 @@ def _labels(point: dict, n: int) -> tuple[list[str], list[str]]:
 # empty POINT:SCALE, a point count larger than the file, an analog channel without a scale or a
 # ROTATION group of a truncated file made it crash (SIGSEGV) or loop for minutes.  So the reader is
 # this module's own: the header and parameter records are walked with every count checked against
-# the file, and the point data are one NumPy view of the frames the file really holds.  The values
-# are those ezc3d gives (its conventions for frame counts, rates, DEC floats and residuals).
+# the file, and the point data are one NumPy view of the frames the file really holds.
+#
+# Exporters disagree with each other, and sometimes with themselves, on the counts that size a frame
+# (header word 2 against POINT:USED; header word 3 against ANALOG:USED x ANALOG:RATE / POINT:RATE,
+# which some files lack; the header's DATA_START block against POINT:DATA_START; the sign of the scale
+# in the header against POINT:SCALE).  A wrong frame size reads a smooth take as garbage, so every
+# combination the file's own values allow is tried against what the data block holds: the layout
+# whose declared frames end in the file's last 512-byte block wins (the parameters when several do,
+# unless their frames are much less smooth), and a layout other than the parameters' is read with a
+# warning naming the disagreement.  The frame count follows c3d.org's rules (POINT:FRAMES, read as
+# unsigned, or as a float; at 65535 TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD or POINT:LONG_FRAMES),
+# with the header's frame range as the fallback; a file with no count the data agrees with gives the
+# frames it holds, without the zero padding of its last block.
 
 # parameters whose first value is used: present but empty is an error
 _FIRST_VALUE = (("POINT", "USED"), ("POINT", "FRAMES"), ("POINT", "RATE"), ("POINT", "SCALE"))
+#: Processor types of the parameter section's fourth byte.
+_INTEL, _DEC, _MIPS = 84, 85, 86
+_BLOCK = 512
 
 
 @dataclass(frozen=True)
@@ -87,14 +103,17 @@ class _C3d:
 
     params: dict          # {(GROUP, NAME): list of numbers, or of strings for a char parameter}
     dec: bool             # DEC (VAX) floats instead of IEEE
+    big: bool             # SGI / MIPS: big-endian words
     n_points: int
-    scale: float          # POINT:SCALE; negative: float data
-    frames: int | None    # frames the file declares (None: no usable count)
+    scale: float          # negative: float data
+    frames: int           # frames to read (all complete)
+    declared: int | None  # frames the file declares (None: no usable count)
     first_frame: int      # 0-based
     rate: float           # POINT:RATE, else the header's rate
     frame_bytes: int      # one frame: points and analog samples
     data_start: int       # byte offset of frame 0
     size: int             # file size in bytes
+    notes: tuple[str, ...] = ()   # disagreements between the header, the parameters and the data
 
 
 def _dec_floats(b: np.ndarray) -> np.ndarray:
@@ -104,10 +123,11 @@ def _dec_floats(b: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.stack([b[..., 2], b[..., 3], b[..., 0], e], axis=-1)).view("<f4")[..., 0]
 
 
-def _floats(block: bytes, dec: bool) -> list[float]:
+def _floats(block: bytes, dec: bool, big: bool = False) -> list[float]:
     a = np.frombuffer(block, np.uint8).reshape(-1, 4)
     with np.errstate(invalid="ignore"):  # a signalling NaN stays a NaN
-        return (_dec_floats(a) if dec else a.copy().view("<f4")[:, 0]).astype(np.float64).tolist()
+        v = _dec_floats(a) if dec else a.copy().view(">f4" if big else "<f4")[:, 0]
+        return v.astype(np.float64).tolist()
 
 
 def _strings(block: bytes, dims: bytes) -> list[str]:
@@ -120,9 +140,16 @@ def _strings(block: bytes, dims: bytes) -> list[str]:
     return cols if len(dims) > 1 else ["".join(cols)]
 
 
-def _c3d_parameters(bad, raw, pos: int, dec: bool) -> dict[tuple[str, str], list]:
-    """``{(GROUP, NAME): values}`` of the parameter records from byte ``pos`` on, every count checked."""
+def _c3d_parameters(bad, raw, pos: int, dec: bool, big: bool = False, end: int | None = None
+                    ) -> dict[tuple[str, str], list]:
+    """``{(GROUP, NAME): values}`` of the parameter records from byte ``pos`` on, every count checked.
+
+    ``end``: where the parameter section ends (its block count); a record pointing past it is the last
+    one (py-c3d's reading: an SGI sample's last record points into the data).
+    """
     n = len(raw)
+    stop = n if end is None else min(end, n)
+    e = ">" if big else "<"
     groups: dict[int, str] = {}
     params: list[tuple[int, str, list]] = []
     for _ in range(65536):
@@ -137,7 +164,7 @@ def _c3d_parameters(bad, raw, pos: int, dec: bool) -> dict[tuple[str, str], list
         if name_end + 3 > n:
             raise bad("the parameter section runs past the end of the file")
         name = bytes(raw[pos + 2:name_end]).split(b"\0")[0].decode("ascii", "replace").strip().upper()
-        off = struct.unpack_from("<H", raw, name_end)[0]
+        off = struct.unpack_from(e + "H", raw, name_end)[0]
         q = name_end + 2
         if gid > 0:
             typ, nd = struct.unpack_from("<bb", raw, q) if q + 2 <= n else (0, 0)
@@ -150,8 +177,8 @@ def _c3d_parameters(bad, raw, pos: int, dec: bool) -> dict[tuple[str, str], list
                 raise bad(f"parameter {name[:20]!r} at byte {pos} runs past the end of the file")
             block = bytes(raw[q:q + count * abs(typ)])
             q += count * abs(typ)
-            values = (_strings(block, dims) if typ == -1 else _floats(block, dec) if typ == 4
-                      else list(struct.unpack(f"<{count}{'b' if typ == 1 else 'h'}", block)))
+            values = (_strings(block, dims) if typ == -1 else _floats(block, dec, big) if typ == 4
+                      else list(struct.unpack(f"{e}{count}{'b' if typ == 1 else 'h'}", block)))
             params.append((gid, name, values))
         dlen = struct.unpack_from("<b", raw, q)[0]
         end = q + 1 + max(dlen, 0)
@@ -159,7 +186,7 @@ def _c3d_parameters(bad, raw, pos: int, dec: bool) -> dict[tuple[str, str], list
             raise bad("the parameter section runs past the end of the file")
         if gid < 0:
             groups[-gid] = name
-        if off == 0:
+        if off == 0 or name_end + off >= stop:
             break
         pos = name_end + off
     else:
@@ -171,6 +198,159 @@ def _c3d_parameters(bad, raw, pos: int, dec: bool) -> dict[tuple[str, str], list
     return out
 
 
+@dataclass(frozen=True)
+class _Header:
+    """The numbers of the 512-byte header record (words 2-12)."""
+
+    points: int
+    analog: int          # analog samples per 3D frame, all channels (word 3)
+    first: int
+    last: int
+    scale: float
+    data_block: int
+    rate: float
+
+
+def _header(raw, dec: bool, big: bool) -> _Header:
+    e = ">" if big else "<"
+    points, analog, first, last = struct.unpack_from(e + "HHHH", raw, 2)
+    scale = _floats(bytes(raw[12:16]), dec, big)[0]
+    data_block = struct.unpack_from(e + "H", raw, 16)[0]
+    rate = _floats(bytes(raw[20:24]), dec, big)[0]
+    return _Header(points, analog, first, last, scale, data_block, rate)
+
+
+def _processor(raw, size: int) -> tuple[int | None, int]:
+    """``(processor type, byte offset of the parameter section)``; type None when the file has no
+    parameter section (its block pointer is not a block between the header and the end)."""
+    block = raw[0]
+    base = (block - 1) * _BLOCK
+    if block < 2 or base + 4 > size or raw[base + 3] not in (_INTEL, _DEC, _MIPS):
+        return None, base
+    return raw[base + 3], base
+
+
+def _declared_frames(p: dict, head: _Header, value) -> list[tuple[int, str, bool]]:
+    """The frame counts a file declares, most trusted first: ``(count, where, is_16_bit)``.
+
+    c3d.org's rules: POINT:FRAMES (a signed 16-bit parameter read as unsigned, or a float); at 65535,
+    TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD (each two 16-bit words) or POINT:LONG_FRAMES; then the
+    header's first and last frame (0-based when the first is 0, as ezc3d writes it).
+    """
+    out: list[tuple[int, str, bool]] = []
+    v = p.get(("POINT", "FRAMES"))
+    frames = None
+    if v and isinstance(v[0], int | float) and math.isfinite(v[0]):
+        frames = int(v[0]) + (65536 if isinstance(v[0], int) and v[0] < 0 else 0)
+        sixteen = isinstance(v[0], int)
+    if frames is None or frames == 65535:
+        s, e = p.get(("TRIAL", "ACTUAL_START_FIELD")), p.get(("TRIAL", "ACTUAL_END_FIELD"))
+        if s and e and len(s) >= 2 and len(e) >= 2 and all(isinstance(x, int) for x in (*s[:2], *e[:2])):
+            start = (s[0] & 0xFFFF) + ((s[1] & 0xFFFF) << 16)
+            end = (e[0] & 0xFFFF) + ((e[1] & 0xFFFF) << 16)
+            if end >= start:
+                out.append((end - start + 1, "TRIAL:ACTUAL_START_FIELD/ACTUAL_END_FIELD", False))
+        long = value("POINT", "LONG_FRAMES", 0.0)
+        if math.isfinite(long) and long >= 1:
+            out.append((int(long), "POINT:LONG_FRAMES", False))
+    if frames is not None and frames > 0:
+        out.append((frames, "POINT:FRAMES", sixteen))
+    n = (head.last - head.first + 1) if head.first else head.last + 1
+    if n > 0:
+        out.append((n, "the header's frame range", True))
+    seen: set[int] = set()
+    return [x for x in out if not (x[0] in seen or seen.add(x[0]))]
+
+
+@dataclass(frozen=True)
+class _Layout:
+    points: int
+    analog: int
+    word: int            # 2: integers, 4: floats
+    start: int           # byte offset of frame 0
+    why: tuple[str, ...]  # the sources it differs from the parameters in
+
+    @property
+    def frame_bytes(self) -> int:
+        return (self.points * 4 + self.analog) * self.word
+
+
+def _layouts(p: dict, head: _Header, value, size: int) -> list[_Layout]:
+    """Every frame layout the file's values allow, the parameters' first."""
+    def pair(param, header, why: str) -> list[tuple[int, str | None]]:
+        """The parameter's value, then the header's when it differs (``why`` it is another layout)."""
+        if param is None:
+            return [] if header is None else [(header, None)]
+        return [(param, None)] + ([(header, why)] if header is not None and header != param else [])
+
+    used = p.get(("POINT", "USED"))
+    n_used = int(used[0]) if used and 0 < used[0] < 2**31 else None
+    pts = pair(n_used, head.points or None, f"the header's {head.points} points per frame (POINT:USED {n_used})")
+    scale = p.get(("POINT", "SCALE"))
+    w_param = (4 if scale[0] < 0 else 2) if scale and math.isfinite(scale[0]) else None
+    w_head = (4 if head.scale < 0 else 2) if math.isfinite(head.scale) and head.scale != 0 else None
+    words = pair(w_param, w_head if w_param is not None else (w_head or 2),
+                 f"the header's {'float' if head.scale < 0 else 'integer'} storage (scale {head.scale:g})")
+    n_analog, a_rate, p_rate = value("ANALOG", "USED", -1), value("ANALOG", "RATE", 0.0), value("POINT", "RATE", 0.0)
+    a_param = None
+    if n_analog == 0:
+        a_param = 0
+    elif 0 < n_analog < 2**31 and p_rate > 0 and math.isfinite(a_rate / p_rate) and a_rate > 0:
+        a_param = int(n_analog) * int(a_rate / p_rate)
+    analogs = pair(a_param, head.analog, f"the header's {head.analog} analog samples per frame")
+    d = p.get(("POINT", "DATA_START"))
+    s_param = (int(d[0]) - 1) * _BLOCK if d and isinstance(d[0], int) and d[0] >= 2 else None
+    starts = pair(s_param, (head.data_block - 1) * _BLOCK if head.data_block >= 2 else None,
+                  f"the header's data block {head.data_block}")
+    out = []
+    for P, wp in pts:
+        for w, ww in words:
+            for A, wa in analogs:
+                for s, ws in starts:
+                    if s + (P * 4 + A) * w <= size:
+                        out.append(_Layout(P, A, w, s, tuple(x for x in (wp, ww, wa, ws) if x)))
+    return out
+
+
+def _roughness(lay: _Layout, raw, big: bool, dec: bool, n: int = 200) -> float:
+    """How much the first ``n`` frames jump from frame to frame, against their spread (small for a
+    take read with its own frame size, about 1 for bytes read at the wrong stride)."""
+    T = min(n, (len(raw) - lay.start) // lay.frame_bytes)
+    if T < 3:
+        return math.inf
+    xyz, _ = _point_words(raw, lay.start, lay.frame_bytes, lay.points, lay.word, T, big, dec, 1.0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        x = np.where(np.abs(xyz) < 1e12, xyz, np.nan)
+        jump = np.nanmedian(np.abs(np.diff(x, axis=0))) if np.isfinite(np.diff(x, axis=0)).any() else math.inf
+        spread = np.nanmedian(np.abs(x - np.nanmedian(x, axis=0))) if np.isfinite(x).any() else 0.0
+    return float(jump / spread) if spread > 0 else (0.0 if jump == 0 else math.inf)
+
+
+def _choose_layout(layouts: list[_Layout], declared: list[tuple[int, str, bool]], raw, size: int, big: bool,
+                   dec: bool) -> tuple[_Layout, int | None]:
+    """The layout the data agrees with and the frame count it holds completely (None: no declared
+    count ends in the file's last block, or before zeros only)."""
+    def complete(lay: _Layout) -> int | None:
+        avail = (size - lay.start) // lay.frame_bytes
+        for n, _, sixteen in declared:
+            for k in range(0, (avail // 65536 + 1) if sixteen else 1):
+                m = n + 65536 * k
+                end = lay.start + m * lay.frame_bytes
+                if m >= 1 and end <= size and (size - end < _BLOCK or not _any_byte(raw, end)):
+                    return m
+        return None
+
+    fits = [(lay, m) for lay in layouts if (m := complete(lay)) is not None]
+    pool = fits or [(lay, None) for lay in layouts]
+    if len({lay.frame_bytes for lay, _ in pool}) > 1 or (not fits and len(pool) > 1):
+        # several frame sizes agree with the file: the parameters' unless its frames are much rougher
+        rough = [_roughness(lay, raw, big, dec) for lay, _ in pool]
+        best = int(np.argmin(rough))
+        if not rough[0] <= 2.0 * rough[best] + 1e-3:
+            return pool[best]
+    return pool[0]
+
+
 def _parse_c3d(path: Path, raw) -> _C3d:
     """The header and parameters of the C3D bytes ``raw``; :class:`InputFileError` naming the file for
     anything that does not fit in it."""
@@ -178,72 +358,111 @@ def _parse_c3d(path: Path, raw) -> _C3d:
         return InputFileError(f"{path}: cannot read as a C3D file ({why})")
 
     size = len(raw)
-    if size < 512:
+    if size < _BLOCK:
         raise bad(f"{size} bytes, shorter than a C3D header")
     if raw[1] != 0x50:
         raise bad("no C3D header: its second byte is not 0x50")
-    base = (raw[0] - 1) * 512
-    if raw[0] < 2 or base + 4 > size:
-        raise bad(f"the parameter section (block {raw[0]}) is outside the file")
-    proc = raw[base + 3]
-    if proc not in (84, 85):
-        raise bad("big-endian (MIPS) files are not supported" if proc == 86 else f"processor type {proc}")
-    dec = proc == 85
-    p = _c3d_parameters(bad, raw, base + 4, dec)
-    first, last, _, = struct.unpack_from("<HHH", raw, 6)
-    head_scale, data_block = _floats(bytes(raw[12:16]), dec)[0], struct.unpack_from("<H", raw, 16)[0]
-    head_rate = _floats(bytes(raw[20:24]), dec)[0]
+    proc, base = _processor(raw, size)
+    notes: list[str] = []
+    if proc is None:
+        if raw[0] >= 2 and base + 4 <= size:
+            raise bad(f"processor type {raw[base + 3]}")
+        # no parameter section: the header alone (its words as Intel, or big-endian when only that fits)
+        big = struct.unpack_from("<H", raw, 16)[0] * _BLOCK > size >= struct.unpack_from(">H", raw, 16)[0] * _BLOCK
+        dec, p = False, {}
+        notes.append(f"no parameter section (block pointer {raw[0]}): read from the header alone, "
+                     "markers named M001...")
+    else:
+        dec, big = proc == _DEC, proc == _MIPS
+        blocks = raw[base + 2]
+        p = _c3d_parameters(bad, raw, base + 4, dec, big, base + blocks * _BLOCK if blocks else None)
+    head = _header(raw, dec, big)
 
     def value(group: str, name: str, default: float) -> float:
         v = p.get((group, name))
         return float(v[0]) if v and isinstance(v[0], int | float) else default
 
-    n_points = value("POINT", "USED", 0)
-    if not 0 < n_points < 2**31:
-        raise InputFileError(f"{path}: the C3D file holds no 3D point data (POINT:USED = {n_points:g})")
-    # frames as ezc3d counts them: 1-based header frames (0-based when the first is 0), or POINT:FRAMES
-    frames = (last - first + 1) if first else last + 1
-    declared = value("POINT", "FRAMES", 0)
-    if math.isfinite(declared) and int(declared) != 0:
-        frames = int(declared)
-    scale = value("POINT", "SCALE", -1.0)
+    if proc is not None and not any(g == "POINT" for g, _ in p):
+        notes.append("no POINT parameters: read from the header")
+    used = value("POINT", "USED", 0)
+    if not (0 < used < 2**31 or 0 < head.points):
+        raise InputFileError(f"{path}: the C3D file holds no 3D point data (POINT:USED = {used:g}, "
+                             f"header {head.points} points)")
+    layouts = _layouts(p, head, value, size)
+    if not layouts:
+        n = int(used) if 0 < used < 2**31 else head.points
+        raise InputFileError(f"{path}: the C3D file holds no complete frame of {n} 3D point(s) "
+                             f"(data block {head.data_block} of a {size}-byte file)")
+    declared = _declared_frames(p, head, value)
+    lay, complete = _choose_layout(layouts, declared, raw, size, big, dec)
+    if lay.why:
+        notes.append(f"the parameters disagree with {', '.join(lay.why)}; the data block holds frames of "
+                     f"{lay.points} point(s) and {lay.analog} analog sample(s) ({lay.frame_bytes} bytes, "
+                     f"{'float' if lay.word == 4 else 'integer'}) from byte {lay.start}: read that way")
+    avail = (size - lay.start) // lay.frame_bytes
+    capped = avail > 65535 and any(sixteen and n == 65535 for n, _, sixteen in declared)
+    if complete is not None:
+        frames, want = complete, complete
+    elif declared and not capped:
+        want = declared[0][0]
+        frames = min(avail, want)
+        if avail > want:
+            notes.append(f"{avail - want} frame(s) after the {want} its {declared[0][1]} declares "
+                         "were not read")
+    else:                           # no count, or a 16-bit one at its limit: the frames the data holds
+        frames, want = _without_padding(raw, lay, avail), None
+    scale = value("POINT", "SCALE", head.scale)
+    if (scale < 0) != (lay.word == 4):
+        scale = head.scale if (head.scale < 0) == (lay.word == 4) else (-1.0 if lay.word == 4 else 1.0)
     point_rate = value("POINT", "RATE", 0.0)
-    rate = point_rate if point_rate != 0 else head_rate
-    # analog samples follow the points in every frame (read past, never used)
-    n_analog, sub = value("ANALOG", "USED", 0), 1.0
-    if math.isfinite(point_rate) and int(point_rate) != 0:
-        sub = value("ANALOG", "RATE", 0.0) / point_rate
-    if not (0 <= n_analog < 2**31 and math.isfinite(sub) and 0 <= sub < 2**31):
-        raise bad(f"{n_analog:g} analog channel(s) at {sub:g} sample(s) per frame")
-    frame_bytes = int(n_points) * (16 if scale < 0 else 8) + int(n_analog) * int(sub) * (4 if head_scale < 0 else 2)
-    data_start = (data_block - 1) * 512
-    if data_block < 2 or data_start + frame_bytes > size:
-        raise InputFileError(f"{path}: the C3D file holds no complete frame of {int(n_points)} 3D point(s) "
-                             f"(data block {data_block} of a {size}-byte file)")
-    return _C3d(p, dec, int(n_points), scale, frames if frames > 0 else None, first - 1 if first else 0,
-                rate, frame_bytes, data_start, size)
+    rate = point_rate if point_rate != 0 else head.rate
+    return _C3d(p, dec, big, lay.points, scale, frames, want, head.first - 1 if head.first else 0, rate,
+                lay.frame_bytes, lay.start, size, tuple(notes))
+
+
+def _any_byte(raw, start: int) -> bool:
+    """Whether any byte from ``start`` on is not zero (more than a block of zeros is padding too)."""
+    return bool(np.frombuffer(raw, np.uint8, offset=start).any()) if start < len(raw) else False
+
+
+def _without_padding(raw, lay: _Layout, avail: int) -> int:
+    """Frames of a file that declares no count: the ones it holds, less all-zero frames that start in
+    its last 512-byte block (the padding of the block)."""
+    T = avail
+    size = len(raw)
+    while T > 0:
+        a = lay.start + (T - 1) * lay.frame_bytes
+        if a < size - _BLOCK or any(raw[a:a + lay.frame_bytes]):
+            break
+        T -= 1
+    return T
+
+
+def _point_words(raw, start: int, frame_bytes: int, P: int, word: int, T: int, big: bool, dec: bool,
+                 scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(T, P, 3)`` coordinates and ``(T, P)`` residuals (negative: invalid) of ``T`` frames."""
+    rec = np.dtype({"names": ["p"], "formats": [(np.uint8, (P, 4 * word))], "itemsize": frame_bytes})
+    u8 = np.frombuffer(raw, rec, count=T, offset=start)["p"].reshape(T, P, 4, word)  # raw words
+    if big:                                   # SGI / MIPS: every word big-endian; as Intel from here on
+        u8 = u8[..., ::-1]
+    with np.errstate(invalid="ignore", over="ignore"):
+        if word == 4:
+            xyz = _dec_floats(u8[:, :, :3]) if dec else u8[:, :, :3].copy().view("<f4")[..., 0]
+            w = u8[:, :, 3].copy().view("<i2")                                      # (T, P, 2)
+            residual = w[..., 0 if dec else 1] * -scale
+        else:
+            xyz = u8[:, :, :3].copy().view("<i2")[..., 0] * scale
+            residual = u8[:, :, 3, 1].view(np.int8) * scale
+        return xyz.astype(np.float64), np.asarray(residual, np.float64)
 
 
 def _c3d_points(c: _C3d, raw) -> tuple[np.ndarray, np.ndarray]:
     """``(T, P, 3)`` positions and ``(T, P)`` residuals of the complete frames (NaN where the residual
     is negative, as ezc3d gives them)."""
-    T = (c.size - c.data_start) // c.frame_bytes
-    if c.frames is not None:
-        T = min(T, c.frames)
-    P, word = c.n_points, 4 if c.scale < 0 else 2
-    rec = np.dtype({"names": ["p"], "formats": [(np.uint8, (P, 4 * word))], "itemsize": c.frame_bytes})
-    u8 = np.frombuffer(raw, rec, count=T, offset=c.data_start)["p"].reshape(T, P, 4, word)  # raw words
-    with np.errstate(invalid="ignore", over="ignore"):
-        if word == 4:
-            xyz = _dec_floats(u8[:, :, :3]) if c.dec else u8[:, :, :3].copy().view("<f4")[..., 0]
-            w = u8[:, :, 3].copy().view("<i2")                                      # (T, P, 2)
-            residual = w[..., 0 if c.dec else 1] * -c.scale
-        else:
-            xyz = u8[:, :, :3].copy().view("<i2")[..., 0] * c.scale
-            residual = u8[:, :, 3, 1].view(np.int8) * c.scale
-        xyz = xyz.astype(np.float64)
-        residual = np.asarray(residual, np.float64)
-        xyz[residual < 0] = np.nan
+    word = 4 if c.scale < 0 else 2
+    xyz, residual = _point_words(raw, c.data_start, c.frame_bytes, c.n_points, word, c.frames, c.big, c.dec,
+                                 c.scale)
+    xyz[residual < 0] = np.nan
     return xyz, residual
 
 
@@ -272,7 +491,7 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
     ------
     InputFileError
         Missing, unreadable or malformed file (a count or pointer of the header or a parameter that
-        does not fit in the file), a big-endian (MIPS) file, a file without 3D points or frames, or
+        does not fit in the file), an unknown processor type, a file without 3D points or frames, or
         one without a positive point rate.
     InvalidDataError
         An infinite coordinate.
@@ -280,9 +499,10 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
     Warns
     -----
     DataWarning
-        Markers that are missing in every frame (naming them), repeated labels, or a truncated file:
-        fewer frames than its header declares, or a size that is not a whole number of 512-byte
-        blocks.
+        Markers that are missing in every frame (naming them), repeated labels, a truncated file
+        (fewer frames than it declares), frames sized other than the parameters say (the header's
+        point count, analog samples, storage or data block: whichever the data block holds, named),
+        data after the declared frames, or a file without parameters (read from its header alone).
     """
     path = input_file(path)
     try:
@@ -291,6 +511,8 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
     except OSError as e:
         raise InputFileError(f"{path}: cannot read ({e.strerror or e})") from e
     c = _parse_c3d(path, raw)
+    if c.frames < 1:
+        raise InputFileError(f"{path}: the C3D file holds no frame of its {c.n_points} 3D point(s)")
     xyz, residual = _c3d_points(c, raw)
     n_frames = len(xyz)
     if not (np.isfinite(c.rate) and c.rate > 0):
@@ -298,18 +520,24 @@ def read_c3d(path: str | os.PathLike, *, zero_is_missing: bool = True) -> Perfor
     point = {name: {"value": v} for (g, name), v in c.params.items() if g == "POINT"}
     units = _param(point, "UNITS")
     unit = str(units[0]).strip() if units and isinstance(units[0], str) and units[0].strip() else None
+    if unit is not None:
+        try:
+            unit = normalize_unit(unit)
+        except InvalidDataError:
+            warnings.warn(f"{path}: POINT:UNITS is {excerpt(unit)}, not a length unit (mm, cm, m, in); the points "
+                          "are taken as millimetres, C3D's default", DataWarning, stacklevel=2)
+            unit = None
     labels, dup = _labels(point, c.n_points)
     if dup:
         warnings.warn(f"{path}: repeated marker label(s) {', '.join(excerpt(d, bare=True) for d in dup[:20])}"
                       f"{' ...' if len(dup) > 20 else ''}; later ones renamed with "
                       "a _2, _3... suffix", DataWarning, stacklevel=2)
     pts = _marker_points(path, xyz, residual, labels, zero_is_missing)
-    if c.frames is not None and n_frames < c.frames:
-        warnings.warn(f"{path}: holds {n_frames} frame(s) but its header declares {c.frames}; "
+    for note in c.notes:
+        warnings.warn(f"{path}: {note}", DataWarning, stacklevel=2)
+    if c.declared is not None and n_frames < c.declared:
+        warnings.warn(f"{path}: holds {n_frames} frame(s) but its header declares {c.declared}; "
                       "the file may be truncated", DataWarning, stacklevel=2)
-    elif c.size % 512:
-        warnings.warn(f"{path}: {c.size} bytes, not a whole number of 512-byte C3D blocks; the file may be "
-                      f"truncated (all {n_frames} frame(s) were read)", DataWarning, stacklevel=2)
     times = (c.first_frame + np.arange(n_frames)) / c.rate
     return Performance(times=times, fps=c.rate, points=pts, labels=labels, unit=unit, source=str(path))
 
@@ -324,7 +552,10 @@ def _marker_points(path: Path, xyz: np.ndarray, residual: np.ndarray, labels: li
         missing |= (pts == 0.0).all(axis=2)
     pts[missing] = np.nan
     never = np.flatnonzero(missing.all(axis=0))
-    if never.size:
+    if never.size and never.size == len(labels):
+        warnings.warn(f"{path}: no marker is present in any frame (every sample invalid): the file holds no "
+                      "usable point", DataWarning, stacklevel=3)
+    elif never.size:
         shown = ", ".join(excerpt(labels[i], bare=True) for i in never[:20]) + (
             f" and {never.size - 20} more" if never.size > 20 else "")
         warnings.warn(f"{path}: marker(s) missing in every frame: {shown}", DataWarning, stacklevel=3)

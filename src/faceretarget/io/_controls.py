@@ -44,6 +44,7 @@ import numpy as np
 
 from ..errors import InputFileError, InvalidDataError, OutputError, excerpt
 from ..files import atomic_path, check_output_path, input_file, read_text
+from ..names import normalize_name
 
 __all__ = ["ControlTable", "read_control_table", "write_control_template", "write_control_table",
            "write_control_curves", "CONTROL_TABLE_FORMATS"]
@@ -101,6 +102,14 @@ class ControlTable:
                 if n in seen:
                     raise InvalidDataError(f"{self.source}: {what} '{excerpt(n, bare=True)}' is named twice")
                 seen.add(n)
+        same: dict[str, str] = {}
+        for c in self.controls:                # two spellings of one control drive one shape twice
+            n = normalize_name(c)
+            if n in same:
+                raise InvalidDataError(f"{self.source}: controls '{excerpt(same[n], bare=True)}' and "
+                                       f"'{excerpt(c, bare=True)}' name one control ({excerpt(n, bare=True)}); "
+                                       "keep one column")
+            same[n] = c
         for what, a in (("values", self.values), ("range", np.stack([self.lo, self.hi])), ("neutral", self.neutral)):
             if not np.isfinite(a).all():
                 raise InvalidDataError(f"{self.source}: the {what} hold a non-finite number")
@@ -243,6 +252,9 @@ def _read_json(path: Path) -> ControlTable:
         raise InputFileError(f"{path}: not JSON ({excerpt(e, 80)})") from None
     if not isinstance(doc, dict):
         raise InputFileError(f"{path}: a control table is a JSON object with 'controls', 'range' and 'keys'")
+    if unknown := sorted(set(doc) - {"controls", "range", "neutral", "keys"}):
+        raise InputFileError(f"{path}: unknown key '{excerpt(unknown[0], bare=True)}' (a control table has "
+                             "'controls', 'range', 'neutral' and 'keys')")
     controls = doc.get("controls")
     if not isinstance(controls, list) or not controls or not all(isinstance(c, str) and c for c in controls):
         raise InputFileError(f"{path}: 'controls' must be a non-empty list of control names")

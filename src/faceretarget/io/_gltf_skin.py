@@ -31,7 +31,7 @@ from ..errors import InputFileError, InvalidDataError
 from ..files import check_output_path
 from ._gltf import _ARRAY_BUFFER, _accessor, _Builder, _glb_reader, _key_times, _load_glb, _write_glb_file
 
-__all__ = ["GlbSkeleton", "write_glb_skeleton", "read_glb_skeleton"]
+__all__ = ["GlbSkeleton", "write_glb_skeleton", "read_glb_skeleton", "glb_skin_and_nodes"]
 
 
 @dataclass(eq=False)
@@ -50,6 +50,8 @@ class GlbSkeleton:
         Local rotations, quaternions ``x, y, z, w`` (the rest rotation where not animated).
     translations : (T, J, 3) float
         Local translations, metres (the rest translation where not animated).
+    rest_rotations : (J, 4) float or None
+        Each joint node's own rotation (quaternion ``x, y, z, w``; identity when None).
     """
 
     names: list[str]
@@ -58,6 +60,7 @@ class GlbSkeleton:
     times: np.ndarray
     rotations: np.ndarray
     translations: np.ndarray
+    rest_rotations: np.ndarray | None = None
 
 
 def _bone_mesh(world: np.ndarray, parents: np.ndarray, ends: list[np.ndarray | None], radius: float
@@ -269,4 +272,12 @@ def read_glb_skeleton(path: str | os.PathLike) -> GlbSkeleton:
     if not (np.isfinite(q).all() and np.isfinite(tr).all() and np.isfinite(times).all()):
         raise InputFileError(f"{path}: the joint animation holds non-finite values")
     names = [str(nodes[n].get("name", f"joint{n}")) for n in joints]
-    return GlbSkeleton(names, parents, rest, times.astype(np.float64), q, tr)
+    return GlbSkeleton(names, parents, rest, times.astype(np.float64), q, tr, rest_q)
+
+
+@_glb_reader
+def glb_skin_and_nodes(path: str | os.PathLike) -> tuple[bool, list[str]]:
+    """Whether a ``.glb`` has a skin, and the names of its nodes (``""`` for an unnamed one)."""
+    gltf, _ = _load_glb(Path(path))
+    names = [str(n.get("name", "")) if isinstance(n, dict) else "" for n in gltf.get("nodes", []) or []]
+    return bool(gltf.get("skins")), names

@@ -31,6 +31,7 @@ from scipy.spatial.transform import Rotation
 from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
 from ..files import input_file, load_npz_arrays
 from ..headpose import HeadPose
+from ..names import find_joints
 from ..performance import Performance
 from ..timebase import frame_times
 from ..units import normalize_unit, scale
@@ -38,24 +39,61 @@ from ._arrays import npz_array, npz_scalar
 from ._audio import read_audio
 from ._bvh import Bvh, bvh_chain, read_bvh
 
-__all__ = ["read_bvh_head", "read_smplx_head", "read_marker_head", "read_head_motion", "read_head_take",
+__all__ = ["read_bvh_head", "read_glb_skin_head", "read_smplx_head", "read_marker_head", "read_head_motion", "read_head_take",
            "HEAD_READ_FORMATS"]
 
 HEAD_READ_FORMATS = (".bvh", ".npz", ".c3d", ".glb", ".csv")
 
 
-def read_bvh_head(bvh: Bvh | str | os.PathLike, joints: tuple[str, ...] = ("Neck", "Neck1", "Head"),
+def _head_chain(names: list[str], parents, source: str, joints: tuple[str, ...] | None) -> list[int]:
+    """The neck-to-head chain of a skeleton (indices, parent first).
+
+    ``joints`` None: found by role (:func:`~faceretarget.names.find_joints`: ``Head``, ``mixamorig:Head``,
+    ``Bip01 Head``, ``J_Bip_C_Head``, ``DEF-head``...), from the first neck joint above the head down to
+    it (the head alone when no neck is an ancestor).  Otherwise the named chain, joints a skeleton lacks
+    skipped, as long as the last one exists.
+    """
+    parents = [int(x) for x in parents]
+    if joints is None:
+        roles = find_joints(names, parents)
+        if "head" not in roles:
+            raise InvalidDataError(f"{source}: no head joint found (by name, through exporters' prefixes such as "
+                                   f"mixamorig:, Bip01, J_Bip_C_, DEF-); joints: "
+                                   f"{', '.join(excerpt(n, bare=True) for n in names[:30])}"
+                                   f"{', ...' if len(names) > 30 else ''}")
+        chain = [roles["head"]]
+        if "neck" in roles:
+            while chain[0] != roles["neck"] and parents[chain[0]] >= 0:
+                chain.insert(0, parents[chain[0]])
+        return chain
+    present = [j for j in joints if j in names]
+    if not present or present[-1] != joints[-1]:
+        raise InvalidDataError(f"{source}: no '{joints[-1]}' joint; head motion needs the chain "
+                               f"{' > '.join(joints)} (joints: "
+                               f"{', '.join(excerpt(n, bare=True) for n in names[:30])})")
+    chain = [names.index(present[-1])]          # the contiguous part of the chain that ends at the head
+    for j in reversed(present[:-1]):
+        if parents[chain[0]] == names.index(j):
+            chain.insert(0, names.index(j))
+        else:
+            break
+    return chain
+
+
+def read_bvh_head(bvh: Bvh | str | os.PathLike, joints: tuple[str, ...] | None = None,
                   unit: str = "cm") -> Performance:
     """Head motion relative to the upper torso from a BVH take.
 
     Parameters
     ----------
     bvh : Bvh or path
-    joints : sequence of str
+    joints : sequence of str, optional
         The neck-to-head chain; the rotation is the composition of their local rotations (the
-        head's orientation in the frame of the first joint's parent, the upper torso).  Joints a
-        skeleton lacks are skipped (e.g. a skeleton with ``Neck`` and ``Head`` only), as long as
-        the last one exists.
+        head's orientation in the frame of the first joint's parent, the upper torso).  By default
+        the chain is found by role: the head joint by its name through exporters' namespaces and
+        prefixes (``Head``, ``mixamorig:Head``, ``Bip01 Head``, ``J_Bip_C_Head``...) and every joint
+        from the first neck above it (``Neck``, ``Neck1``...).  Joints a given chain lacks are
+        skipped (e.g. a skeleton with ``Neck`` and ``Head`` only), as long as the last one exists.
     unit : str
         The BVH's length unit (the shared takes are in centimetres).
 
@@ -63,24 +101,43 @@ def read_bvh_head(bvh: Bvh | str | os.PathLike, joints: tuple[str, ...] = ("Neck
     -------
     Performance
         ``head``: the chain's rotation, and the head joint's displacement from its rest position
-        in the torso frame (metres); at the file's frame rate.
+        (the offsets) in the torso frame (metres); at the file's frame rate.
     """
     b = bvh if isinstance(bvh, Bvh) else read_bvh(bvh)
-    present = [j for j in joints if j in b.names]
-    if not present or present[-1] != joints[-1]:
-        raise InvalidDataError(f"{b.source}: no '{joints[-1]}' joint; head motion needs the chain "
-                               f"{' > '.join(joints)} (joints: "
-                               f"{', '.join(excerpt(n, bare=True) for n in b.names[:30])})")
-    chain = [present[-1]]                     # the contiguous part of the chain that ends at the head
-    for j in reversed(present[:-1]):
-        if b.joints[b.index(chain[0])].parent == b.index(j):
-            chain.insert(0, j)
-        else:
-            break
-    R, p = bvh_chain(b, tuple(chain))
-    rest = np.sum([b.joints[b.index(j)].offset for j in chain], axis=0)
+    idx = _head_chain(b.names, [j.parent for j in b.joints], b.source, None if joints is None else tuple(joints))
+    chain = tuple(b.names[i] for i in idx)
+    R, p = bvh_chain(b, chain)
+    rest = np.sum([b.joints[i].offset for i in idx], axis=0)
     head = HeadPose.from_matrix(R, (p - rest) * scale(normalize_unit(unit), "m"), source=b.source)
     return Performance.from_head(head, fps=b.fps, source=b.source)
+
+
+def read_glb_skin_head(path: str | os.PathLike) -> Performance:
+    """Head motion relative to the upper torso from the skin animation of a ``.glb`` (a character's
+    body animation): the neck-to-head chain found by role as in :func:`read_bvh_head`.
+
+    Returns
+    -------
+    Performance
+        ``head``: the chain's rotation relative to its rest rotation (the nodes' own), expressed in
+        the torso frame, and the head joint's displacement from its rest position (metres).
+    """
+    from ._gltf_skin import read_glb_skeleton
+
+    path = input_file(path)
+    s = read_glb_skeleton(path)
+    idx = _head_chain(list(s.names), s.parents, str(path), None)
+    T = len(s.times)
+    R = np.broadcast_to(np.eye(3), (T, 3, 3)).copy()
+    p = np.zeros((T, 3))
+    R0, p0 = np.eye(3), np.zeros(3)
+    for i in idx:
+        p = p + np.einsum("tij,tj->ti", R, s.translations[:, i])
+        R = R @ Rotation.from_quat(s.rotations[:, i]).as_matrix()
+        p0 = p0 + R0 @ s.rest[i]
+        R0 = R0 @ Rotation.from_quat(s.rest_rotations[i]).as_matrix()
+    head = HeadPose.from_matrix(R @ R0.T, p - p0, source=str(path))
+    return Performance.from_head(head, times=s.times, source=str(path))
 
 
 def read_smplx_head(path: str | os.PathLike, neck_length: float = 0.10) -> Performance:
@@ -134,7 +191,9 @@ def read_marker_head(perf: Performance, subset=None, n_auto: int = 8) -> Perform
         cluster's reference pose (its robust median), so a torso-fixed capture gives the head
         relative to the torso.
     subset : labels or indices, optional
-        Markers moving with the skull; chosen automatically when omitted.
+        Markers moving with the skull; chosen automatically when omitted, among the markers of a take
+        that is a face (:func:`~faceretarget.numerics.face_markers`: a full-body take is refused, stray
+        and mostly-missing markers are left out with a warning).
     n_auto : int
         Size of the automatic subset.
 
@@ -145,8 +204,15 @@ def read_marker_head(perf: Performance, subset=None, n_auto: int = 8) -> Perform
         millimetres assumed when it is unknown); frames without a pose are interpolated from
         their neighbours.
     """
-    from ..numerics import RigidAligner
+    from ..numerics import RigidAligner, face_markers, select_rigid_markers
 
+    if subset is None and perf.points is not None and perf.points.shape[2] == 3:
+        # chosen automatically: only on a face (a full-body take's most rigid markers are a leg), without strays
+        chk = face_markers(perf.points, perf.labels, perf.unit, source=perf.source)
+        if not chk.keep.all():
+            warnings.warn(chk.message(perf.source), DataWarning, stacklevel=2)
+            subset = [int(i) for i in select_rigid_markers(perf.points[:, chk.keep], min(n_auto, int(chk.keep.sum())))]
+            subset = [int(np.flatnonzero(chk.keep)[i]) for i in subset]
     al = RigidAligner(subset=subset, n_auto=n_auto)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -167,8 +233,9 @@ def read_marker_head(perf: Performance, subset=None, n_auto: int = 8) -> Perform
 
 
 def read_head_motion(path: str | os.PathLike, *, neck_length: float = 0.10) -> Performance:
-    """Head motion from ``.bvh`` (Neck/Neck1/Head chain), SMPL-X ``.npz``, ``.c3d`` markers, a ``.glb``
-    ``head`` node or Live Link Face ``.csv`` head columns (the files ``headmotion synth`` writes).
+    """Head motion from ``.bvh`` (the neck-to-head chain, found by role), SMPL-X ``.npz``, ``.c3d`` markers,
+    a ``.glb`` ``head`` node (the files ``headmotion synth`` writes) or a ``.glb`` skin's head joint (a
+    character's animation), or Live Link Face ``.csv`` head columns.
 
     Returns
     -------
@@ -187,7 +254,11 @@ def read_head_motion(path: str | os.PathLike, *, neck_length: float = 0.10) -> P
         return read_marker_head(read_c3d(path))
     if ext == ".glb":
         from ._gltf import read_glb_head
+        from ._gltf_skin import glb_skin_and_nodes
 
+        skin, nodes = glb_skin_and_nodes(path)
+        if skin and "head" not in nodes:
+            return read_glb_skin_head(path)           # a character's body animation: its head joint by role
         times, head = read_glb_head(path)
         return Performance.from_head(head, times=times, source=str(path))
     if ext == ".csv":

@@ -73,6 +73,10 @@ class Drawing:
         The SVG document the paths come from (styles, other elements); :func:`write_svg_animation`
         writes a copy of it.
     source : str
+    transforms : list of str
+        Per path, the ``transform`` attributes of its groups and itself, outermost first (``""``:
+        none).  Points are blended in each path's own coordinates, so key drawings must transform
+        every path as the neutral does (:meth:`check_like`).
     """
 
     commands: list[list[str]]
@@ -81,6 +85,7 @@ class Drawing:
     path_ids: list[str]
     root: ET.Element = field(repr=False)
     source: str = "drawing"
+    transforms: list[str] = field(default_factory=list)
 
     @property
     def n_points(self) -> int:
@@ -102,6 +107,21 @@ class Drawing:
                                        "path structure, point order kept)")
         if other.n_points != self.n_points or not np.array_equal(other.index, self.index):
             raise InvalidDataError(f"{other.source}: {other.n_points} points, {self.source} has {self.n_points}")
+        for i, (a, b) in enumerate(zip(self.transforms, other.transforms, strict=False)):
+            if a != b:
+                raise InvalidDataError(f"{other.source}: path '{other.path_ids[i]}' is transformed by "
+                                       f"{excerpt(b or 'nothing')} where {self.source} has {excerpt(a or 'nothing')}; "
+                                       "transforms are not blended (apply them to the paths: Inkscape Path > "
+                                       "Object to Path, ungroup)")
+
+    def static_changes(self, other: Drawing) -> list[str]:
+        """The elements other than ``<path>`` (circles, text, images...) that ``other`` draws differently:
+        they are never animated (the output keeps the neutral's), so a key that moves one is read only in part."""
+        mine, theirs = _statics(self.root), _statics(other.root)
+        out = [f"<{t}{' id=' + i if i else ''}>" for (t, i, a), o in zip(mine, theirs, strict=False) if (t, i, a) != o]
+        if len(mine) != len(theirs):
+            out.append(f"{abs(len(mine) - len(theirs))} element(s) {'more' if len(theirs) > len(mine) else 'fewer'}")
+        return out
 
     def path_data(self, points: np.ndarray) -> list[str]:
         """Each path's ``d`` attribute for ``points`` ``(N, 2)``."""
@@ -263,6 +283,30 @@ def _paths(root: ET.Element) -> list[ET.Element]:
     return [el for el in root.iter() if _tag(el) == "path"]
 
 
+def _path_transforms(root: ET.Element) -> list[str]:
+    """Each ``<path>``'s transform chain (its groups' ``transform`` attributes and its own), document order."""
+    out: list[str] = []
+
+    def walk(el: ET.Element, chain: str) -> None:
+        t = " ".join(x for x in (chain, (el.get("transform") or "").strip()) if x)
+        if _tag(el) == "path":
+            out.append(t)
+        for c in el:
+            walk(c, t)
+
+    walk(root, "")
+    return out
+
+
+#: Drawn elements that are not paths: kept as the neutral draws them, never animated.
+_STATIC = ("circle", "ellipse", "rect", "line", "polyline", "polygon", "text", "image", "use")
+
+
+def _statics(root: ET.Element) -> list[tuple[str, str, tuple]]:
+    return [(_tag(el), el.get("id") or "", tuple(sorted((k, v) for k, v in el.attrib.items() if k != "id")))
+            for el in root.iter() if _tag(el) in _STATIC]
+
+
 def read_svg_drawing(path: str | os.PathLike) -> Drawing:
     """Read the ``<path>`` elements of an SVG file as a :class:`Drawing` (module docstring).
 
@@ -288,7 +332,7 @@ def read_svg_drawing(path: str | os.PathLike) -> Drawing:
         points.extend(p)
         ids.append(pid)
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    return Drawing(commands, pts, np.arange(len(pts)), ids, root, source=str(path))
+    return Drawing(commands, pts, np.arange(len(pts)), ids, root, source=str(path), transforms=_path_transforms(root))
 
 
 def _dots_root(n: int) -> ET.Element:

@@ -4,6 +4,7 @@
 :mod:`._nnls`       batched exact NNLS with bounds, L1/L2, temporal and missing-marker terms (Chuang
                     Eq. 3.1/3.2), weight-curve low-pass filter; compiled kernel in :mod:`._nnls_numba`
 :mod:`._bounded`    least squares inside a weight range for whole takes (the shift onto NNLS)
+:mod:`._face`       is a take a face: its span, marker labels, stray and mostly-missing markers
 :mod:`._denoise`    take-adaptive denoising: noise level from the take's spectrum, SURE-chosen
                     Whittaker smoothing in an ensemble of bases
 :mod:`._rigid`      rigid fits (Kabsch/Umeyama), rigid marker selection, :class:`RigidAligner`
@@ -25,6 +26,7 @@ from ._bounded import (
     weight_range,
 )
 from ._denoise import denoise_take, estimate_noise_sigma, sure_whittaker
+from ._face import FACE_MAX_MM, MESH_FACE_MAX_MM, FaceMarkers, face_markers, face_mesh
 from ._nnls import extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
 from ._rigid import AlignResult, RigidAligner, fit_rigid, select_rigid_markers
 from ._rotations import blend_rotations, nearest_rotation
@@ -50,5 +52,5 @@ __all__ = [
     "RigidAligner", "AlignResult", "fit_rigid", "select_rigid_markers", "nearest_rotation", "blend_rotations", "runs",
     "SELECTION_METHODS", "select_keyshapes", "pca_extrema", "hull_selection", "kmeans_selection", "nnls_greedy",
     "nnls_greedy_path", "nnls_weights", "pivoted_qr", "reconstruction_error",
-    "smoothstep",
+    "smoothstep", "FaceMarkers", "face_markers", "face_mesh", "FACE_MAX_MM", "MESH_FACE_MAX_MM",
 ]

@@ -62,7 +62,16 @@ from ._character import (
 from ._demo import run_demo
 from ._head import build_head_database
 from ._jobs import JOB_OPTIONS, OPERATIONS, BatchSpec, Job, read_jobs
-from ._keys import SELECTION_ALIASES, KeyGeometry, KeySelection, compose_keys, key_geometry, select_keys
+from ._keys import (
+    SELECTION_ALIASES,
+    KeyGeometry,
+    KeySelection,
+    check_face_keys,
+    check_face_take,
+    compose_keys,
+    key_geometry,
+    select_keys,
+)
 from ._live import LIVE_LIMITS, LiveFrame, LiveSession, LiveStats, character_glb, run_live
 from ._liveserver import LiveServer
 from ._preview import TakeSampler, write_animation_preview
@@ -109,6 +118,7 @@ __all__ = [
     "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES", "check_result_path", "MAX_TEMPORAL",
     "target_weights",
     "select_keys", "compose_keys", "key_geometry", "KeySelection", "KeyGeometry", "SELECTION_ALIASES",
+    "check_face_take", "check_face_keys",
     "write_animation_preview", "TakeSampler",
     "run_live", "LiveSession", "LiveStats", "LiveFrame", "LiveServer", "character_glb", "LIVE_LIMITS",
     "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "appearance_memory", "APPEARANCE_BYTES", "fit_style", "read_style_take", "build_head_database", "run_demo",

@@ -374,6 +374,12 @@ def _character(path: Path, root: Path, name: str, table) -> Character:
         if "rig" in kw:
             raise InvalidDataError(f"{where}: give 'rig' or 'demo', not both")
         kw["demo"] = table["demo"]
+    for key, needs in (("neutral", "rig"), ("landmarks", "rig"), ("source_neutral", "source_keys"),
+                       ("target_neutral", "target_keys"), ("source_landmarks", "source_keys"),
+                       ("target_landmarks", "target_keys")):
+        if key in kw and needs not in kw:                  # read by nothing: a misplaced key, not a quiet default
+            raise InvalidDataError(f"{where}, key '{key}': applies to '{needs}', which this character does not give"
+                                   + (" (a demo character has its own)" if "demo" in kw and needs == "rig" else ""))
     if ("source_keys" in kw) != ("target_keys" in kw):
         raise InvalidDataError(f"{where}: give both 'source_keys' and 'target_keys' (key-model pairs)")
     if not kw.get("rig") and not kw.get("demo") and not kw.get("source_keys"):

@@ -11,14 +11,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..cloning import EMOTIONS, VISEMES, build_key_models, weight_vector
-from ..errors import InvalidDataError
+from ..errors import DataWarning, InvalidDataError
 from ..mesh import Mesh
 from ..names import ARKIT_NAMES, normalize_name
-from ..numerics import SELECTION_METHODS, AlignResult, RigidAligner, reconstruction_error, select_keyshapes
+from ..numerics import (
+    SELECTION_METHODS,
+    AlignResult,
+    RigidAligner,
+    face_markers,
+    face_mesh,
+    reconstruction_error,
+    select_keyshapes,
+)
 from ..performance import Performance
 from ..rig import Rig, resolve_features
 
-__all__ = ["KeyGeometry", "KeySelection", "key_geometry", "select_keys", "compose_keys", "SELECTION_ALIASES"]
+__all__ = ["KeyGeometry", "KeySelection", "key_geometry", "select_keys", "compose_keys", "SELECTION_ALIASES",
+           "check_face_take", "check_face_keys"]
 
 #: Short names the command line accepts for the selection methods.
 SELECTION_ALIASES = {"kmeans": "kmeans2", "pca": "pca-extrema", "greedy": "nnls-greedy", "qr": "pivoted-qr"}
@@ -53,9 +62,52 @@ class KeyGeometry:
     alignment: AlignResult | None = None
 
 
+def check_face_take(take: Performance, *, drop: bool = True) -> Performance:
+    """``take`` checked to be a face (:func:`~faceretarget.numerics.face_markers`,
+    :func:`~faceretarget.numerics.face_mesh`): a marker take without its stray and mostly-missing
+    markers (``drop``: removed; else missing in every frame, so label matching still finds them), named
+    on one warning line.
+
+    Raises
+    ------
+    NotAFaceError
+        A take that spans more than a face, or whose labels name a body.
+    """
+    if take.kind == "vertices":
+        face_mesh(take.vertices, take.unit, source=take.source)
+        return take
+    if take.kind != "points":
+        return take
+    chk = face_markers(take.points, take.labels, take.unit, source=take.source)
+    msg = chk.message(take.source)
+    if msg is None:
+        return take
+    warnings.warn(msg, DataWarning, stacklevel=3)
+    if drop:
+        keep = np.flatnonzero(chk.keep)
+        return take.with_points(take.points[:, keep], [take.labels[i] for i in keep] if take.labels else None)
+    pts = take.points.copy()
+    pts[:, ~chk.keep] = np.nan
+    return take.with_points(pts)
+
+
+def check_face_keys(keys: Rig) -> None:
+    """Raise :class:`~faceretarget.errors.NotAFaceError` when source keys are not a face: point-set keys
+    (markers) by their span, mesh keys by the span of the part their shapes move."""
+    frames = np.concatenate([keys.neutral.vertices[None], keys.neutral.vertices + keys.deltas])
+    if keys.neutral.n_faces == 0:
+        flat = not np.any(frames[..., 2])                  # keys of 2-D tracks (z = 0): pixels, no scale to judge
+        face_markers(frames[..., :2] if flat else frames, None, keys.unit, source=keys.name)
+    else:
+        face_mesh(frames, keys.unit, source=keys.name, moving=np.abs(keys.deltas).max(axis=(0, 2)) if keys.n_shapes
+                  else None)
+
+
 def key_geometry(take: Performance, source_rig: Rig | None = None, *, align: bool = True,
                  rigid_subset: Sequence[str | int] | None = None, log: Callable[..., None] = _quiet) -> KeyGeometry:
-    """The frames of ``take`` as points for selection and export (:class:`KeyGeometry`)."""
+    """The frames of ``take`` as points for selection and export (:class:`KeyGeometry`); a marker or mesh take
+    is checked to be a face first and loses its stray markers (:func:`check_face_take`)."""
+    take = check_face_take(take)
     if take.kind == "weights":
         if source_rig is None:
             raise InvalidDataError(f"{take.source}: a weight take needs the rig it drives (--source-rig DIR)")

@@ -27,6 +27,7 @@ from ..performance import Performance
 from ..retarget import BlendshapeRetargeter, RetargetResult, check_consistency
 from ..rig import Rig
 from ..targets import Target
+from ._keys import check_face_keys, check_face_take
 
 __all__ = ["CHUNK_FRAMES", "source_geometry", "clone_take", "retarget_take", "write_result", "Transfer",
            "result_head", "arkit_curves", "HEAD_CHOICES", "face_and_head_formats", "check_result_path",
@@ -95,7 +96,7 @@ def _apply(model: ExpressionCloner | BlendshapeRetargeter, take: Performance, so
     motion and audio carried to the result."""
     geo = source_geometry(take, source_rig, model.feature_idx_, model_vertices=len(model.source_neutral_), log=log)
     if isinstance(geo, Performance):
-        return model.transform(geo)
+        return model.transform(check_face_take(geo, drop=False))     # a face: its stray markers missing, named
     res = model.transform(geo, take.times)
     res.carry(take)                  # head, audio, timecode and curves of the input take
     return res
@@ -161,6 +162,7 @@ def clone_take(take: Performance, source_keys: Rig, target_keys: Rig | Target, *
         Range of the weights (:class:`~faceretarget.cloning.ExpressionCloner`).
     """
     t0 = time.perf_counter()
+    check_face_keys(source_keys)
     if source_rig is None and take.kind == "weights":
         source_rig = source_keys                    # the take drives every shape, whatever the target poses
     target, target_keys, source_keys = _target_of(target_keys, source_keys, log)
@@ -221,6 +223,7 @@ def retarget_take(take: Performance, source_keys: Rig, target_keys: Rig | Target
         if temporal > 0 and params.get("solver", "signed") != "nnls":
             raise InvalidDataError("temporal smoothness inside the solve applies to the 'nnls' solver only "
                                    "(--solver nnls); smooth the curves of 'signed' with a filter (--smooth)")
+    check_face_keys(source_keys)
     if source_rig is None and take.kind == "weights" and isinstance(target_keys, Target) and target_keys.kind != "mesh":
         source_rig = source_keys                    # the take drives every shape, whatever the target poses
     target, target_keys, source_keys = _target_of(target_keys, source_keys, log)

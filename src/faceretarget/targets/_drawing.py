@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidDataError
+from ..errors import DataWarning, InvalidDataError
 from ..files import save_npz_arrays
 from ..io import Drawing, write_drawing_preview, write_svg_animation, write_svg_frames
 from ..mesh import Mesh
@@ -49,6 +50,11 @@ class DrawingTarget(Target):
         super().__init__(src, names, [Path(keys[n].source).name for n in names])
         for n in names:
             neutral.check_like(keys[n])
+            changed = neutral.static_changes(keys[n])
+            if changed:
+                warnings.warn(f"{keys[n].source}: {', '.join(changed[:6])} drawn otherwise than in {neutral.source}; "
+                              "only <path> elements are animated (the output draws the neutral's): convert "
+                              "them to paths to animate them", DataWarning, stacklevel=2)
         self.neutral = neutral
         self.keys = dict(keys)
         P0 = neutral.points

@@ -90,7 +90,7 @@ def _glb_as_bvh(path: Path) -> tuple[Bvh, str]:
     cols = []
     for i in range(len(joints)):
         if s.parents[i] < 0:
-            cols.append(s.translations[:, i] - s.rest[i])
+            cols.append(s.translations[:, i])            # position channels: the full local translation
         cols.append(Rotation.from_quat(s.rotations[:, i]).as_euler("ZXY", degrees=True))
     motion = np.concatenate(cols, axis=1) if cols else np.zeros((T, 0))
     dt = float(np.median(np.diff(s.times))) if T > 1 else 1.0 / 30.0

@@ -112,7 +112,7 @@ class SkeletonTarget(Target):
                 f"rest pose frame {self.neutral_frame}, {len(self.skeleton.joints)} joints")
 
     def params(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Local rotations ``(T, J, 4)`` (quaternions x, y, z, w) and position channels ``(T, J, 3)``."""
+        """Local rotations ``(T, J, 4)`` (quaternions x, y, z, w) and translations ``(T, J, 3)``."""
         W = self._weights(weights)
         q = blend_rotations(self.rest_rotations, self.key_rotations, W)
         pos = np.broadcast_to(self.rest_positions, (len(W),) + self.rest_positions.shape).copy()
@@ -155,5 +155,5 @@ class SkeletonTarget(Target):
         q, pos = self.params(weights)
         joints: list[BvhJoint] = self.skeleton.joints
         offsets = np.array([j.offset for j in joints], dtype=np.float64)
-        return write_glb_skeleton(path, self.joint_names, self.parents, offsets, q, offsets + pos, times,
+        return write_glb_skeleton(path, self.joint_names, self.parents, offsets, q, pos, times,
                                   scale=mm_per_unit(self.unit) / 1000.0, end_sites=[j.end_site for j in joints])
