@@ -192,84 +192,52 @@ def read_bvhpkg(path: Path) -> dict:
 
 # ------------------------------------------------------------------------------------------ glTF
 #: Extensions that change how accessors are decoded: our reader cannot read files that require them.
-_GLTF_DECODING = ("EXT_meshopt_compression", "KHR_draco_mesh_compression", "KHR_meshopt_compression")
 
 
 def ours_gltf(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Accessor-level data of a glTF file through faceretarget's glTF reader.
+    """Accessor-level data of a glTF file through faceretarget's glTF reader (:class:`faceretarget.io.GltfDocument`,
+    the one the character reader uses: meshopt, Draco, sparse accessors, ``.gltf`` with external buffers).
 
     Keys: ``mesh{m}.prim{p}.POSITION`` ``(N, 3)``, ``mesh{m}.prim{p}.indices`` ``(M,)``,
     ``mesh{m}.prim{p}.target{t}.POSITION`` ``(N, 3)``, ``node{n}.world`` ``(4, 4)`` (the node's world
     matrix in the default scene, column vectors), ``anim{a}.sampler{s}.input`` ``(K,)`` and
     ``.output`` ``(K, C)``.  The one place the bench touches the reader: point it at a new reader here.
+    A Draco-compressed primitive's arrays come from the Draco data (the accessors it replaces have none).
 
     Raises
     ------
     FaceRetargetError
-        A file the reader cannot decode (naming the extension, a sparse accessor, a JSON ``.gltf``).
+        A file the reader cannot decode (naming the extension or the part at fault).
     """
-    from faceretarget.errors import InputFileError
-    from faceretarget.io._gltf import _accessor, _load_glb
+    from faceretarget.io import GltfDocument
+    from faceretarget.io._gltf_scene import _scene_nodes, _world_matrices
 
     path = Path(path)
-    if path.suffix.lower() == ".gltf":
-        raise InputFileError(f"{path}: .gltf (JSON) files are not read by the glTF reader (use .glb)")
-    gltf, binchunk = _load_glb(path)
-    need = [e for e in gltf.get("extensionsRequired", []) or [] if e in _GLTF_DECODING]
-    need += [e for e in gltf.get("extensionsUsed", []) or [] if e in _GLTF_DECODING and e not in need]
-    if need:
-        raise InputFileError(f"{path}: uses {', '.join(need)}; the glTF reader cannot decode it")
-    for i, acc in enumerate(gltf.get("accessors", [])):
-        if "sparse" in acc:
-            raise InputFileError(f"{path}: accessor {i} is sparse; the glTF reader does not apply sparse accessors")
+    doc = GltfDocument(path)
+    gltf = doc.json
     out: dict[str, np.ndarray] = {}
     for m, mesh in enumerate(gltf.get("meshes", [])):
         for p, prim in enumerate(mesh.get("primitives", [])):
+            if "KHR_draco_mesh_compression" in prim.get("extensions", {}):
+                continue                                # pygltflib cannot decode it: nothing to compare
             if "POSITION" in prim.get("attributes", {}):
-                out[f"mesh{m}.prim{p}.POSITION"] = _accessor(path, gltf, binchunk, prim["attributes"]["POSITION"])
+                out[f"mesh{m}.prim{p}.POSITION"] = doc.accessor(prim["attributes"]["POSITION"])
             if "indices" in prim:
-                out[f"mesh{m}.prim{p}.indices"] = _accessor(path, gltf, binchunk, prim["indices"]).reshape(-1)
+                out[f"mesh{m}.prim{p}.indices"] = doc.accessor(prim["indices"]).reshape(-1)
             for t, tg in enumerate(prim.get("targets", [])):
                 if "POSITION" in tg:
-                    out[f"mesh{m}.prim{p}.target{t}.POSITION"] = _accessor(path, gltf, binchunk, tg["POSITION"])
-    for n, world in _ours_world(gltf).items():
-        out[f"node{n}.world"] = world
+                    out[f"mesh{m}.prim{p}.target{t}.POSITION"] = doc.accessor(tg["POSITION"])
+    world, _, parent = _world_matrices(doc)
+    for n in _scene_nodes(doc, parent):
+        out[f"node{n}.world"] = world[n]
     for a, anim in enumerate(gltf.get("animations", [])):
         for s, smp in enumerate(anim.get("samplers", [])):
-            out[f"anim{a}.sampler{s}.input"] = _accessor(path, gltf, binchunk, smp["input"]).reshape(-1)
-            out[f"anim{a}.sampler{s}.output"] = _accessor(path, gltf, binchunk, smp["output"])
+            out[f"anim{a}.sampler{s}.input"] = doc.accessor(smp["input"]).reshape(-1)
+            out[f"anim{a}.sampler{s}.output"] = doc.accessor(smp["output"])
     return out
 
 
-def _ours_world(gltf: dict) -> dict[int, np.ndarray]:
-    """World matrices of the default scene's nodes (scipy rotations; the reader has no scene graph yet)."""
-    from scipy.spatial.transform import Rotation
-
-    nodes = gltf.get("nodes", [])
-
-    def local(n: dict) -> np.ndarray:
-        if "matrix" in n:
-            return np.asarray(n["matrix"], np.float64).reshape(4, 4).T
-        m = np.eye(4)
-        m[:3, :3] = Rotation.from_quat(n.get("rotation", [0, 0, 0, 1])).as_matrix() * np.asarray(
-            n.get("scale", [1, 1, 1]), np.float64)
-        m[:3, 3] = n.get("translation", [0, 0, 0])
-        return m
-
-    scenes = gltf.get("scenes", [])
-    roots = scenes[gltf.get("scene", 0)].get("nodes", []) if scenes else []
-    out: dict[int, np.ndarray] = {}
-    stack = [(r, np.eye(4)) for r in roots]
-    while stack:
-        i, parent = stack.pop()
-        if i in out:
-            continue
-        out[i] = parent @ local(nodes[i])
-        stack.extend((c, out[i]) for c in nodes[i].get("children", []))
-    return out
-
-
-_COMPONENT = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+_COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 
 
@@ -284,10 +252,21 @@ def read_pygltflib(path: Path) -> dict:
     def buffer(i: int) -> bytes:
         if blob is not None and i == 0 and not g.buffers[0].uri:
             return blob
+        if not g.buffers[i].uri:                  # a meshopt fallback buffer: only decoded views refer to it
+            return b""
         return g.get_data_from_buffer_uri(g.buffers[i].uri)
 
     def view(i: int) -> tuple[bytes, int, int | None]:
         v = g.bufferViews[i]
+        ext = (v.extensions or {}).get("EXT_meshopt_compression")
+        if ext:                               # meshoptimizer's own decoder on pygltflib's parse
+            import meshopt
+
+            src = buffer(ext.get("buffer", 0))[ext.get("byteOffset", 0): ext.get("byteOffset", 0) + ext["byteLength"]]
+            filt = ext.get("filter", "NONE")
+            data = meshopt.decode_gltf_buffer(src, ext["count"], ext["byteStride"], ext.get("mode", "ATTRIBUTES"),
+                                              None if filt == "NONE" else filt)
+            return np.ascontiguousarray(data).tobytes(), 0, v.byteStride or ext["byteStride"]
         return buffer(v.buffer), v.byteOffset or 0, v.byteStride
 
     def accessor(i: int) -> np.ndarray:

@@ -78,6 +78,11 @@ class GltfDocument:
         version = str(self.json.get("asset", {}).get("version", ""))
         if not version.startswith("2."):
             raise InputFileError(f"{self.path}: glTF version {excerpt(version)}, only 2.x is read")
+        unknown = sorted(set(self.json.get("extensionsRequired", [])) - GLTF_DECODED_EXTENSIONS)
+        if unknown:
+            raise InputFileError(f"{self.path}: requires the glTF extension(s) {', '.join(unknown)}, which this reader "
+                                 f"does not decode (it decodes {', '.join(sorted(GLTF_DECODED_EXTENSIONS)[:6])} ...); "
+                                 "re-export without them (e.g. gltf-transform copy)")
         self._buffers: dict[int, bytes] = {}
         self._views: dict[int, bytes] = {}
         self.notes: list[str] = []
@@ -545,12 +550,6 @@ def read_gltf_character(path: str | os.PathLike) -> Character:
 def _read(path: Path) -> Character:
     doc = GltfDocument(path)
     js = doc.json
-    required = set(js.get("extensionsRequired", []))
-    unknown = sorted(required - GLTF_DECODED_EXTENSIONS)
-    if unknown:
-        raise InputFileError(f"{path}: requires the glTF extension(s) {', '.join(unknown)}, which this reader does "
-                             f"not decode (it decodes {', '.join(sorted(GLTF_DECODED_EXTENSIONS)[:6])} ...); "
-                             "re-export without them (e.g. gltf-transform copy)")
     used = set(js.get("extensionsUsed", []))
     world, local, parent = _world_matrices(doc)
     nodes = js.get("nodes", [])
