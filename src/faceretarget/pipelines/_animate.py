@@ -204,7 +204,8 @@ def face_takes(videos: Mapping[str, str | os.PathLike], *, reference: str | None
     Every take shares the actor's neutral face, taken from the ``reference`` style's video
     (default ``"neutral"`` when given, else the first): a take's own quietest frames would hold its
     emotion (an angry resting face) and remove it.  ``scores``: each take also carries the tracker's
-    ARKit scores as its weights (what a :class:`~faceretarget.style.SpeakerStyleModel` reads).
+    ARKit scores as its weights, uncalibrated (what a :class:`~faceretarget.style.SpeakerStyleModel`
+    reads; it measures them from each speaker's neutral take).
     """
     from ._capture import capture_take
 
@@ -213,7 +214,9 @@ def face_takes(videos: Mapping[str, str | os.PathLike], *, reference: str | None
     ref = reference or ("neutral" if "neutral" in videos else next(iter(videos)))
     if ref not in videos:
         raise InvalidDataError(f"face_takes: reference style '{ref}' has no video")
-    caps = {k: capture_take(v, neutral_percentile=5.0, log=log, **capture) for k, v in videos.items()}
+    # scores: raw, so an emotional take keeps its offset (a take's own percentile would remove it)
+    caps = {k: capture_take(v, neutral_percentile=None if scores else 5.0, log=log, **capture)
+            for k, v in videos.items()}
     rc = tracked_take(caps[ref])
     n0 = neutral_face(rc.points, rc.weights)
     out = {k: face_take(c, neutral=n0) for k, c in caps.items()}   # (similarity fits: any frame of n0)
