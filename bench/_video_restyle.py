@@ -138,7 +138,7 @@ def _strip(path: Path, rows: list[tuple[str, list[np.ndarray]]], title: str, col
 
 def run(data_dir: str | Path = DATA, speaker: str = "W009", to_emotion: str | tuple[str, ...] = ("angry", "happy"),
         out_dir: str | Path = "out/emotion_video", *, train: float = 0.6, cache: str | Path | None = CACHE,
-        width: int = 128, strip_frames: int = 5, cell: int = 176, log=_quiet) -> dict:
+        width: int = 128, strip_frames: int = 5, cell: int = 176, speakers=None, log=_quiet) -> dict:
     """P6 "the video itself" for one speaker (module docstring).
 
     Parameters
@@ -156,6 +156,10 @@ def run(data_dir: str | Path = DATA, speaker: str = "W009", to_emotion: str | tu
         Capture cache folder (None: track every run).
     width : int
         Appearance model canvas width, pixels.
+    speakers : SpeakerStyleModel, optional
+        Fitted on *other* speakers (issue 27): the held-out frames are also edited by it, the shape
+        through :func:`~faceretarget.pipelines.speaker_edited_landmarks` and the appearance model, the
+        texture kept (``cross_speaker`` in ``shape_px`` / ``texture_grey``; a row of the strip).
 
     Returns
     -------
@@ -236,6 +240,13 @@ def run(data_dir: str | Path = DATA, speaker: str = "W009", to_emotion: str | tu
         true_tex = np.stack([app.warp_.sample(frames[e][k], lms[e][k, app.points_, :2]) for k in j]).astype(np.float64)
         offset = (aligned[e][:n_train] - aligned["neutral"][:n_train]).mean(0)
         cand = {"edited": r.frames, "no_edit": x, "additive": x + offset, "floor": vec[e][j]}
+        if speakers is not None and e in speakers.styles_:
+            from faceretarget.pipelines import speaker_edited_landmarks
+
+            L, _ = speaker_edited_landmarks(caps["neutral"], speakers, e)
+            cross = x.copy()
+            cross[:, :app.n_shape] = app.shape_params(L[held])[0]
+            cand["cross_speaker"] = edited[e + " (other speakers)"] = cross
         sh, tx = {}, {}
         for k, v in cand.items():
             sh[k] = px * float(np.linalg.norm(app.reconstruct_shape(v) - true_shape, axis=-1).mean())
@@ -243,6 +254,11 @@ def run(data_dir: str | Path = DATA, speaker: str = "W009", to_emotion: str | tu
         edit[e] = {"shape_px": sh, "texture_grey": tx, "shape_rel": sh["edited"] / sh["no_edit"],
                    "texture_rel": tx["edited"] / tx["no_edit"], "shape_rel_additive": sh["edited"] / sh["additive"],
                    "texture_rel_additive": tx["edited"] / tx["additive"], "range_score": r.range.score}
+        if "cross_speaker" in sh:
+            edit[e]["cross_speaker_shape_rel"] = sh["cross_speaker"] / sh["no_edit"]
+            log(f"{speaker} -> {e} by the model of other speakers: shape px {sh['cross_speaker']:.2f} "
+                f"({sh['cross_speaker'] / sh['no_edit']:.2f} of no edit; the same speaker's own model "
+                f"{sh['edited']:.2f})")
         log(f"{speaker} -> {e}: shape px edited {sh['edited']:.2f} / no edit {sh['no_edit']:.2f} / additive "
             f"{sh['additive']:.2f} / floor {sh['floor']:.2f}; texture grey edited {tx['edited']:.2f} / no edit "
             f"{tx['no_edit']:.2f} / additive {tx['additive']:.2f} / floor {tx['floor']:.2f}")
@@ -257,9 +273,12 @@ def run(data_dir: str | Path = DATA, speaker: str = "W009", to_emotion: str | tu
                                                              c_all[k], tracked=tr_all[k]), b, cell)
                                            for k, b in zip(pick, boxes, strict=True)])]
     for e in targets:
-        ed = [comp.render(frames["neutral"][k], edited[e][k - n_train], a_all[k], c_all[k], tracked=tr_all[k])
-              for k in pick]
-        rows.append((f"edited\n-> {e}", [_cell(im, b, cell) for im, b in zip(ed, boxes, strict=True)]))
+        for key, label in ((e, f"edited\n-> {e}"), (e + " (other speakers)", f"-> {e}, model\nof other speakers")):
+            if key not in edited:
+                continue
+            ed = [comp.render(frames["neutral"][k], edited[key][k - n_train], a_all[k], c_all[k], tracked=tr_all[k])
+                  for k in pick]
+            rows.append((label, [_cell(im, b, cell) for im, b in zip(ed, boxes, strict=True)]))
         real = []
         for k in pick:
             jj = nearest[e][k - n_train]

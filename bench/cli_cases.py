@@ -185,6 +185,16 @@ CASES: tuple[Case, ...] = (
     _c("style-variance", _FIT + " --variance 2 --out {out}/style.npz", "--variance"),
     _c("style-bundle", _FIT + " --bundle 0 --out {out}/style.npz", "--bundle"),
     _c("style-reference", _FIT + " --reference happy --out {out}/style.npz", "--reference"),
+    _c("style-speakers-mixed", "style fit --take M030:neutral={video} --take angry={video} --out {out}/style.npz",
+       "name the speaker of every take"),
+    _c("style-speakers-no-neutral", "style fit --take M030:angry={video} --take M030:happy={video} "
+       "--out {out}/style.npz", "'neutral' take"),
+    _c("style-speakers-not-video", "style fit --take M030:neutral={take} --take M030:angry={take2} "
+       "--out {out}/style.npz", "videos"),
+    _c("style-speakers-twice", "style fit --take M030:neutral={video} --take M030:neutral={video} "
+       "--out {out}/style.npz", "twice"),
+    _c("style-speakers-space", "style fit --take M030:neutral={video} --take M030:angry={video} --space pixels "
+       "--out {out}/style.npz", "--space"),
     _c("restyle-amount-huge", _RESTYLE + " --amount 1e30 --out {out}/rs.csv", "--amount"),
     _c("restyle-amount-nan", _RESTYLE + " --amount nan --out {out}/rs.csv", "--amount"),
     _c("restyle-window", _RESTYLE + " --window 0 --out {out}/rs.csv", "--window"),
@@ -202,6 +212,10 @@ CASES: tuple[Case, ...] = (
     _c("restyle-video-out-is-input", "restyle --video {video} --appearance {model} --to angry --out {video}", "input"),
     _c("restyle-video-feather", "restyle --video {video} --appearance {model} --to angry --feather 2 "
        "--out {out}/rv.mp4", "--feather"),
+    _c("restyle-video-missing-speakers", "restyle --video {video} --appearance {model} --speakers {d}/nope.npz "
+       "--to angry --out {out}/rv.mp4", "nope.npz"),
+    _c("restyle-video-neutral-without-speakers", "restyle --video {video} --appearance {model} --neutral-video "
+       "{video} --to angry --out {out}/rv.mp4", "--neutral-video"),
     _c("appearance-fit-one-take", "appearance fit --take neutral={video} --out {out}/app.npz", "at least 2 styles"),
     # ---- headmotion build / synth
     _c("build-pause-negative", _BUILD + " --pause -1 --out {out}/db.npz", "--pause"),

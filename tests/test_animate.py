@@ -268,6 +268,28 @@ def test_emotion_blends_restyled_solves_by_alpha_and_keeps_the_lip_sync(arkit, a
     assert np.allclose(rc.alpha[late, 0], 1.0)
 
 
+def test_emotion_from_a_speaker_model_on_an_actor_it_has_not_seen(arkit, aoc_capture, tmp_path):
+    """``animate --emotion`` with a :class:`SpeakerStyleModel` (issue 27) learned from two MEAD speakers,
+    on the HDTF actor of ``aoc_capture``: the face changes, the speech is kept, and the file round-trips."""
+    from faceretarget.pipelines import animate, face_takes, fit_speaker_style
+
+    mead = DATA / "emotion-video" / "mead"
+    vids = {s: {e: _need(mead / f"{s}_front_{e}_level{1 if e == 'neutral' else 3}_001.mp4")
+                for e in ("neutral", "angry")} for s in ("M030", "W009")}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = fit_speaker_style({s: face_takes(v, scores=True) for s, v in vids.items()})
+    path = model.save(tmp_path / "speakers.npz")
+    r0 = animate(aoc_capture, arkit)
+    r = animate(aoc_capture, arkit, emotion="angry:1", style=path)
+    assert r.weights.min() >= 0 and r.weights.max() <= 1
+    change = np.abs(r.weights - r0.weights).mean(0)
+    assert change.mean() > 0.005                                # the face changed ...
+    assert r.mouth_corr > 0.9, r.mouth_corr                     # ... and still speaks the same
+    brows = [r.names.index(n) for n in ("browDownLeft", "browDownRight")]
+    assert (r.weights[:, brows] - r0.weights[:, brows]).mean() > 0   # anger lowers the brows
+
+
 def test_a_character_without_arkit_shapes_goes_through_keyshape_pairs(arkit, aoc_capture):
     """Source keys: 20 frames of the face take (68 points); target keys: the character at those
     frames (what an artist would model).  The keyshape route must play nearly what the character's

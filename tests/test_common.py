@@ -83,6 +83,13 @@ def _style_frames(S=3, C=60, D=12, seed=0):
     return {f"s{s}": B @ A[s].T + 0.01 * rng.normal(size=(C, D)) for s in range(S)}
 
 
+def _speakers():
+    """Four synthetic speakers' aligned face takes with scores (``tests/test_speaker_style.py``)."""
+    from test_speaker_style import speakers
+
+    return speakers(C=30)
+
+
 def _speech_take(seconds=8.0, seed=1):
     sr, fps = 16000, 30.0
     rng = np.random.default_rng(seed)
@@ -107,6 +114,7 @@ def _cases() -> list[Case]:
     from faceretarget.style import (
         AsymmetricBilinearModel,
         ExpressionSliders,
+        SpeakerStyleModel,
         StyleModel,
         SymmetricBilinearModel,
     )
@@ -150,6 +158,10 @@ def _cases() -> list[Case]:
     cases.append(Case("StyleModel[auto]", lambda: StyleModel(),
                       lambda m: m.fit_frames(_style_frames()),
                       lambda m: m.unknown(_style_frames(seed=1)["s1"], "s2", warn=False)))
+    fast = {"variance": 0.9999, "energy": 0.9999, "prior": 10.0, "local": 0}
+    cases.append(Case("SpeakerStyleModel", lambda: SpeakerStyleModel(space="both", style=fast),
+                      lambda m: m.fit({k: v for k, v in _speakers().items() if k != "D"}, aligned=True),
+                      lambda m: m.transform(_speakers()["D"]["neutral"], "angry", 0.8)))
     cases.append(Case("AsymmetricBilinearModel", lambda: AsymmetricBilinearModel(),
                       lambda m: m.fit(np.stack(list(_style_frames().values()))),
                       lambda m: m.translate(_style_frames(seed=1)["s0"], 0, 2)))

@@ -129,6 +129,62 @@ def test_cli_restyle_video_keeps_frame_count_rate_size_and_audio(mead, model_fil
     assert rate == i0.audio_rate and audio.size / rate > 0.9          # the input's audio, about 1 s of it
 
 
+@pytest.fixture(scope="module")
+def speaker_file(mead, data_dir, tmp_path_factory):
+    """A speaker style model (issue 27) from M030 (MEAD) and 1001 (CREMA-D), neutral and angry, by the CLI:
+    W009, whose video is restyled below, is a speaker it has never seen."""
+    crema = data_dir / "emotion-video" / "crema-d"
+    out = tmp_path_factory.mktemp("speakers") / "speakers.npz"
+    argv = ["-q", "style", "fit", "--out", str(out),
+            "--take", f"M030:neutral={mead / 'M030_front_neutral_level1_001.mp4'}",
+            "--take", f"M030:angry={mead / 'M030_front_angry_level3_001.mp4'}",
+            "--take", f"1001:neutral={crema / '1001_DFA_NEU_XX.flv'}", "--take", f"1001:angry={crema / '1001_DFA_ANG_XX.flv'}"]
+    assert _run(argv) == 0
+    return out
+
+
+def test_cli_speaker_model_restyles_an_unseen_persons_video(mead, model_file, speaker_file, tmp_path, capsys):
+    from faceretarget.pipelines import AppearanceStyleModel, restyle_video
+    from faceretarget.style import SpeakerStyleModel
+
+    spk = SpeakerStyleModel.load(speaker_file)
+    assert spk.speakers_ == ["M030", "1001"] and spk.styles_ == ["neutral", "angry"]
+    assert spk.gain_source_ == {"angry": "held-out speakers"} and 0.0 < spk.gain_["angry"] <= 1.0
+    video = mead / STYLES["neutral"]
+    app = AppearanceStyleModel.load(model_file).appearance_
+    zero = restyle_video(video, app, "angry", tmp_path / "z.mp4", speakers=spk, amount=0.0, max_frames=FRAMES,
+                         smooth=None)
+    assert np.array_equal(zero.edited, zero.vectors)                   # amount 0: the input's own vectors
+    one = restyle_video(video, app, "angry", tmp_path / "a.mp4", speakers=spk, amount=1.0, max_frames=FRAMES,
+                        smooth=None)
+    ks = app.n_shape
+    assert np.array_equal(one.edited[:, ks:], one.vectors[:, ks:])      # the texture stays the input's ...
+    shapes = app.reconstruct_shape(one.edited) - app.reconstruct_shape(one.vectors)
+    moved = np.sqrt((shapes**2).sum(-1))
+    assert 0.1 < moved.mean() < 10.0                                   # ... the shape moves (canvas pixels)
+    # anger lowers the brows towards the eyes (MediaPipe's brow 105, 334 over the eye tops 159, 386)
+    from faceretarget.pipelines import capture_take, speaker_edited_landmarks
+
+    cap = capture_take(video, audio=False, max_frames=FRAMES, smooth=None)
+    L, _ = speaker_edited_landmarks(cap, spk, "angry")
+    L0 = cap.landmarks[cap.valid]
+    gap = lambda x: (x[:, [159, 386], 1] - x[:, [105, 334], 1]).mean()  # noqa: E731  (image y points down)
+    assert gap(L) < gap(L0)
+    # the command line: the same, an .mp4 of the input's frames
+    out = tmp_path / "cli.mp4"
+    rc = _run(["restyle", "--video", str(video), "--appearance", str(model_file), "--speakers", str(speaker_file),
+               "--to", "angry", "--max-frames", "20", "--out", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    assert "with the speaker model" in capsys.readouterr().out and len(_decode(out)) == 20
+    assert _run(["restyle", "--video", str(video), "--appearance", str(model_file), "--speakers", str(speaker_file),
+                 "--to", "happy", "--out", str(tmp_path / "h.mp4")]) == 2
+    err = _one_error_line(capsys)
+    assert str(speaker_file) in err and "'happy'" in err and not (tmp_path / "h.mp4").exists()
+    assert _run(["style", "fit", "--take", f"M030:neutral={video}", "--take", f"angry={video}",
+                 "--out", str(tmp_path / "x.npz")]) == 2
+    assert "name the speaker of every take" in _one_error_line(capsys)
+
+
 def _one_error_line(capsys) -> str:
     err = capsys.readouterr().err.strip()
     assert err.startswith("faceretarget: error:") and "\n" not in err, err

@@ -71,6 +71,8 @@ class _AutoOr:
 
 
 VARIANCE, ENERGY, PRIOR = _AutoOr(SHARE), _AutoOr(SHARE), _AutoOr(NON_NEGATIVE)
+#: ``style fit --space`` (kept here so that ``--help`` imports no NumPy; checked against style.SPACES).
+SPACES = ("both", "landmarks", "range", "arkit")
 
 
 def _local_arg(v: str):
@@ -107,8 +109,64 @@ def _pairs(items, what: str) -> dict[str, str]:
     return out
 
 
+def _speaker_pairs(items) -> dict[str, dict[str, str]] | None:
+    """``--take SPEAKER:STYLE=VIDEO`` items as ``{speaker: {style: path}}``; None when no item names a
+    speaker (one actor's takes)."""
+    keyed = [it.split("=", 1)[0] for it in items or []]
+    named = [":" in k for k in keyed]
+    if not any(named):
+        return None
+    if not all(named):
+        bad = next(it for it, n in zip(items, named, strict=True) if not n)
+        raise InvalidDataError(f"--take '{bad}': name the speaker of every take (SPEAKER:STYLE=VIDEO) or of none")
+    out: dict[str, dict[str, str]] = {}
+    for it in items:
+        k, _, v = it.partition("=")
+        spk, _, st = k.partition(":")
+        if not spk.strip() or not st.strip() or not v.strip():
+            raise InvalidDataError(f"--take '{it}': write SPEAKER:STYLE=VIDEO (for example M030:angry=clip.mp4)")
+        d = out.setdefault(spk.strip(), {})
+        if st.strip() in d:
+            raise InvalidDataError(f"--take: speaker '{spk.strip()}' has style '{st.strip()}' twice")
+        d[st.strip()] = v.strip()
+    return out
+
+
+def cmd_style_fit_speakers(args, takes: dict[str, dict[str, str]], log) -> int:
+    """``style fit --take SPEAKER:STYLE=VIDEO ...``: a :class:`SpeakerStyleModel` from several speakers."""
+    from ..pipelines import VIDEO_EXTENSIONS, face_takes, fit_speaker_style
+
+    if args.add or args.audio:
+        raise InvalidDataError(f"{'--add' if args.add else '--audio'}: not with takes of several speakers "
+                               "(SPEAKER:STYLE=VIDEO)")
+    ref = args.reference or "neutral"
+    for spk, d in takes.items():
+        if ref not in d or len(d) < 2:
+            raise InvalidDataError(f"--take {spk}:...: speaker '{spk}' needs a '{ref}' take and another style "
+                                   f"(has {', '.join(d)})")
+    paths = [v for d in takes.values() for v in d.values()]
+    out = check_out(args.out, paths, (".npz",))                                   # before any work
+    check_inputs(*(("--take", v) for v in paths))
+    for v in paths:
+        if Path(v).suffix.lower() not in VIDEO_EXTENSIONS:
+            raise InvalidDataError(f"--take {v}: takes of several speakers are videos (the face points and the "
+                                   f"tracker's scores are captured from them): {', '.join(VIDEO_EXTENSIONS)}")
+    faces = {spk: face_takes(d, reference=ref, scores=True, log=log) for spk, d in takes.items()}
+    style = {k: getattr(args, k) for k in ("variance", "energy", "prior", "local", "content_dims", "style_dims",
+                                           "bundle")}
+    with warnings_to_log(log):
+        model = fit_speaker_style(faces, log=log, space=args.space, style=style, reference=ref)
+    model.save(out)
+    log(f"wrote {out}")
+    return 0
+
+
 def cmd_style_fit(args, log) -> int:
-    """``style fit``: align takes of one text in several styles and write a :class:`StyleModel`."""
+    """``style fit``: align takes of one text in several styles and write a :class:`StyleModel`
+    (or, with takes of several speakers, a :class:`SpeakerStyleModel`)."""
+    speakers = _speaker_pairs(args.take)
+    if speakers is not None:
+        return cmd_style_fit_speakers(args, speakers, log)
     takes = _pairs(args.take, "--take")
     audio = _pairs(args.audio, "--audio")
     adds = _pairs(args.add, "--add")
@@ -198,23 +256,47 @@ def cmd_restyle_video(args, log) -> int:
     if args.model is not None:
         raise InvalidDataError(f"--model {args.model}: a style model restyles a --performance take; a --video needs "
                                "--appearance")
-    out = check_out(args.out, [args.video, args.appearance, args.landmarker], (".mp4",))    # before any work
-    check_inputs(("--video", args.video), ("--appearance", args.appearance), ("--landmarker", args.landmarker))
+    if args.neutral_video is not None and args.speakers is None:
+        raise InvalidDataError(f"--neutral-video {args.neutral_video}: only with --speakers")
+    out = check_out(args.out, [args.video, args.appearance, args.landmarker, args.speakers, args.neutral_video],
+                    (".mp4",))                                                                # before any work
+    check_inputs(("--video", args.video), ("--appearance", args.appearance), ("--landmarker", args.landmarker),
+                 ("--speakers", args.speakers), ("--neutral-video", args.neutral_video))
     from ..errors import InputFileError
     from ..pipelines import AppearanceStyleModel, restyle_video
 
-    try:
-        model = AppearanceStyleModel.load(args.appearance)
-    except InputFileError as e:
-        raise InputFileError(f"{e} (--appearance: write one with 'faceretarget appearance fit --take "
-                             "neutral=N.mp4 --take angry=A.mp4 ... --out MODEL.npz')") from e
-    for opt, st in (("--to", args.to), ("--from", args.source)):
-        if st is not None and st not in model.styles_:
-            raise InvalidDataError(f"{args.appearance}: no style '{st}' ({opt}); the model has "
-                                   f"{', '.join(model.styles_)}")
+    speakers = None
+    if args.speakers is not None:
+        from ..capture import AppearanceModel
+        from ..style import SpeakerStyleModel
+
+        speakers = SpeakerStyleModel.load(args.speakers)
+        if args.to not in speakers.styles_:
+            raise InvalidDataError(f"{args.speakers}: no style '{args.to}' (--to); the model has "
+                                   f"{', '.join(speakers.styles_)}")
+        if args.source is not None:
+            raise InvalidDataError(f"--from {args.source}: a speaker style model edits from the person's neutral "
+                                   "face (give --neutral-video when the input is not neutral)")
+        from ..base import Model
+
+        model = Model.load(args.appearance)
+        if not isinstance(model, AppearanceModel | AppearanceStyleModel):
+            raise InputFileError(f"{args.appearance}: holds a {type(model).__name__}, not an appearance model "
+                                 "(--appearance: from 'appearance fit')")
+    else:
+        try:
+            model = AppearanceStyleModel.load(args.appearance)
+        except InputFileError as e:
+            raise InputFileError(f"{e} (--appearance: write one with 'faceretarget appearance fit --take "
+                                 "neutral=N.mp4 --take angry=A.mp4 ... --out MODEL.npz')") from e
+        for opt, st in (("--to", args.to), ("--from", args.source)):
+            if st is not None and st not in model.styles_:
+                raise InvalidDataError(f"{args.appearance}: no style '{st}' ({opt}); the model has "
+                                       f"{', '.join(model.styles_)}")
     with warnings_to_log(log):
         res = restyle_video(args.video, model, args.to, out, source=args.source, amount=args.amount,
                             window=args.window, margin=args.margin, feather=args.feather, smooth=None,
+                            speakers=speakers, neutral=args.neutral_video,
                             max_frames=args.max_frames, landmarker=args.landmarker, progress=not log.quiet, log=log)
     log(f"wrote {out} ({res.frames} frames at {res.fps:g} fps, {len(res.face_frames)} with the face restyled)")
     return 0
@@ -233,6 +315,11 @@ def register(subparsers) -> None:
                                       "the edited video written (.mp4)")
     r.add_argument("--appearance", help="appearance + style model .npz from 'appearance fit --take STYLE=VIDEO "
                                         "...' (with --video)")
+    r.add_argument("--speakers", help="--video: a speaker style model .npz ('style fit --take SPEAKER:STYLE=VIDEO "
+                                      "...') edits the face's shape instead; --appearance may then be the person's "
+                                      "appearance model alone")
+    r.add_argument("--neutral-video", help="--video with --speakers: a neutral video of the same person (their "
+                                           "rest face; default the input)")
     r.add_argument("--feather", type=FEATHER, default=0.08,
                    help=f"--video: blend width at the face's edge, share of the face width, {FEATHER} (default 0.08)")
     r.add_argument("--max-frames", type=MAX_FRAMES, help=f"--video: only the first N frames, N {MAX_FRAMES}")
@@ -260,8 +347,14 @@ def register(subparsers) -> None:
     f = ss.add_parser("fit", help="train a style model from takes of the same text in several emotions",
                       description="Align takes of the same text in different emotions and fit the bilinear "
                                   "style/content models (written as .npz).")
-    f.add_argument("--take", action="append", required=True, metavar="STYLE=PATH",
-                   help="a take in one style (repeat: at least two)")
+    f.add_argument("--take", action="append", required=True, metavar="[SPEAKER:]STYLE=PATH",
+                   help="a take in one style (repeat: at least two). With SPEAKER:STYLE=VIDEO for videos of "
+                        "several speakers (each with a neutral one), a speaker style model is fitted: emotions "
+                        "learned in a space that does not depend on the speaker, for actors it has never seen")
+    f.add_argument("--space", choices=list(SPACES), default="both",
+                   help="takes of several speakers: what the models learn on (both: the face points relative to "
+                        "each speaker's rest and the tracker's scores, default; landmarks: the points only; "
+                        "range: per region over the neutral motion; arkit: the scores only)")
     f.add_argument("--audio", action="append", default=[], metavar="STYLE=WAV",
                    help="the take's audio (starting with its first frame); with audio for every take they "
                         "are aligned by speech features")

@@ -7,7 +7,7 @@
 :mod:`._face`       is a take a face: its span, marker labels, stray and mostly-missing markers
 :mod:`._denoise`    take-adaptive denoising: noise level from the take's spectrum, SURE-chosen
                     Whittaker smoothing in an ensemble of bases
-:mod:`._rigid`      rigid fits (Kabsch/Umeyama), rigid marker selection, :class:`RigidAligner`
+:mod:`._rigid`      rigid fits (Kabsch/Umeyama, similarity), rigid marker selection, :class:`RigidAligner`
                     (Chuang Ch. 3 head-motion removal)
 :mod:`._rotations`  nearest rotations of matrices, exp-map blending of key rotations
 :mod:`._selection`  keyshape selection (Chuang Sec. 3.2: PCA extrema, convex hull, k-means, and NNLS
@@ -28,7 +28,7 @@ from ._bounded import (
 from ._denoise import denoise_take, estimate_noise_sigma, sure_whittaker
 from ._face import FACE_MAX_MM, MESH_FACE_MAX_MM, FaceMarkers, face_markers, face_mesh
 from ._nnls import extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
-from ._rigid import AlignResult, RigidAligner, fit_rigid, select_rigid_markers
+from ._rigid import AlignResult, RigidAligner, fit_rigid, select_rigid_markers, similarity_fit
 from ._rotations import blend_rotations, nearest_rotation
 from ._runs import runs
 from ._selection import (
@@ -49,7 +49,7 @@ __all__ = [
     "solve_nnls", "solve_bounded", "range_metric", "weight_range", "auto_weight_range", "WeightRange", "FACS_RANGE",
     "EXAMPLE_RANGE", "temporal_filter", "extremes_removed", "filter_cutoff_hz",
     "denoise_take", "estimate_noise_sigma", "sure_whittaker",
-    "RigidAligner", "AlignResult", "fit_rigid", "select_rigid_markers", "nearest_rotation", "blend_rotations", "runs",
+    "RigidAligner", "AlignResult", "fit_rigid", "similarity_fit", "select_rigid_markers", "nearest_rotation", "blend_rotations", "runs",
     "SELECTION_METHODS", "select_keyshapes", "pca_extrema", "hull_selection", "kmeans_selection", "nnls_greedy",
     "nnls_greedy_path", "nnls_weights", "pivoted_qr", "reconstruction_error",
     "smoothstep", "FaceMarkers", "face_markers", "face_mesh", "FACE_MAX_MM", "MESH_FACE_MAX_MM",

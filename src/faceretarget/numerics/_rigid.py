@@ -37,7 +37,37 @@ from ..performance import Performance
 from ..units import normalize_unit, scale
 from ._rotations import nearest_rotation
 
-__all__ = ["RigidAligner", "AlignResult", "fit_rigid", "select_rigid_markers"]
+__all__ = ["RigidAligner", "AlignResult", "fit_rigid", "similarity_fit", "select_rigid_markers"]
+
+
+def similarity_fit(reference: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Scale, rotation and translation with ``points[t] ~ s_t reference @ R_t.T + c_t`` (Umeyama).
+
+    Parameters
+    ----------
+    reference : (S, 3) or (T, S, 3) float
+        One reference for all frames, or one per frame.
+    points : (T, S, 3) float
+
+    Returns
+    -------
+    s : (T,) float
+    R : (T, 3, 3) float, proper rotations
+    c : (T, 3) float
+    """
+    X = np.asarray(points, dtype=np.float64)
+    Y = np.broadcast_to(np.asarray(reference, dtype=np.float64), X.shape)
+    mx, my = X.mean(axis=1), Y.mean(axis=1)
+    Xc, Yc = X - mx[:, None], Y - my[:, None]
+    C = np.einsum("tsi,tsj->tij", Xc, Yc)                # cross-covariance, points x reference
+    U, S, Vt = np.linalg.svd(C)
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.ones((len(X), 3))
+    D[:, 2] = d
+    R = np.einsum("tij,tj,tjk->tik", U, D, Vt)
+    s = (S * D).sum(axis=1) / np.maximum((Yc ** 2).sum(axis=(1, 2)), 1e-300)
+    c = mx - s[:, None] * np.einsum("tij,tj->ti", R, my)
+    return s, R, c
 
 
 def fit_rigid(reference: np.ndarray, points: np.ndarray, weights: np.ndarray | None = None

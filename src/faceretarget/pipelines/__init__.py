@@ -8,7 +8,8 @@
 :mod:`._keys`                    :func:`select_keys` (keyshapes for an artist), :func:`compose_keys`
                                  (emotion x viseme key-models)
 :mod:`._capture`                 :func:`capture_take`, :func:`fit_appearance`, :func:`encode_appearance`
-:mod:`._style`                   :func:`fit_style`, :func:`read_style_take`: emotion models from takes
+:mod:`._style`                   :func:`fit_style`, :func:`fit_speaker_style`, :func:`read_style_take`:
+                                 emotion models from takes (one actor, or several speakers)
 :mod:`._restyle_video`          :class:`AppearanceStyleModel`, :func:`fit_appearance_style`,
                                  :func:`restyle_video`: the emotion of a face in video changed through
                                  the appearance model and rendered back into the frames (Fig. 2.6)
@@ -33,6 +34,7 @@ from ._animate import (
     AnimateResult,
     animate,
     drives_by_landmarks,
+    face_frame,
     face_take,
     face_takes,
     gaze_rotations,
@@ -82,9 +84,10 @@ from ._restyle_video import (
     composited_frames,
     fit_appearance_style,
     restyle_video,
+    speaker_edited_landmarks,
     write_face_video,
 )
-from ._style import fit_style, read_style_take
+from ._style import fit_speaker_style, fit_style, read_style_take
 from ._transfer import (
     CHUNK_FRAMES,
     HEAD_CHOICES,
@@ -113,7 +116,7 @@ __all__ = [
     "CharacterReport",
     "landmark_cache_path",
     "read_landmark_file",
-    "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
+    "animate", "AnimateResult", "tracked_take", "face_take", "face_frame", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
     "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES", "check_result_path", "MAX_TEMPORAL",
     "target_weights",
@@ -121,9 +124,9 @@ __all__ = [
     "check_face_take", "check_face_keys",
     "write_animation_preview", "TakeSampler",
     "run_live", "LiveSession", "LiveStats", "LiveFrame", "LiveServer", "character_glb", "LIVE_LIMITS",
-    "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "appearance_memory", "APPEARANCE_BYTES", "fit_style", "read_style_take", "build_head_database", "run_demo",
+    "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "appearance_memory", "APPEARANCE_BYTES", "fit_style", "fit_speaker_style", "read_style_take", "build_head_database", "run_demo",
     "AppearanceStyleModel", "RestyledVideo", "fit_appearance_style", "restyle_video", "write_face_video",
-    "composited_frames", "align_vector_takes",
+    "composited_frames", "align_vector_takes", "speaker_edited_landmarks",
     "run_batch", "read_jobs", "read_manifest", "local_cluster", "BatchSpec", "BatchSummary", "Job", "JobOutcome", "ClusterError",
     "OPERATIONS", "JOB_OPTIONS",
 ]

@@ -40,9 +40,11 @@ from ..performance import Performance
 from ..retarget import STABLE68 as _STABLE
 from ..retarget import LandmarkSolver, neutral_face, similarity_fit
 from ..rig import Rig
+from ..style import SpeakerStyleModel
 from ..timebase import infer_fps
 
-__all__ = ["FACE_EYE_MM", "GAZE_DEG", "gaze_rotations", "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks"]
+__all__ = ["FACE_EYE_MM", "GAZE_DEG", "gaze_rotations", "animate", "AnimateResult", "tracked_take", "face_take",
+           "face_frame", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks"]
 
 #: Where ``animate``'s head motion comes from.
 HEAD_SOURCES = ("video", "speech", "off")
@@ -170,25 +172,45 @@ def face_take(take: Capture | Performance, *, neutral: np.ndarray | None = None)
     """
     tr = _tracked(take)
     P = tr.points
-    n0 = neutral_face(P, tr.weights) if neutral is None else np.asarray(neutral, dtype=np.float64)
-    n0 = FACE_EYE_MM * (n0 - n0[_STABLE].mean(axis=0)) / np.linalg.norm(n0[36] - n0[45])
-    s, R, c = similarity_fit(n0[_STABLE], P[:, _STABLE])
+    s, R, c = face_frame(tr, neutral=neutral)
     aligned = np.einsum("tpi,tij->tpj", P - c[:, None], R) / s[:, None, None]
     return Performance(tr.times, tr.fps, points=aligned, labels=_LABELS, unit="mm",
                        head=tr.head, audio=tr.audio, audio_rate=tr.audio_rate, source=tr.source)
+
+
+def face_frame(take: Capture | Performance, *, neutral: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each frame's similarity onto the normalised face frame of :func:`face_take`.
+
+    Returns
+    -------
+    s : (T,) float
+    R : (T, 3, 3) float
+    c : (T, 3) float
+        The tracked 68 points are ``P[t] ~ s[t] face[t] @ R[t].T + c[t]`` (pixels, +Y up), with
+        ``face`` the points of :func:`face_take` (nominal millimetres): a change ``d`` of the face take
+        is ``s[t] d @ R[t].T`` in the tracked points.
+    """
+    tr = _tracked(take)
+    P = tr.points
+    n0 = neutral_face(P, tr.weights) if neutral is None else np.asarray(neutral, dtype=np.float64)
+    n0 = FACE_EYE_MM * (n0 - n0[_STABLE].mean(axis=0)) / np.linalg.norm(n0[36] - n0[45])
+    return similarity_fit(n0[_STABLE], P[:, _STABLE])
 
 
 #: Video file extensions ``style fit`` captures into face takes.
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".flv", ".webm", ".m4v")
 
 
-def face_takes(videos: Mapping[str, str | os.PathLike], *, reference: str | None = None,
+def face_takes(videos: Mapping[str, str | os.PathLike], *, reference: str | None = None, scores: bool = False,
                log: Callable[..., None] = _quiet, **capture) -> dict[str, Performance]:
     """Face takes (:func:`face_take`) of one actor's videos in several styles, for a style model.
 
     Every take shares the actor's neutral face, taken from the ``reference`` style's video
     (default ``"neutral"`` when given, else the first): a take's own quietest frames would hold its
-    emotion (an angry resting face) and remove it.
+    emotion (an angry resting face) and remove it.  ``scores``: each take also carries the tracker's
+    ARKit scores as its weights, uncalibrated (what a :class:`~faceretarget.style.SpeakerStyleModel`
+    reads; it measures them from each speaker's neutral take).
     """
     from ._capture import capture_take
 
@@ -197,10 +219,17 @@ def face_takes(videos: Mapping[str, str | os.PathLike], *, reference: str | None
     ref = reference or ("neutral" if "neutral" in videos else next(iter(videos)))
     if ref not in videos:
         raise InvalidDataError(f"face_takes: reference style '{ref}' has no video")
-    caps = {k: capture_take(v, neutral_percentile=5.0, log=log, **capture) for k, v in videos.items()}
+    # scores: raw, so an emotional take keeps its offset (a take's own percentile would remove it)
+    caps = {k: capture_take(v, neutral_percentile=None if scores else 5.0, log=log, **capture)
+            for k, v in videos.items()}
     rc = tracked_take(caps[ref])
     n0 = neutral_face(rc.points, rc.weights)
-    return {k: face_take(c, neutral=n0) for k, c in caps.items()}   # (similarity fits: any frame of n0)
+    out = {k: face_take(c, neutral=n0) for k, c in caps.items()}   # (similarity fits: any frame of n0)
+    if scores:
+        for k, c in caps.items():
+            tr = tracked_take(c)
+            out[k] = out[k].replace(weights=tr.weights, names=list(tr.names))
+    return out
 
 
 # --------------------------------------------------------------------------------------- emotion
@@ -374,8 +403,10 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
         Scale of the head's rotation angles and translation (>= 0).
     emotion : str, path or mapping, optional
         ``"angry:0.6"``, or a curve file (:func:`parse_emotion`); needs ``style``.
-    style : StyleModel or path-like, optional
-        A style model trained on face takes (:func:`face_take`) of the emotions named.
+    style : StyleModel, SpeakerStyleModel or path-like, optional
+        A style model trained on face takes (:func:`face_take`) of the emotions named: of one actor,
+        or of several speakers (:class:`~faceretarget.style.SpeakerStyleModel`, which carries to an
+        actor it has never seen; the actor's rest face is the take's mean, so give a neutral take).
     speech : path-like, optional
         New speech of the same text: the animation is re-timed to it by DTW of the audio and
         carries it as its soundtrack (and it drives ``head="speech"``).
@@ -488,10 +519,16 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
         emotions, alpha = _alpha(keys, times - times[0])
         src = "neutral" if "neutral" in style_model.styles_ else None
         blend = (1.0 - alpha.sum(axis=1, keepdims=True)) * W
+        speakers = isinstance(style_model, SpeakerStyleModel)
+        if speakers and take.weights is not None:                       # its score spaces read the scores
+            ftake = ftake.replace(weights=take.weights, names=list(take.names))
         for j, e in enumerate(emotions):
             if not alpha[:, j].any():
                 continue
-            r = style_model.transform(ftake, e, 1.0, source=src if src != e else None, warn=False)
+            if speakers:                                                # the actor's rest: the take itself
+                r = style_model.transform(ftake, e, 1.0)
+            else:
+                r = style_model.transform(ftake, e, 1.0, source=src if src != e else None, warn=False)
             blend += alpha[:, j:j + 1] * solve(r.take.points)
             log(f"emotion '{e}': up to {alpha[:, j].max():.2f} of the face" +
                 ("" if not r.range.outside else f" ({r.range.frames_outside:.0%} of the restyled frames outside "
@@ -573,11 +610,21 @@ def _writes_back(character, out) -> bool:
 
 
 def _load_style(style):
+    """A :class:`~faceretarget.style.StyleModel` (one actor) or :class:`~faceretarget.style.SpeakerStyleModel`
+    (several speakers), given or read from its file."""
     if style is None:
         return None
-    from ..style import StyleModel
+    from ..base import Model
+    from ..style import SpeakerStyleModel, StyleModel
 
-    return style if isinstance(style, StyleModel) else StyleModel.load(style)
+    if isinstance(style, StyleModel | SpeakerStyleModel):
+        return style
+    m = Model.load(style)
+    if not isinstance(m, StyleModel | SpeakerStyleModel):
+        from ..errors import InputFileError
+
+        raise InputFileError(f"{style}: holds a {type(m).__name__}, not a style model ('style fit' writes one)")
+    return m
 
 
 def _retime(W, times, take: Performance, speech_audio, log):

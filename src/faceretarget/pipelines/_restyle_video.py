@@ -43,17 +43,18 @@ from ..performance import Performance
 from ..retarget import neutral_face
 from ..style import (
     Restyled,
+    SpeakerStyleModel,
     StyleModel,
     align_performances,
     frame_vectors,
     realign_by_style,
     warp_performance,
 )
-from ._animate import face_take, tracked_take
+from ._animate import face_frame, face_take, tracked_take
 from ._capture import _check_memory, _frames_stated, _valid_frames, capture_take, tracked_videos
 
 __all__ = ["AppearanceStyleModel", "RestyledVideo", "fit_appearance_style", "restyle_video", "write_face_video",
-           "composited_frames", "align_vector_takes"]
+           "composited_frames", "align_vector_takes", "speaker_edited_landmarks"]
 
 
 def _quiet(*_a) -> None:
@@ -415,9 +416,65 @@ def write_face_video(out: str | os.PathLike, video: str | os.PathLike, capture: 
     return n[0], codec, fps
 
 
-def restyle_video(video: str | os.PathLike, model: AppearanceStyleModel, to: str, out: str | os.PathLike, *,
-                  source: str | None = None, amount: float = 1.0, window: float | None = None,
-                  margin: float = 0.5, feather: float = 0.08, morph: bool = True,
+def speaker_edited_landmarks(capture: Capture, speakers: SpeakerStyleModel, to: str, amount: float = 1.0, *,
+                             neutral: Capture | None = None) -> tuple[np.ndarray, Restyled]:
+    """A capture's landmarks with the face edited by a speaker model (the video route of issue 27).
+
+    The capture's 68 face points, head removed (:func:`~faceretarget.pipelines.face_take`), and its
+    ARKit scores are edited by ``speakers`` (:meth:`SpeakerStyleModel.transform`, the person's rest
+    from ``neutral``, a capture of them in neutral, or else from the take itself); the change of every
+    frame is moved back into the image by that frame's similarity (:func:`face_frame`) and spread from
+    the 68 points to all 478 landmarks piecewise linearly over the mean tracked face (nearest point
+    outside the 68 points' hull).
+
+    Returns
+    -------
+    landmarks : (F, 478, 3) float
+        The edited landmarks of the ``F`` frames with a face (pixels, MediaPipe's axes).
+    restyled : Restyled
+        The speaker model's result (face-take points; range report).
+    """
+    from ..capture import MEDIAPIPE_68
+
+    tr = tracked_take(capture)
+    ntr = tracked_take(neutral) if neutral is not None else tr
+    n0 = neutral_face(ntr.points, ntr.weights)
+    face = face_take(tr, neutral=n0).replace(weights=tr.weights, names=list(tr.names))
+    nface = None if neutral is None else face_take(ntr, neutral=n0).replace(weights=ntr.weights,
+                                                                          names=list(ntr.names))
+    res = speakers.transform(face, to, amount, neutral=nface)
+    s, R, _ = face_frame(tr, neutral=n0)
+    d68 = s[:, None, None] * np.einsum("tpj,tij->tpi", res.frames - face.points, R) * np.array([1.0, -1.0, -1.0])
+    L = np.asarray(capture.landmarks[capture.valid], np.float64)
+    W = _spread_weights(L[:, MEDIAPIPE_68, :2].mean(0), L[:, :, :2].mean(0))
+    return L + np.einsum("lp,tpj->tlj", W, d68), res
+
+
+def _spread_weights(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """``(len(dst), len(src))`` piecewise-linear interpolation weights over the Delaunay triangles of
+    the 2-D points ``src``; points of ``dst`` outside them take their nearest ``src`` point."""
+    from scipy.spatial import Delaunay
+
+    tri = Delaunay(src)
+    simplex = tri.find_simplex(dst)
+    W = np.zeros((len(dst), len(src)))
+    inside = simplex >= 0
+    T = tri.transform[simplex[inside]]
+    b = np.einsum("nij,nj->ni", T[:, :2], dst[inside] - T[:, 2])
+    bary = np.c_[b, 1.0 - b.sum(1)]
+    rows = np.flatnonzero(inside)
+    for k in range(3):
+        W[rows, tri.simplices[simplex[inside], k]] += bary[:, k]
+    out = np.flatnonzero(~inside)
+    if out.size:
+        W[out, np.argmin(((dst[out, None] - src[None]) ** 2).sum(-1), axis=1)] = 1.0
+    return W
+
+
+def restyle_video(video: str | os.PathLike, model: AppearanceStyleModel | AppearanceModel, to: str,
+                  out: str | os.PathLike, *, source: str | None = None, amount: float = 1.0,
+                  window: float | None = None, margin: float = 0.5, feather: float = 0.08, morph: bool = True,
+                  speakers: SpeakerStyleModel | None = None, neutral: str | os.PathLike | None = None,
                   log: Callable[..., None] = _quiet, progress: bool = False, **capture) -> RestyledVideo:
     """Change the emotion of the face in a video and write the edited video (module docstring).
 
@@ -425,7 +482,9 @@ def restyle_video(video: str | os.PathLike, model: AppearanceStyleModel, to: str
     ----------
     video : path
         Input video of the person the model's appearance model was fitted on.
-    model : AppearanceStyleModel
+    model : AppearanceStyleModel or AppearanceModel
+        The person's appearance model (with their own style model; a plain appearance model with
+        ``speakers``).
     to : str
         Target style.
     out : path
@@ -443,6 +502,12 @@ def restyle_video(video: str | os.PathLike, model: AppearanceStyleModel, to: str
         Blend width at the face boundary, share of the face width.
     morph : bool
         Warp the frame around the face with the edited outline.
+    speakers : SpeakerStyleModel, optional
+        Edit with a model learned from other speakers instead (issue 27): the face's shape is edited
+        by it (:func:`speaker_edited_landmarks`) and re-encoded by the appearance model; the texture
+        stays the input's (``source`` and ``window`` do not apply).
+    neutral : path, optional
+        With ``speakers``: a neutral video of the same person, their rest face (default the input).
     progress : bool
         Progress bars while tracking and rendering.
     **capture
@@ -460,16 +525,37 @@ def restyle_video(video: str | os.PathLike, model: AppearanceStyleModel, to: str
         Unreadable video or no face in it (naming the file).
     """
     model._check_fitted()
-    model._check_style(to, "target")
-    if source is not None:
-        model._check_style(source, "source")
+    if speakers is not None:
+        speakers._check_fitted()
+        speakers._check_style(to, "target")
+        app = model.appearance_ if isinstance(model, AppearanceStyleModel) else model
+    else:
+        if not isinstance(model, AppearanceStyleModel):
+            raise InvalidDataError("restyling a video needs an appearance model with its style model "
+                                   "('appearance fit --take ...'), or a speaker style model (speakers)")
+        model._check_style(to, "target")
+        if source is not None:
+            model._check_style(source, "source")
+        app = model.appearance_
     out = check_output_path(out)
-    app = model.appearance_
     cap = capture_take(video, audio=False, progress=progress, log=log, **capture)
     faces = np.flatnonzero(cap.valid)
     t0 = time.perf_counter()
     vec = app.transform(_valid_frames(Path(video), cap), cap.landmarks[cap.valid])
     log(f"encoded {len(faces)} frames with a face in {time.perf_counter() - t0:.1f} s")
+    if speakers is not None:
+        ncap = None if neutral is None else capture_take(neutral, audio=False, log=log, **capture)
+        L, res = speaker_edited_landmarks(cap, speakers, to, amount, neutral=ncap)
+        edited = vec.copy()
+        edited[:, :app.n_shape] = app.shape_params(L)[0]
+        log(f"edited the face's shape of {len(faces)} frames -> {to} at amount {amount:g} with the speaker model "
+            f"({speakers.space}; x{speakers.gain_[to]:.2f} of the training speakers' typical {to}); range score "
+            f"{res.range.score:.2f}")
+        t0 = time.perf_counter()
+        n, codec, fps = write_face_video(out, video, cap, app, edited, feather=feather, morph=morph,
+                                         progress=progress)
+        log(f"rendered {n} frames in {time.perf_counter() - t0:.1f} s ({codec})")
+        return RestyledVideo(out, n, faces, vec, edited, res, fps, codec)
     win = None if window is None else max(1, int(round(window * cap.fps)))
     res = model.transform(vec, to, amount, source=source, window=win, margin=margin)
     if source is None and res.style_weights is not None:

@@ -9,9 +9,9 @@ from pathlib import Path
 from ..errors import InvalidDataError
 from ..io import read_audio, read_performance
 from ..performance import Performance
-from ..style import StyleModel
+from ..style import SpeakerStyleModel, StyleModel
 
-__all__ = ["read_style_take", "fit_style"]
+__all__ = ["read_style_take", "fit_style", "fit_speaker_style"]
 
 
 def _quiet(*_a) -> None:
@@ -67,4 +67,27 @@ def fit_style(takes: Mapping[str, Performance], *, reference: str | None = None,
     A, S = model.asymmetric_, model.symmetric_
     log(f"PCA: {model.n_components_} components; content dims J = {A.content_dims_}, style dims I = "
         f"{S.style_dims_}; symmetric fit {S.n_iter_} iteration(s); styles: {', '.join(model.styles_)}")
+    return model
+
+
+def fit_speaker_style(takes: Mapping[str, Mapping[str, Performance]], *, log: Callable[..., None] = _quiet,
+                      **params) -> SpeakerStyleModel:
+    """A :class:`~faceretarget.style.SpeakerStyleModel` from several speakers' takes (issue 27).
+
+    Parameters
+    ----------
+    takes : {speaker: {style: Performance}}
+        Face takes with the tracker's scores (:func:`~faceretarget.pipelines.face_takes` with
+        ``scores=True``), one text per speaker, each speaker with a neutral take.
+    **params
+        :class:`~faceretarget.style.SpeakerStyleModel` parameters.
+    """
+    for spk, d in takes.items():
+        log(f"{spk}: {', '.join(f'{k} {p.n_frames}' for k, p in d.items())} frames")
+    model = SpeakerStyleModel(**params).fit(takes)
+    log(f"space {model.space}, intensity {model.intensity}; {len(model.speakers_)} speaker(s), styles "
+        f"{', '.join(model.styles_)}")
+    for e in model.styles_[1:]:
+        log(f"  {e}: typical intensity {model.intensity_[e]:.3g}, carries to a new speaker x{model.gain_[e]:.2f} "
+            f"({model.gain_source_[e]}); settings {model.models_[e].settings_}")
     return model

@@ -36,7 +36,7 @@ import numpy as np
 from ..base import Model, WeightsResult
 from ..errors import InvalidDataError
 from ..headpose import HeadPose
-from ..numerics import denoise_take, solve_bounded, weight_range
+from ..numerics import denoise_take, similarity_fit, solve_bounded, weight_range
 from ..rig import Rig
 
 __all__ = ["LandmarkSolver", "LandmarkResult", "STABLE68", "similarity_fit", "neutral_face"]
@@ -46,36 +46,6 @@ __all__ = ["LandmarkSolver", "LandmarkResult", "STABLE68", "similarity_fit", "ne
 #: inner eye corners (39, 42); the nose base moves with the mouth (up to 22 %), outer corners blink.
 STABLE68 = np.r_[0, 1, 15, 16, 27:31, 39, 42]
 _CONTOUR = np.arange(17)
-
-
-def similarity_fit(reference: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Scale, rotation and translation with ``points[t] ~ s_t reference @ R_t.T + c_t`` (Umeyama).
-
-    Parameters
-    ----------
-    reference : (S, 3) or (T, S, 3) float
-        One reference for all frames, or one per frame.
-    points : (T, S, 3) float
-
-    Returns
-    -------
-    s : (T,) float
-    R : (T, 3, 3) float, proper rotations
-    c : (T, 3) float
-    """
-    X = np.asarray(points, dtype=np.float64)
-    Y = np.broadcast_to(np.asarray(reference, dtype=np.float64), X.shape)
-    mx, my = X.mean(axis=1), Y.mean(axis=1)
-    Xc, Yc = X - mx[:, None], Y - my[:, None]
-    C = np.einsum("tsi,tsj->tij", Xc, Yc)                # cross-covariance, points x reference
-    U, S, Vt = np.linalg.svd(C)
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.ones((len(X), 3))
-    D[:, 2] = d
-    R = np.einsum("tij,tj,tjk->tik", U, D, Vt)
-    s = (S * D).sum(axis=1) / np.maximum((Yc ** 2).sum(axis=(1, 2)), 1e-300)
-    c = mx - s[:, None] * np.einsum("tij,tj->ti", R, my)
-    return s, R, c
 
 
 @dataclass(eq=False)

@@ -8,6 +8,8 @@ features, :mod:`._align`), compressed by PCA and separated into *style* (the emo
 examples (:meth:`StyleModel.add_style`), and interpolates or exaggerates between emotions with a
 guard that reports when the result leaves the range of the training data.
 :class:`ExpressionSliders` blends per-emotion retargets over time (Ch. 5, Eq. 5.1).
+:class:`SpeakerStyleModel` learns emotions from several speakers in a space that does not depend on
+who is speaking, so that edits and recognition carry to a speaker it has never seen.
 See ``docs/style.md``.
 """
 
@@ -54,9 +56,25 @@ from ._select import (
     select_style_ridge,
 )
 from ._sliders import AlphaCurves, ExpressionSliders, alpha_curves
+from ._speakers import (
+    DECODER_RIDGES,
+    REGIONS68,
+    SPACES,
+    Recognition,
+    SpeakerStyleModel,
+    align_speaker_takes,
+    canonical_face,
+)
 
 __all__ = [
     "StyleModel",
+    "SpeakerStyleModel",
+    "Recognition",
+    "align_speaker_takes",
+    "canonical_face",
+    "SPACES",
+    "REGIONS68",
+    "DECODER_RIDGES",
     "Selection",
     "select_settings",
     "select_style_ridge",
