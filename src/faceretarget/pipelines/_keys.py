@@ -93,7 +93,7 @@ class KeySelection:
         The source's rest pose.
     error : float
         RMS error of the non-negative reconstruction of every complete frame from the keys, as a
-        share of the take's RMS motion.
+        share of the take's RMS motion (0.45 = 45 %).
     method : str
     neutral_frame : int or None
         The frame taken as the rest pose (None when the rig's neutral was).
@@ -102,6 +102,10 @@ class KeySelection:
         ``write_keyshapes(..., basis=)`` and :attr:`Rig.basis <faceretarget.rig.Rig.basis>`).
     basis_names : list of str or None
         The ``M`` weight names (normalised ARKit names).
+    rms_error : float
+        The same error in the geometry's unit (``unit``): ``error`` times the RMS motion.
+    unit : str or None
+        The unit of the take's points (a weight take: its rig's).
     """
 
     frames: list[int]
@@ -112,6 +116,8 @@ class KeySelection:
     neutral_frame: int | None = None
     basis: np.ndarray | None = None
     basis_names: list[str] | None = None
+    rms_error: float = float("nan")
+    unit: str | None = None
 
 
 def select_keys(take: Performance, k: int, method: str = "pivoted-qr", *, source_rig: Rig | None = None,
@@ -163,14 +169,28 @@ def select_keys(take: Performance, k: int, method: str = "pivoted-qr", *, source
         raise InvalidDataError(f"k = {k} is more than the {len(cand)} complete frames of {take.source}")
     X = (pts[cand][:, feats] - neutral[feats]).reshape(len(cand), -1)
     frames = cand[np.asarray(select_keyshapes(X, k, method), dtype=int)]
-    err = reconstruction_error(X, np.searchsorted(cand, frames))
+    rms = reconstruction_error(X, np.searchsorted(cand, frames))         # in the points' unit
+    motion = float(np.sqrt(np.mean(X**2)))                                # the take's RMS motion
+    err = rms / motion if motion > 0 else 0.0
+    unit = source_rig.unit if take.kind == "weights" and source_rig is not None else take.unit
     log(f"selected {len(frames)} keyshapes with {method} in {time.perf_counter() - t0:.2f} s; "
-        f"non-negative reconstruction error of the take {100 * err:.2f} %")
+        f"non-negative reconstruction error of the take: {100 * err:.1f} % of its RMS motion "
+        f"({_length(rms, unit)} RMS)")
     chosen = sorted(frames.tolist())
     basis = basis_names = None
     if take.kind == "weights":
         basis, basis_names = take.weights[chosen], [normalize_name(n) for n in take.names]
-    return KeySelection(chosen, geo, neutral, float(err), method, nf, basis, basis_names)
+    return KeySelection(chosen, geo, neutral, float(err), method, nf, basis, basis_names, float(rms), unit)
+
+
+def _length(value: float, unit: str | None) -> str:
+    """``value`` in ``unit`` as millimetres when the unit is known (``"0.83 mm"``), else with its unit."""
+    from ..units import mm_per_unit
+
+    try:
+        return f"{value * mm_per_unit(unit):.3g} mm"
+    except (InvalidDataError, KeyError, TypeError, ValueError):    # no length unit (px, none): as it is
+        return f"{value:.3g} {unit or 'units'}"
 
 
 def compose_keys(rig: Rig, *, log: Callable[..., None] = _quiet) -> Rig:
