@@ -45,6 +45,8 @@ def cmd_batch(args, log) -> int:
         return 0
     if summary.ran:
         log(summary.table())
+    for line in summary.warning_lines():
+        log(line)
     rate = summary.ran / summary.seconds if summary.seconds > 0 else 0.0
     log(f"{summary.count('ok')} succeeded, {len(summary.failed)} failed, {summary.count('skipped')} up to date"
         f"{', ' + str(summary.count('not run')) + ' not run' if summary.count('not run') else ''} in "

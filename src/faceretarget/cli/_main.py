@@ -279,9 +279,10 @@ _HEAD_HELP = ("head motion written with the face (.glb head node, .csv head colu
 
 _FRAMES_HELP = ("skeleton target keys: which frames are the key poses: a .json {key: frame} (\"neutral\": the rest "
                 "pose, default frame 0), a .csv of key,frame rows, or a .txt/.json list of key names for frames 1, 2, ...")
-_CLIP_HELP = ("control targets: controls outside their declared ranges are written as solved (report, the default: "
-              "the faces of a mesh target of the same keys), clipped (clip), or replaced by the nearest in-range "
-              "controls in the rig's shapes (project); the share outside is reported either way")
+_CLIP_HELP = ("control targets: frames whose controls leave their declared ranges are solved again inside them "
+              "(solve, the default: the nearest blend of the keys in the target's geometry), written as first "
+              "solved (report), clipped (clip), or replaced by the nearest in-range controls in the rig's shapes "
+              "(project); the share outside as first solved is reported either way")
 
 
 def _register_clone(sub) -> None:
@@ -302,7 +303,8 @@ def _register_clone(sub) -> None:
     c.add_argument("--target-rig", help="target ARKit-style rig folder (with a control table: the rig whose shapes "
                    "the controls drive, for .glb/.usd/.blend output)")
     c.add_argument("--target-frames", help=_FRAMES_HELP)
-    c.add_argument("--control-ranges", default="report", choices=["report", "clip", "project"], help=_CLIP_HELP)
+    c.add_argument("--control-ranges", default="solve", choices=["solve", "report", "clip", "project"],
+                   help=_CLIP_HELP)
     c.add_argument("--keys", default="combined84",
                    help="key set for rigs: combined84, emotions6, visemes13, arkit, rom-K (default combined84)")
     c.add_argument("--keys-from", help="range-of-motion weight take for rom-K")
@@ -371,7 +373,8 @@ def _register_retarget(sub) -> None:
     r.add_argument("--target-rig", help="with a control table: the target rig whose shapes the controls drive "
                    "(.glb/.usd/.blend output and the solve in the rig's geometry)")
     r.add_argument("--target-frames", help=_FRAMES_HELP)
-    r.add_argument("--control-ranges", default="report", choices=["report", "clip", "project"], help=_CLIP_HELP)
+    r.add_argument("--control-ranges", default="solve", choices=["solve", "report", "clip", "project"],
+                   help=_CLIP_HELP)
     r.add_argument("--head", default="auto", metavar="auto|off|FILE", help=_HEAD_HELP)
     r.add_argument("--bake", action="store_true", help=_BAKE_HELP)
     r.add_argument("--source-rig", help="rig a weight take drives")

@@ -84,7 +84,9 @@ def _main_job(out: Path, ada, bo, take, src, truth, noise_mm: float, log) -> dic
         preview = out / "preview.mp4"
     except ImportError:
         video = preview = None
-        log("no preview video: PyAV is missing (pip install 'faceretarget[preview]'; make demo installs it)")
+        from ..optional import install_line
+
+        log(f"no preview video: PyAV is missing ({install_line('av')}; make demo installs it)")
     res = animate(tracked, bo, out=out / "animate.glb", preview=preview, preview_size=384,
                   preview_video=video, log=log)
     pred = bo.evaluate(res.weights)
