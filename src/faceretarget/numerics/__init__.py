@@ -22,6 +22,7 @@ from ._bounded import (
     auto_weight_range,
     range_metric,
     solve_bounded,
+    solve_inequality,
     weight_range,
 )
 from ._denoise import denoise_take, estimate_noise_sigma, sure_whittaker
@@ -44,7 +45,7 @@ from ._selection import (
 from ._smooth import smoothstep
 
 __all__ = [
-    "solve_nnls", "solve_bounded", "range_metric", "weight_range", "auto_weight_range", "WeightRange", "FACS_RANGE",
+    "solve_nnls", "solve_bounded", "range_metric", "solve_inequality", "weight_range", "auto_weight_range", "WeightRange", "FACS_RANGE",
     "EXAMPLE_RANGE", "temporal_filter", "extremes_removed", "filter_cutoff_hz",
     "denoise_take", "estimate_noise_sigma", "sure_whittaker",
     "RigidAligner", "AlignResult", "fit_rigid", "select_rigid_markers", "nearest_rotation", "blend_rotations", "runs",

@@ -30,7 +30,7 @@ from ..targets import Target
 
 __all__ = ["CHUNK_FRAMES", "source_geometry", "clone_take", "retarget_take", "write_result", "Transfer",
            "result_head", "arkit_curves", "HEAD_CHOICES", "face_and_head_formats", "check_result_path",
-           "MAX_TEMPORAL", "target_weights"]
+           "MAX_TEMPORAL", "target_weights", "keep_arkit_range"]
 
 #: The ``head`` choices of :func:`write_result` besides a head-motion file, a take or a pose.
 HEAD_CHOICES = ("auto", "off")
@@ -281,15 +281,68 @@ def arkit_curves(transfer: Transfer, *, path: str | os.PathLike = "result",
     if isinstance(model, BlendshapeRetargeter):
         W, names = model.key_weights(W), list(model.names_)
     if all(_is_arkit(n) for n in names):
+        W = keep_arkit_range(W, names, rig=keys, what=str(path), log=log)
         return W, [normalize_name(n) for n in names]
     if keys.basis is not None and all(_is_arkit(n) for n in keys.basis_names) and all(n in keys for n in names):
         log(f"converted {len(names)} key weights of '{keys.name}' to {len(keys.basis_names)} ARKit curves "
             "(weights @ the keys' ARKit weight vectors)")
-        return keys.to_basis(W, names), list(keys.basis_names)
+        idx = [keys.index(n) for n in names]
+        W = _solve_in_unit_range(W, keys.basis[idx].T, keys.deltas[idx].reshape(len(idx), -1).T, str(path),
+                                 "ARKit curves", list(keys.basis_names), "blend of the keys", log)
+        return np.clip(keys.to_basis(W, names), 0.0, 1.0), list(keys.basis_names)
     bad = next(n for n in names if not _is_arkit(n))
     raise OutputError(f"{path}: a Live Link Face CSV holds ARKit curves, but the target keys '{keys.name}' "
                       f"('{bad}', ...) are neither ARKit shapes nor defined by ARKit weight vectors; write "
                       ".glb, .npz or .blend instead")
+
+
+def _solve_in_unit_range(W: np.ndarray, A: np.ndarray, shapes: np.ndarray | None, what: str, values: str,
+                         value_names: Sequence[str], blend: str, log: Callable[..., None]) -> np.ndarray:
+    """``W`` ``(T, K)`` with every frame whose values ``W @ A.T`` leave [0, 1] solved again: the nearest
+    weights in the metric of ``shapes`` ``(P, K)`` (identity when None) whose values are inside
+    (:func:`~faceretarget.numerics.solve_inequality`), with one log line when any frame was."""
+    from ..numerics import range_metric, solve_inequality
+
+    V = W @ A.T
+    bad = (V < -1e-9) | (V > 1.0 + 1e-9)            # beyond rounding (a clip writes those)
+    if not bad.any():
+        return W
+    j = int(np.argmax(bad.sum(axis=0)))
+    L = range_metric(shapes) if shapes is not None else np.eye(W.shape[1])
+    out = solve_inequality(L, W, A, 0.0, 1.0)
+    frames = int((out != W).any(axis=1).sum())
+    log(f"{what}: {values} kept in [0, 1], ARKit's range: {int(bad.sum())} values ({bad.mean():.1%}) were outside "
+        f"as solved ({V.min():.3f} .. {V.max():.3f}; most often '{value_names[j]}'), so {frames} of {len(W)} frames were "
+        f"solved again as the nearest {blend} inside it{' in the rig' + chr(39) + 's geometry' if shapes is not None else ''}")
+    return out
+
+
+def keep_arkit_range(weights: np.ndarray, names: Sequence[str], *, rig: Rig | None = None, what: str = "weights",
+                     log: Callable[..., None] = _quiet) -> np.ndarray:
+    """ARKit-named weights ``(T, K)`` kept in [0, 1], ARKit's range, as every ARKit consumer plays them.
+
+    Frames with a weight outside are solved again: the nearest in-range weights in the geometry of
+    ``rig``'s shapes of those names (when given; else each weight clipped), with one log line saying
+    how many values were outside.  Weights of names that are not ARKit shapes are left as they are.
+
+    Returns
+    -------
+    (T, K) float
+        A copy (or ``weights`` itself when nothing was outside).
+    """
+    W = np.asarray(weights, dtype=np.float64)
+    arkit = np.array([_is_arkit(n) for n in names])
+    if not arkit.any():
+        return W
+    A = np.eye(len(names))[arkit]
+    shapes = None
+    if rig is not None:                     # each name's shape on the rig (zero for a name it has no shape of)
+        drive = rig.map_weights(list(names), np.eye(len(names)), warn=False)
+        shapes = (drive @ rig.deltas.reshape(rig.n_shapes, -1)).T
+    out = _solve_in_unit_range(W, A, shapes, what, "ARKit weights", [n for n, a in zip(names, arkit, strict=True) if a],
+                               "weights", log).copy()
+    out[:, arkit] = np.clip(out[:, arkit], 0.0, 1.0)          # rounding (1e-12) of the solve, or of the input
+    return out
 
 
 def _own_target(transfer: Transfer) -> Target | None:
