@@ -174,3 +174,57 @@ def test_arkit_weights_are_kept_in_zero_one_in_the_rigs_geometry(arkit_rig):
     with warnings.catch_warnings():
         warnings.simplefilter("error")                              # a name the rig has no shape of: no warning
         keep_arkit_range(np.array([[1.3, 0.2]]), ["tongueOut", "jawOpen"], rig=arkit_rig)
+
+
+# ------------------------------------------------------------------------------------ what the output says
+def test_speech_head_moves_about_the_characters_rest_pose(data_dir, tmp_path):
+    """``animate --head speech``: the database's motion is about its speakers' mean pose (12 degrees of
+    pitch for the two shared takes); the character's head moves about its own rest, as the tracked one."""
+    from faceretarget.io import read_audio
+    from faceretarget.pipelines import build_head_database
+    from faceretarget.pipelines._animate import _speech_head
+
+    H = data_dir / "headmotion"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        db = build_head_database([(H / f"{n}.wav", H / f"{n}.bvh") for n in ("beat_2_scott_0_1_1",
+                                                                              "zeggs_067_Speech_2_x_1_0")])
+    db.save(tmp_path / "head.npz")
+    audio, rate = read_audio(data_dir / "video" / "WDA_KatieHill_000.mp4")
+    mono = np.asarray(audio, dtype=np.float64).reshape(len(audio), -1).mean(axis=1)     # as animate mixes it
+    times = np.arange(200) / 25.0
+    from faceretarget.headmotion import HeadMotionDatabase
+    from faceretarget.timebase import infer_fps
+
+    raw = HeadMotionDatabase.load(tmp_path / "head.npz").transform(mono, rate, seed=0, fps=infer_fps(times)).take
+    raw_rot = raw.head.resample(raw.times, times).rotation
+    assert np.degrees(raw_rot.mean().magnitude()) > 5.0                       # what was written before
+    lines: list[str] = []
+    head = _speech_head(tmp_path / "head.npz", audio, rate, times, 1.0, lines.append)
+    rot = head.rotation
+    assert np.degrees(rot.mean().magnitude()) < 0.01                          # about the rest pose
+    rel = raw_rot.mean().inv() * raw_rot                                      # the same motion
+    assert np.degrees((rel.inv() * rot).magnitude()).max() < 1e-6
+    assert any("rest pose" in m for m in lines)
+
+
+def test_a_head_that_never_moves_is_not_announced_and_glb_says_blenders_range(data_dir, arkit_rig, tmp_path):
+    from faceretarget.cloning import keymodel_pair
+    from faceretarget.io import read_livelinkface
+    from faceretarget.pipelines import blender_timeline_note, clone_take, write_result
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        take = read_livelinkface(data_dir / "livelinkface" / "S07-001.csv")    # head columns all zero
+        sk, tk, _ = keymodel_pair(arkit_rig, arkit_rig, "arkit")
+        job = clone_take(take, sk, tk, source_rig=arkit_rig)
+    assert job.result.head is not None and not job.result.head.moves()
+    lines: list[str] = []
+    write_result(tmp_path / "s07.glb", job, log=lines.append)
+    wrote = next(m for m in lines if m.startswith("wrote"))
+    assert wrote.endswith("key-models)") and any("never moves" in m for m in lines)     # no ", head motion"
+    # 67.6 s at 30 fps: Blender's default scene (24 fps, frames 1-250) plays its first 10.4 s
+    note = next(m for m in lines if "Blender opens" in m)
+    span = take.times[-1] - take.times[0]
+    assert f"{span:.1f} s" in note and str(int(np.ceil(span * 24)) + 1) in note and "s07.blend" in note
+    assert blender_timeline_note("x.glb", np.arange(200) / 25.0) is None      # 8 s: plays whole

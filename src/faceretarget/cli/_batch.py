@@ -66,7 +66,7 @@ def register(subparsers) -> argparse.ArgumentParser:
         "scheduler: a local cluster sized to the machine, or --scheduler. Each character's model is fitted "
         "once and shared; every output is written atomically and recorded in the manifest (batch.jsonl), "
         "so a run skips the jobs already up to date and re-runs exactly those whose inputs, rig or options "
-        "changed; a failed job does not stop the others. Needs 'faceretarget[batch]' (dask, distributed). "
+        "changed; a failed job does not stop the others. Needs Dask's distributed scheduler (make batch). "
         f"Exit codes: {codes}.")
     p.add_argument("jobs", type=Path, help="the jobs file (.toml; docs/batch.md)")
     where = p.add_mutually_exclusive_group()

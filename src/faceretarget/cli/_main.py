@@ -153,7 +153,7 @@ def _clone(args, log) -> int:
         check_result_path(out, keys=tk, bake=args.bake)    # a .csv needs ARKit keys: known before the solve
     job = clone_take(perf, sk, tk, source_rig=source_rig, method=args.method, features=args.features,
                      weight_range=weight_range, log=log)
-    write_result(out, job, head=head, bake=args.bake, log=log)
+    write_result(out, job, head=head, bake=args.bake, progress=not log.quiet, log=log)
     return 0
 
 
@@ -261,7 +261,7 @@ def _retarget(args, log) -> int:
                         temporal=args.temporal,
                         denoise=not args.no_denoise, filter_level=args.smooth, regions=regions,
                         align=not args.no_align, rigid_subset=_subset(args.rigid_subset))
-    write_result(out, job, head=head, bake=args.bake, log=log)
+    write_result(out, job, head=head, bake=args.bake, progress=not log.quiet, log=log)
     return 0
 
 

@@ -802,7 +802,7 @@ def run_batch(jobs: str | os.PathLike | BatchSpec, *, scheduler: str | None = No
     ClusterError
         ``scheduler`` unreachable, no worker, or the manifest locked by another batch.
     MissingDependencyError
-        Dask's ``distributed`` is not installed (``pip install 'faceretarget[batch]'``).
+        Dask's ``distributed`` is not installed (``make batch``; :func:`faceretarget.optional.install_line`).
     """
     t_start = time.perf_counter()
     spec = jobs if isinstance(jobs, BatchSpec) else read_jobs(jobs)

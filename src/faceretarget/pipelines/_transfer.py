@@ -30,7 +30,7 @@ from ..targets import Target
 
 __all__ = ["CHUNK_FRAMES", "source_geometry", "clone_take", "retarget_take", "write_result", "Transfer",
            "result_head", "arkit_curves", "HEAD_CHOICES", "face_and_head_formats", "check_result_path",
-           "MAX_TEMPORAL", "target_weights", "keep_arkit_range"]
+           "MAX_TEMPORAL", "target_weights", "keep_arkit_range", "blender_timeline_note"]
 
 #: The ``head`` choices of :func:`write_result` besides a head-motion file, a take or a pose.
 HEAD_CHOICES = ("auto", "off")
@@ -475,7 +475,7 @@ def check_result_path(path: str | os.PathLike, *, keys: Rig | None = None, bake:
 
 
 def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", bake: bool = False,
-                 log: Callable[..., None] = _quiet) -> Path:
+                 progress: bool = False, log: Callable[..., None] = _quiet) -> Path:
     """Write a cloned or retargeted take in the format ``path`` asks for.
 
     ``.glb`` holds the target keys as morph targets and the weights as their animation, with the
@@ -496,6 +496,8 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
         left out with ``"auto"``.
     bake : bool
         USD only: time-sampled mesh points instead of blend shapes and weights.
+    progress : bool
+        A progress bar for outputs that take seconds to draw (a drawing's ``.mp4``).
 
     Raises
     ------
@@ -508,6 +510,9 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
     res, model = transfer.result, transfer.model
     has_head = own.holds_head(path) if own is not None else holds_head(path)
     pose, explicit = result_head(transfer, head)
+    if pose is not None and not explicit and not pose.moves():
+        log(f"the take's head pose never moves (its head columns are all zero): {path.name} gets no head motion")
+        pose = None
     if pose is not None and not has_head:
         if explicit:
             ok = ", ".join(face_and_head_formats())
@@ -519,7 +524,7 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
                  curves=res.curves, curve_names=list(res.curve_names) if res.curves is not None else None)
     if own is not None:
         extra = dict(clock, audio=res.audio, audio_rate=res.audio_rate) if own.kind == "controls" else {}
-        out = own.write(path, target_weights(transfer), res.times, head=pose, log=log, **extra)
+        out = own.write(path, target_weights(transfer), res.times, head=pose, log=log, progress=progress, **extra)
         log(f"wrote {path} ({len(res.times)} frames of the {own.kind} target, {own.n_keys} keys"
             f"{', head motion' if pose is not None else ''})")
         return out
@@ -536,7 +541,31 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
     note = None if bake else _slider_note(path, res.weights)
     if note:
         log(note)
+    if path.suffix.lower() == ".glb":
+        note = blender_timeline_note(path, res.times)
+        if note:
+            log(note)
     return out
+
+
+#: What Blender's glTF importer leaves the scene at: 24 frames/s, frames 1 to 250 (10.4 s).
+_BLENDER_DEFAULT_FPS, _BLENDER_DEFAULT_END = 24.0, 250
+
+
+def blender_timeline_note(path: str | os.PathLike, times: np.ndarray) -> str | None:
+    """One line when a ``.glb`` take would not play whole in Blender's default scene (24 frames/s, frames
+    1-250): Blender keeps the keys at their times but plays only the scene's range."""
+    times = np.asarray(times, dtype=np.float64)
+    if times.size < 2:
+        return None
+    span = float(times[-1] - times[0])
+    shown = (_BLENDER_DEFAULT_END - 1) / _BLENDER_DEFAULT_FPS
+    if span <= shown + 1e-9:
+        return None
+    return (f"note: Blender opens {Path(path).name} in its default scene (24 fps, frames 1-250), which plays the "
+            f"first {shown:.1f} s of this {span:.1f} s take: set the scene's end frame to "
+            f"{int(np.ceil(span * _BLENDER_DEFAULT_FPS)) + 1} there, or write {Path(path).with_suffix('.blend').name} "
+            "(the take's own rate and frame range)")
 
 
 #: Formats with a baked (mesh points per frame) variant.

@@ -132,8 +132,8 @@ class ControlTarget(Target):
                                        "...); name the columns like the rig's shapes")
             if dead:
                 warnings.warn(f"{table.source}: control(s) {', '.join(dead[:8])} drive no shape of the rig '{rig.name}': "
-                              "their curves are written but the rig's shapes do not show them", DataWarning,
-                              stacklevel=2)
+                              "the rig's shapes do not show them (control curves, .csv / .json, still hold them)",
+                              DataWarning, stacklevel=2)
             self._drive = drive
             shapes = drive @ rig.deltas.reshape(rig.n_shapes, -1)                   # (M, 3V) per control
             rest = rig.evaluate(table.neutral @ drive)
@@ -239,6 +239,7 @@ class ControlTarget(Target):
         ``audio_rate`` and ``bake`` to the animation writers that hold them.
         """
         path = self.check_output(path)
+        extra.pop("progress", None)
         raw = self.solved(weights)
         rep = self.range_report(raw)
         if self.ranges == "solve":
@@ -261,7 +262,9 @@ class ControlTarget(Target):
         if ext == ".csv":
             keep = {k: v for k, v in extra.items() if k in ("timecode", "timecode_rate", "curves", "curve_names")}
             return write_animation(path, weights=c, names=self.controls, times=times, head=head, **keep)
-        return write_animation(path, rig=self.rig, weights=c, names=self.controls, times=times, head=head, **extra)
+        live = np.abs(self._drive).any(axis=1)      # controls that drive none of the rig's shapes were warned about
+        return write_animation(path, rig=self.rig, weights=c[:, live], names=[n for n, k in zip(self.controls, live,
+                               strict=True) if k], times=times, head=head, **extra)
 
 
 def _rig_formats() -> list[str]:
