@@ -59,6 +59,7 @@ def cmd_animate(args, log) -> int:
     require_output_deps(out)                     # before any work: .blend/.fbx need bpy, .usd* usd-core
     require_output_deps(preview, "--preview")
     require_video_deps("video", video, args.model)
+    log(f"reading the character {args.character}")
     with neutral_option("--neutral"):
         character = read_rig(args.character, neutral=args.neutral)
     with neutral_option(None):

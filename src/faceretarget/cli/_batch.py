@@ -36,6 +36,7 @@ EXIT_CODES = {
 def cmd_batch(args, log) -> int:
     """``batch``: run (or with ``--dry-run`` plan) a jobs file and print the summary."""
     check_inputs(("JOBS.toml", args.jobs))
+    log(f"reading {args.jobs}")
     from ..pipelines import read_jobs, run_batch
 
     spec = read_jobs(args.jobs)                # every key checked before any cluster starts

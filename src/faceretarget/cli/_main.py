@@ -39,12 +39,15 @@ TEMPORAL = Range(0, 1000)
 KEYS = Range(1, 10000, integer=True)
 
 
-def _rig(path, neutral=None, landmarks=None, flag: str = "--neutral"):
-    """The rig folder ``path`` (None without one); a missing neutral names the command's ``flag``."""
+def _rig(path, neutral=None, landmarks=None, flag: str = "--neutral", log=None):
+    """The rig folder ``path`` (None without one); a missing neutral names the command's ``flag``; ``log``
+    says which rig is read (a large rig takes a second)."""
     from ..io import read_rig
 
     if not path:
         return None
+    if log is not None:
+        log(f"reading {path}")
     with neutral_option(flag):
         return read_rig(path, neutral=neutral, landmarks=landmarks)
 
@@ -84,7 +87,7 @@ def _target(args, log):
         if getattr(args, "target_frames", None):
             raise InvalidDataError("--target-frames applies to skeleton target keys (.bvh, .glb)")
         return None
-    rig = _rig(args.target_rig, args.target_neutral, None, "--target-neutral") if args.target_rig else None
+    rig = _rig(args.target_rig, args.target_neutral, None, "--target-neutral", log) if args.target_rig else None
     tgt = read_target(args.target_keys, rig=rig, frames=args.target_frames, ranges=args.control_ranges)
     if rig is not None and tgt.kind != "controls":
         raise InvalidDataError(f"--target-rig applies to control-table target keys, not to {tgt.kind} keys")
@@ -99,14 +102,14 @@ def _clone_keys(args, perf, source_rig, log, target=None):
     if args.source_keys or args.target_keys:
         if not (args.source_keys and args.target_keys):
             raise InvalidDataError("give both --source-keys and --target-keys")
-        sk = _rig(args.source_keys, args.source_neutral, args.source_landmarks, "--source-neutral")
+        sk = _rig(args.source_keys, args.source_neutral, args.source_landmarks, "--source-neutral", log)
         tk = target if target is not None else _rig(args.target_keys, args.target_neutral, args.target_landmarks,
-                                                       "--target-neutral")
+                                                       "--target-neutral", log)
         log(f"key-models: {sk.n_shapes} pairs from {args.source_keys} and {args.target_keys}")
         return sk, tk
     if not (args.source_rig and args.target_rig):
         raise InvalidDataError("give --source-keys/--target-keys, or --source-rig/--target-rig with --keys")
-    target_rig = _rig(args.target_rig, args.target_neutral, args.target_landmarks, "--target-neutral")
+    target_rig = _rig(args.target_rig, args.target_neutral, args.target_landmarks, "--target-neutral", log)
     rom = read_performance(args.keys_from) if args.keys_from else None
     if args.keys.startswith("rom-") and rom is None:
         if perf.kind != "weights":
@@ -136,6 +139,7 @@ def _clone(args, log) -> int:
     out = check_out(args.out, [args.performance, args.source_keys, args.target_keys, args.source_rig,
                                args.target_rig, args.keys_from, args.target_frames,
                                None if args.head in ("auto", "off") else args.head])
+    log(f"cloning {args.performance} onto {args.target_rig or args.target_keys}")
     # the heavy imports after the quick checks
     from ..io import read_performance
     from ..pipelines import check_result_path, clone_take, write_result
@@ -147,7 +151,7 @@ def _clone(args, log) -> int:
     perf = read_performance(args.performance, fps=args.fps)
     source_rig = _rig(args.source_rig, args.source_neutral,
                       args.source_landmarks if not (args.source_keys or args.target_keys) else None,
-                      "--source-neutral")
+                      "--source-neutral", log)
     sk, tk = _clone_keys(args, perf, source_rig, log, target)
     if target is None:
         check_result_path(out, keys=tk, bake=args.bake)    # a .csv needs ARKit keys: known before the solve
@@ -162,7 +166,7 @@ def cmd_keys_compose(args, log) -> int:
     from ..io import write_rig
     from ..pipelines import compose_keys
 
-    keys = compose_keys(_rig(args.rig, args.neutral), log=log)
+    keys = compose_keys(_rig(args.rig, args.neutral, log=log), log=log)
     write_rig(keys, out)
     log(f"wrote the neutral and {keys.n_shapes} composed key-models (84 key-models) as OBJ to {out}")
     return 0
@@ -174,6 +178,7 @@ def _subset(text: str | None):
 
 def cmd_keys_select(args, log) -> int:
     out = check_out_folder(args.out, [args.performance, args.source_rig])     # before any work
+    log(f"reading {args.performance}")
     template = None
     if args.controls_template:
         template = check_out(args.controls_template, [args.performance, args.source_rig, args.template_rig],
@@ -183,17 +188,17 @@ def cmd_keys_select(args, log) -> int:
     from ..pipelines import select_keys
 
     perf = read_performance(args.performance, fps=args.fps)
-    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral")
+    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral", log=log)
     sel = select_keys(perf, args.k, args.method, source_rig=rig,
                       features=args.features, neutral_frame=args.neutral_frame, align=not args.no_align,
-                      rigid_subset=_subset(args.rigid_subset), log=log)
+                      rigid_subset=_subset(args.rigid_subset), progress=not log.quiet, log=log)
     geo = sel.geometry
     if perf.kind == "points":
         aligned = Performance.from_points(geo.points, geo.labels, times=perf.times, unit=perf.unit, source=perf.source)
-        write_keyshapes(aligned, sel.frames, out, neutral=sel.neutral)
+        write_keyshapes(aligned, sel.frames, out, neutral=sel.neutral, progress=not log.quiet)
     else:
         write_keyshapes(geo.points, sel.frames, out, mesh=geo.mesh, neutral=sel.neutral, basis=sel.basis,
-                        basis_names=sel.basis_names)
+                        basis_names=sel.basis_names, progress=not log.quiet)
     extra = ", key_weights.csv" if sel.basis is not None else ""
     log(f"wrote {out}: {len(sel.frames)} keyshapes, neutral.obj, keyshapes.txt{extra} and contact_sheet.png; model "
         "the target counterparts under the same file names (frame_*.obj) beside the target's neutral.obj")
@@ -219,6 +224,7 @@ def cmd_retarget(args, log) -> int:
 def _retarget(args, log) -> int:
     out = check_out(args.out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions,
                                args.target_rig, args.target_frames, None if args.head in ("auto", "off") else args.head])
+    log(f"retargeting {args.performance} onto {args.target_keys}")
     # the heavy imports after the quick checks
     from ..cloning import keymodel_pair
     from ..io import is_keyshape_folder, read_keys, read_performance
@@ -234,7 +240,8 @@ def _retarget(args, log) -> int:
                                    f"such term{'; smooth its curves with --smooth' if opt == '--temporal' else ''})")
     weight_range = _weight_range(args.weight_range)
     perf = read_performance(args.performance, fps=args.fps)
-    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral")
+    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral", log=log)
+    log(f"reading the keyshapes {args.source_keys} and {args.target_keys}")
     with neutral_option("--source-neutral"):
         sk, labels = read_keys(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks,
                                rig=rig)

@@ -467,6 +467,7 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
                         timings=timings, alpha=alpha, emotions=emotions)
     if out is not None:
         t0 = time.perf_counter()
+        log(f"writing {out}")
         if own is not None:                       # controls, skeleton, drawings: the target writes itself
             res.outputs.append(own.write(out, res.weights[:, own.key_order(names)], res.times, log=log,
                                          progress=progress))

@@ -703,6 +703,7 @@ def _cluster(scheduler: str | None, workers: int | None, client, log) -> Iterato
         finally:
             c.close()
         return
+    log(f"starting a local Dask cluster: {workers or _cpu_count()} worker process(es)")
     cluster = local_cluster(workers)
     try:
         c = distributed.Client(cluster)
@@ -907,7 +908,9 @@ def _execute(distributed, client, todo: list[_Planned], outcomes: dict, manifest
 
     done = failed = 0
     stopped = None
-    with tqdm(total=len(todo), desc="batch", unit="job", disable=not progress, leave=True) as bar:
+    with tqdm(total=len(todo), desc="batch", unit="job", disable=not progress, leave=True) as bar, \
+            _ticking(bar, progress):
+        bar.set_postfix_str("starting the workers, reading the rigs, fitting the models", refresh=False)
         while queue and len(active) < size():
             submit(queue.popleft())
         for fut in ac:
@@ -935,6 +938,30 @@ def _execute(distributed, client, todo: list[_Planned], outcomes: dict, manifest
         for f in list(active):
             f.cancel()
     return stopped
+
+
+@contextlib.contextmanager
+def _ticking(bar, on: bool, every: float = 1.0):
+    """Redraw ``bar`` every ``every`` seconds inside the block (its clock runs while the workers start and
+    the first models are fitted, when no job has finished yet)."""
+    if not on:
+        yield
+        return
+    import threading
+
+    stop = threading.Event()
+
+    def tick() -> None:
+        while not stop.wait(every):
+            bar.refresh()
+
+    t = threading.Thread(target=tick, name="faceretarget-batch-bar", daemon=True)
+    t.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        t.join()
 
 
 def _finish(p: _Planned, res: dict, run: str, manifest: _Manifest, outcomes: dict, bar, progress: bool, log,
