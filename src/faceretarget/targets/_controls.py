@@ -244,8 +244,9 @@ class ControlTarget(Target):
         rep = self.range_report(raw)
         if self.ranges == "solve":
             W = self._weights(weights)
-            again = int((self.key_weights(W) != W).any(axis=1).sum())
-            c = self.params(W)
+            Wk = self.key_weights(W)
+            again = int((Wk != W).any(axis=1).sum())
+            c = np.clip(self.solved(Wk), self.table.lo, self.table.hi)        # = params(W)
             log(f"controls inside their declared ranges: {self.range_report(c).inside_pct:.2f} % of the values; "
                 f"{again} of {len(W)} frames solved again inside the ranges (the nearest blend of the keys in the "
                 f"target's geometry; {rep.inside_pct:.2f} % of the values were inside as first solved)")
