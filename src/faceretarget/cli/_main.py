@@ -276,7 +276,7 @@ def cmd_demo(args, log) -> int:
     from ..pipelines import run_demo
 
     out = check_out_folder(args.out, parents=True)          # before any work (missing folders are created)
-    return run_demo(out, log=log)
+    return run_demo(out, log=log, progress=not log.quiet)
 
 
 _HEAD_HELP = ("head motion written with the face (.glb head node, .csv head columns): auto (default) = the "

@@ -42,6 +42,7 @@ from ..retarget import STABLE68 as _STABLE
 from ..retarget import LandmarkSolver, neutral_face, similarity_fit
 from ..rig import Rig
 from ..timebase import infer_fps
+from ._progress import working
 
 __all__ = ["FACE_EYE_MM", "animate", "AnimateResult", "tracked_take", "face_take", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks"]
 
@@ -403,7 +404,8 @@ def animate(video: str | os.PathLike | Capture, character: Rig, *, out: str | os
             return sol.transform(points, prior, times).weights
 
         names = list(character.names)
-        W = solve(ftake.points)
+        with working(f"solving {len(ftake.times)} frames on {character.name}", progress):
+            W = solve(ftake.points)
         play = character
         own = None
     else:

@@ -55,6 +55,7 @@ from .. import __version__
 from ..errors import DataWarning, FaceRetargetError, InvalidDataError
 from ..optional import VIDEO_NEEDS, has_module, optional_import, output_needs, require
 from ._jobs import BatchSpec, Character, Job, read_jobs
+from ._progress import ticking
 
 __all__ = ["run_batch", "read_manifest", "local_cluster", "BatchSummary", "JobOutcome", "ClusterError",
            "MANIFEST_FIELDS", "WORKER_CONFIG", "file_sha256", "CONNECT_TIMEOUT"]
@@ -909,7 +910,7 @@ def _execute(distributed, client, todo: list[_Planned], outcomes: dict, manifest
     done = failed = 0
     stopped = None
     with tqdm(total=len(todo), desc="batch", unit="job", disable=not progress, leave=True) as bar, \
-            _ticking(bar, progress):
+            ticking(bar, progress):
         bar.set_postfix_str("starting the workers, reading the rigs, fitting the models", refresh=False)
         while queue and len(active) < size():
             submit(queue.popleft())
@@ -938,30 +939,6 @@ def _execute(distributed, client, todo: list[_Planned], outcomes: dict, manifest
         for f in list(active):
             f.cancel()
     return stopped
-
-
-@contextlib.contextmanager
-def _ticking(bar, on: bool, every: float = 1.0):
-    """Redraw ``bar`` every ``every`` seconds inside the block (its clock runs while the workers start and
-    the first models are fitted, when no job has finished yet)."""
-    if not on:
-        yield
-        return
-    import threading
-
-    stop = threading.Event()
-
-    def tick() -> None:
-        while not stop.wait(every):
-            bar.refresh()
-
-    t = threading.Thread(target=tick, name="faceretarget-batch-bar", daemon=True)
-    t.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        t.join()
 
 
 def _finish(p: _Planned, res: dict, run: str, manifest: _Manifest, outcomes: dict, bar, progress: bool, log,
