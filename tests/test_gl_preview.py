@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from faceretarget.errors import InputFileError, InvalidDataError, MissingDependencyError, OutputError
 from faceretarget.headpose import HeadPose
+from faceretarget.optional import install_line
 from faceretarget.render import DEFAULT_BACKGROUND, DEFAULT_COLOR, MeshRenderer, gl_available, render_mesh
 
 BG = np.round(np.asarray(DEFAULT_BACKGROUND) * 255).astype(np.uint8)
@@ -141,9 +142,9 @@ def test_gl_falls_back_to_numpy_and_says_what_to_install(monkeypatch, arkit_rig)
     monkeypatch.setitem(sys.modules, "moderngl", None)  # `import moderngl` raises ImportError
     with MeshRenderer(arkit_rig.neutral, (64, 64)) as r:
         assert r.backend == "numpy"
-        assert "pip install 'faceretarget[preview]'" in r.reason
+        assert install_line("moderngl") in r.reason
         assert _mask(r.render(arkit_rig.neutral.vertices)).any()
-    with pytest.raises(MissingDependencyError, match=r"faceretarget\[preview\]"):
+    with pytest.raises(MissingDependencyError, match=r"make preview .*pip install 'moderngl"):
         MeshRenderer(arkit_rig.neutral, (64, 64), backend="gl")
     with pytest.raises(InvalidDataError, match="unknown render backend 'vulkan'"):
         MeshRenderer(arkit_rig.neutral, backend="vulkan")

@@ -75,16 +75,47 @@ def test_control_target_curves_play_the_mesh_target_result(arkit_rig, ict_rig, t
                                                                     np.zeros(52)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        target = read_target(table, rig=arkit_rig)
+        target = read_target(table, rig=arkit_rig)                          # default: solved inside the ranges
+        as_solved = read_target(table, rig=arkit_rig, ranges="report")
         mesh = retarget_take(take, sk, tk, source_rig=ict_rig)
         ctrl = retarget_take(take, sk, target, source_rig=ict_rig)
     Vm = mesh.model.blend(mesh.result.weights)
-    C = target.params(target_weights(ctrl))
-    np.testing.assert_allclose(C, target_weights(ctrl) @ U, rtol=0, atol=1e-12)        # W @ C, linear blending
+    motion = np.abs(Vm - arkit_rig.neutral.vertices).max()
+    W = target_weights(ctrl)
+    # as first solved: W @ C (linear blending), exactly the mesh target's faces, partly outside the ranges
+    C0 = as_solved.params(W)
+    np.testing.assert_allclose(C0, W @ U, rtol=0, atol=1e-12)
+    V0 = arkit_rig.evaluate(arkit_rig.map_weights(names, C0, warn=False))
+    assert np.abs(V0 - Vm).max() / motion < 1e-9
+    rep0 = target.range_report(C0)
+    assert 0 < rep0.inside_pct < 100 and rep0.inside_pct == pytest.approx(100 * ((C0 >= 0) & (C0 <= 1)).mean())
+    # the default: the frames outside solved again inside the ranges, still a blend of the keys (the mesh keys
+    # driven by those weights give the same faces), frames already inside unchanged, nearer than clipping
+    C = target.params(W)
+    Wk = target.key_weights(W)
+    assert ((C >= 0) & (C <= 1)).all() and target.range_report(C).inside_pct == 100.0
+    np.testing.assert_allclose(C, Wk @ U, rtol=0, atol=1e-9)
     Vc = arkit_rig.evaluate(arkit_rig.map_weights(names, C, warn=False))
-    assert np.abs(Vc - Vm).max() / np.abs(Vm - arkit_rig.neutral.vertices).max() < 1e-9
-    rep = target.range_report(C)
-    assert 0 < rep.inside_pct <= 100 and rep.inside_pct == pytest.approx(100 * ((C >= 0) & (C <= 1)).mean())
+    Vk = tk.evaluate(tk.map_weights(target.names, Wk, warn=False))
+    assert np.abs(Vc - Vk).max() / motion < 1e-9
+    inside0 = ((C0 >= 0) & (C0 <= 1)).all(axis=1)
+    np.testing.assert_array_equal(Wk[inside0], W[inside0])
+    from scipy.optimize import minimize
+
+    from faceretarget.numerics import range_metric
+
+    # each frame solved again is the nearest in-range blend in the target's geometry: SciPy's SLSQP on the
+    # same problem finds no nearer one
+    Lk = range_metric(tk.deltas.reshape(tk.n_shapes, -1).T)
+    for t in np.flatnonzero(~inside0)[:: max(1, int((~inside0).sum()) // 4)][:4]:
+        def dist(w, t=t):
+            return 0.5 * float(np.sum((Lk @ (w - W[t])) ** 2))
+
+        ref = minimize(dist, np.zeros(len(labels)), jac=lambda w, t=t: Lk.T @ (Lk @ (w - W[t])), method="SLSQP",
+                       constraints=[{"type": "ineq", "fun": lambda w: w @ U, "jac": lambda w: U.T},
+                                    {"type": "ineq", "fun": lambda w: 1 - w @ U, "jac": lambda w: -U.T}],
+                       options={"ftol": 1e-15, "maxiter": 500})
+        assert dist(Wk[t]) <= ref.fun * (1 + 1e-6) + 1e-18
     # projecting into the ranges: every value inside, frames already inside unchanged
     proj = read_target(table, rig=arkit_rig, ranges="project")
     Cp = proj.in_ranges(C)
@@ -108,8 +139,12 @@ def test_control_table_without_a_rig_writes_curves(tmp_path):
     t = read_target(tmp_path / "t.json")
     assert t.kind == "controls" and t.names == ["a", "b"]
     W = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 0.5], [0.0, 2.0]])
-    np.testing.assert_allclose(t.params(W), [[0, 0.5], [10, 0.5], [5, -0.25], [0, -2.5]])
-    assert t.range_report(t.params(W)).inside_pct == pytest.approx(7 / 8 * 100)
+    as_solved = read_target(tmp_path / "t.json", ranges="report").params(W)
+    np.testing.assert_allclose(as_solved, [[0, 0.5], [10, 0.5], [5, -0.25], [0, -2.5]])
+    assert t.range_report(as_solved).inside_pct == pytest.approx(7 / 8 * 100)
+    # the default solves the last frame again: the nearest blend whose lipCorner stays in [-1, 1] is key b at 1
+    np.testing.assert_allclose(t.key_weights(W), [[0, 0], [1, 0], [0.5, 0.5], [0, 1]], atol=1e-12)
+    np.testing.assert_allclose(t.params(W), [[0, 0.5], [10, 0.5], [5, -0.25], [0, -1]], atol=1e-12)
     clipped = read_target(tmp_path / "t.json", ranges="clip").params(W)
     np.testing.assert_allclose(clipped[-1], [0, -1])
     t.write(tmp_path / "c.json", W, np.arange(4) / 30)

@@ -181,6 +181,21 @@ class HeadPose:
         """(T,) bool: frames that have a pose."""
         return ~_nan_rows(self.quaternions)
 
+    def moves(self, *, degrees: float = 1e-6, metres: float = 1e-9) -> bool:
+        """Whether the head moves over the take: some frame's rotation differs from another's by more
+        than ``degrees``, or its translation by more than ``metres`` (a take whose head columns are all
+        zero does not move)."""
+        q = self.quaternions[self.valid]
+        if len(q) > 1:
+            cos = np.clip(np.abs(q @ q[0]), 0.0, 1.0)                 # |<q_t, q_0>| = cos(angle_t / 2)
+            if np.degrees(2 * np.arccos(cos)).max() > degrees:
+                return True
+        if self.translation is not None:
+            t = self.translation[np.isfinite(self.translation).all(axis=1)]
+            if len(t) > 1 and np.ptp(t, axis=0).max() > metres:
+                return True
+        return False
+
     @property
     def rotation(self) -> Rotation:
         """The rotations as one scipy ``Rotation`` (every frame must have a pose)."""

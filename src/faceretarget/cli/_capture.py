@@ -14,7 +14,16 @@ import sys
 from pathlib import Path
 
 from ..errors import InvalidDataError, OutputError
-from ._support import FRACTION, MAX_FRAMES, POSITIVE, Range, check_inputs, run_alone
+from ._support import (
+    FRACTION,
+    MAX_FRAMES,
+    POSITIVE,
+    Range,
+    check_inputs,
+    require_output_deps,
+    require_video_deps,
+    run_alone,
+)
 from ._support import protect as _protect
 
 #: Option ranges (shown in ``--help``).
@@ -45,6 +54,7 @@ def _outputs(pairs: list[tuple[str, str | None, tuple[str, ...]]], inputs: list)
             raise OutputError(f"{path}: given for both {seen[r]} and {opt}")
         seen[r] = opt
         out.append(check_output_path(path))
+        require_output_deps(path, opt)
     return out
 
 
@@ -69,6 +79,7 @@ def cmd_capture(args, log) -> int:
     out, lm_out, prev_out = _outputs([("--out", args.out, (".csv",)), ("--landmarks", args.landmarks, (".npz",)),
                                       ("--preview", args.preview, (".mp4",))], [video, args.model])
     check_inputs(("video", video), ("--model", args.model))
+    require_video_deps("video", video, args.model)
     cap = capture_take(video, landmarker=args.model, max_frames=args.max_frames, duration=args.duration,
                        max_gap=args.max_gap, neutral_frames=_neutral(args.neutral_frames),
                        neutral_percentile=args.neutral_percentile, smooth=OneEuroParams.parse(args.smooth),
@@ -119,6 +130,7 @@ def cmd_appearance_fit(args, log) -> int:
     (out,) = _outputs([("--out", args.out, (".npz",))], videos + list(takes.values()) + [args.landmarker])
     check_inputs(*(("video", v) for v in videos), *(("--take", v) for v in takes.values()),
                  ("--landmarker", args.landmarker))
+    require_video_deps("video", (videos + list(takes.values()))[0], args.landmarker)
     if takes:
         combined = fit_appearance_style(takes, videos=videos, reference=args.reference,
                                         shape_variance=args.shape_variance, texture_variance=args.texture_variance,
@@ -144,6 +156,7 @@ def cmd_appearance_encode(args, log) -> int:
     video = Path(args.video)
     (out,) = _outputs([("--out", args.out, (".npz",))], [video, args.model, args.landmarker])
     check_inputs(("video", video), ("--model", args.model), ("--landmarker", args.landmarker))
+    require_video_deps("video", video, args.landmarker)
     model = AppearanceModel.load(args.model)
     perf, frame_index = encode_appearance(video, model, **_tracking(args, log))
     with atomic_path(out) as tmp, open(tmp, "wb") as f:

@@ -37,6 +37,7 @@ def cmd_headmotion_build(args, log) -> int:
     check_inputs(*(("--take", p) for pair in pairs for p in pair))
     if not args.f0_min < args.f0_max:
         raise InvalidDataError(f"--f0-min {args.f0_min:g} must be below --f0-max {args.f0_max:g}")
+    log(f"analysing {len(pairs)} take(s) of speech and head motion")
     from ..pipelines import build_head_database
     t0 = time.perf_counter()
     with warnings_to_log(log):
@@ -59,6 +60,7 @@ def cmd_headmotion_synth(args, log) -> int:
     check_inputs(("--db", args.db), ("--audio", args.audio))
     if args.no_rotation and args.no_translation:
         raise InvalidDataError("--no-rotation and --no-translation together leave nothing to write")
+    log(f"synthesizing head motion for {args.audio} from {args.db}")
     db = HeadMotionDatabase.load(args.db)
     audio, rate = read_audio(args.audio)
     try:

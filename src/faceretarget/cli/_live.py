@@ -15,7 +15,15 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._support import MAX_FRAMES, NON_NEGATIVE, Range, check_inputs, neutral_option, run_alone
+from ._support import (
+    MAX_FRAMES,
+    NON_NEGATIVE,
+    Range,
+    check_inputs,
+    neutral_option,
+    require_video_deps,
+    run_alone,
+)
 
 #: The page's slider ranges (:data:`faceretarget.pipelines.LIVE_LIMITS`; a test keeps them equal).
 HEAD_AMPLITUDE = Range(0, 3)
@@ -40,6 +48,12 @@ def cmd_live(args, log) -> int:
     serve = None if args.serve.strip().lower() in ("off", "none", "no") else args.serve
     check_inputs(("--video", args.video), ("--character", args.character), ("--neutral", args.neutral),
                  ("--landmarks", args.landmarks), ("--model", args.model), folders=("--character",))
+    require_video_deps("--video" if args.video is not None else "--camera",
+                       args.video if args.video is not None else args.camera, args.model)
+    if args.video is None:
+        from ..optional import require
+
+        require(f"--camera {args.camera}", "cv2")
     wait = args.wait if args.wait is not None else (DEFAULT_WAIT if args.video and serve else 0.0)
     smooth = OneEuroParams.parse(args.smooth)
     from ..io import check_character_route, is_character_file

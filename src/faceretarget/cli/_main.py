@@ -39,14 +39,17 @@ TEMPORAL = Range(0, 1000)
 KEYS = Range(1, 10000, integer=True)
 
 
-def _rig(path, neutral=None, landmarks=None, flag: str = "--neutral", args=None):
-    """The rig folder ``path`` (None without one); a missing neutral names the command's ``flag``.  A
-    character file (.glb, .fbx, ...) gives its face rig on its ARKit shapes (``args.shapes``), and the
-    :class:`~faceretarget.pipelines.DriveRig` is kept as ``args.character`` for the output."""
+def _rig(path, neutral=None, landmarks=None, flag: str = "--neutral", log=None, args=None):
+    """The rig folder ``path`` (None without one); a missing neutral names the command's ``flag``; ``log``
+    says which rig is read (a large rig takes a second).  A character file (.glb, .fbx, ...) gives its face
+    rig on its ARKit shapes (``args.shapes``), and the :class:`~faceretarget.pipelines.DriveRig` is kept as
+    ``args.character`` for the output."""
     from ..io import is_character_file, read_rig
 
     if not path:
         return None
+    if log is not None:
+        log(f"reading {path}")
     if is_character_file(path):
         from ..pipelines import drive_rig, load_character
 
@@ -105,7 +108,7 @@ def _target(args, log):
         if getattr(args, "target_frames", None):
             raise InvalidDataError("--target-frames applies to skeleton target keys (.bvh, .glb)")
         return None
-    rig = _rig(args.target_rig, args.target_neutral, None, "--target-neutral") if args.target_rig else None
+    rig = _rig(args.target_rig, args.target_neutral, None, "--target-neutral", log) if args.target_rig else None
     tgt = read_target(args.target_keys, rig=rig, frames=args.target_frames, ranges=args.control_ranges)
     if rig is not None and tgt.kind != "controls":
         raise InvalidDataError(f"--target-rig applies to control-table target keys, not to {tgt.kind} keys")
@@ -120,14 +123,14 @@ def _clone_keys(args, perf, source_rig, log, target=None):
     if args.source_keys or args.target_keys:
         if not (args.source_keys and args.target_keys):
             raise InvalidDataError("give both --source-keys and --target-keys")
-        sk = _rig(args.source_keys, args.source_neutral, args.source_landmarks, "--source-neutral")
+        sk = _rig(args.source_keys, args.source_neutral, args.source_landmarks, "--source-neutral", log)
         tk = target if target is not None else _rig(args.target_keys, args.target_neutral, args.target_landmarks,
-                                                       "--target-neutral")
+                                                       "--target-neutral", log)
         log(f"key-models: {sk.n_shapes} pairs from {args.source_keys} and {args.target_keys}")
         return sk, tk
     if not (args.source_rig and args.target_rig):
         raise InvalidDataError("give --source-keys/--target-keys, or --source-rig/--target-rig with --keys")
-    target_rig = _rig(args.target_rig, args.target_neutral, args.target_landmarks, "--target-neutral", args)
+    target_rig = _rig(args.target_rig, args.target_neutral, args.target_landmarks, "--target-neutral", log, args)
     rom = read_performance(args.keys_from) if args.keys_from else None
     if args.keys.startswith("rom-") and rom is None:
         if perf.kind != "weights":
@@ -158,6 +161,7 @@ def _clone(args, log) -> int:
                                args.target_rig, args.keys_from, args.target_frames,
                                None if args.head in ("auto", "off") else args.head])
     back = _character_out(args, args.target_rig, out)
+    log(f"cloning {args.performance} onto {args.target_rig or args.target_keys}")
     # the heavy imports after the quick checks
     from ..io import read_performance
     from ..pipelines import check_result_path, clone_take, write_result
@@ -170,14 +174,15 @@ def _clone(args, log) -> int:
     perf = read_performance(args.performance, fps=args.fps)
     source_rig = _rig(args.source_rig, args.source_neutral,
                       args.source_landmarks if not (args.source_keys or args.target_keys) else None,
-                      "--source-neutral")
+                      "--source-neutral", log)
     args.character = None
     sk, tk = _clone_keys(args, perf, source_rig, log, target)
     if target is None and not back:
         check_result_path(out, keys=tk, bake=args.bake)    # a .csv needs ARKit keys: known before the solve
     job = clone_take(perf, sk, tk, source_rig=source_rig, method=args.method, features=args.features,
                      weight_range=weight_range, log=log)
-    write_result(out, job, head=head, bake=args.bake, character=args.character, neck_share=args.neck_share, log=log)
+    write_result(out, job, head=head, bake=args.bake, progress=not log.quiet, character=args.character,
+                 neck_share=args.neck_share, log=log)
     return 0
 
 
@@ -186,7 +191,7 @@ def cmd_keys_compose(args, log) -> int:
     from ..io import write_rig
     from ..pipelines import compose_keys
 
-    keys = compose_keys(_rig(args.rig, args.neutral), log=log)
+    keys = compose_keys(_rig(args.rig, args.neutral, log=log), log=log)
     write_rig(keys, out)
     log(f"wrote the neutral and {keys.n_shapes} composed key-models (84 key-models) as OBJ to {out}")
     return 0
@@ -198,6 +203,7 @@ def _subset(text: str | None):
 
 def cmd_keys_select(args, log) -> int:
     out = check_out_folder(args.out, [args.performance, args.source_rig])     # before any work
+    log(f"reading {args.performance}")
     template = None
     if args.controls_template:
         template = check_out(args.controls_template, [args.performance, args.source_rig, args.template_rig],
@@ -207,17 +213,17 @@ def cmd_keys_select(args, log) -> int:
     from ..pipelines import select_keys
 
     perf = read_performance(args.performance, fps=args.fps)
-    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral")
+    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral", log=log)
     sel = select_keys(perf, args.k, args.method, source_rig=rig,
                       features=args.features, neutral_frame=args.neutral_frame, align=not args.no_align,
-                      rigid_subset=_subset(args.rigid_subset), log=log)
+                      rigid_subset=_subset(args.rigid_subset), progress=not log.quiet, log=log)
     geo = sel.geometry
     if perf.kind == "points":
         aligned = Performance.from_points(geo.points, geo.labels, times=perf.times, unit=perf.unit, source=perf.source)
-        write_keyshapes(aligned, sel.frames, out, neutral=sel.neutral)
+        write_keyshapes(aligned, sel.frames, out, neutral=sel.neutral, progress=not log.quiet)
     else:
         write_keyshapes(geo.points, sel.frames, out, mesh=geo.mesh, neutral=sel.neutral, basis=sel.basis,
-                        basis_names=sel.basis_names)
+                        basis_names=sel.basis_names, progress=not log.quiet)
     extra = ", key_weights.csv" if sel.basis is not None else ""
     log(f"wrote {out}: {len(sel.frames)} keyshapes, neutral.obj, keyshapes.txt{extra} and contact_sheet.png; model "
         "the target counterparts under the same file names (frame_*.obj) beside the target's neutral.obj")
@@ -244,6 +250,7 @@ def _retarget(args, log) -> int:
     out = check_out(args.out, [args.performance, args.source_keys, args.target_keys, args.source_rig, args.regions,
                                args.target_rig, args.target_frames, None if args.head in ("auto", "off") else args.head])
     back = _character_out(args, args.target_keys, out)
+    log(f"retargeting {args.performance} onto {args.target_keys}")
     # the heavy imports after the quick checks
     from ..cloning import keymodel_pair
     from ..io import is_character_file, is_keyshape_folder, read_keys, read_performance
@@ -260,7 +267,8 @@ def _retarget(args, log) -> int:
                                    f"such term{'; smooth its curves with --smooth' if opt == '--temporal' else ''})")
     weight_range = _weight_range(args.weight_range)
     perf = read_performance(args.performance, fps=args.fps)
-    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral")
+    rig = _rig(args.source_rig, args.source_neutral, flag="--source-neutral", log=log)
+    log(f"reading the keyshapes {args.source_keys} and {args.target_keys}")
     with neutral_option("--source-neutral"):
         sk, labels = read_keys(args.source_keys, neutral=args.source_neutral, landmarks=args.source_landmarks,
                                rig=rig)
@@ -290,7 +298,8 @@ def _retarget(args, log) -> int:
                         temporal=args.temporal,
                         denoise=not args.no_denoise, filter_level=args.smooth, regions=regions,
                         align=not args.no_align, rigid_subset=_subset(args.rigid_subset))
-    write_result(out, job, head=head, bake=args.bake, character=args.character, neck_share=args.neck_share, log=log)
+    write_result(out, job, head=head, bake=args.bake, progress=not log.quiet, character=args.character,
+                 neck_share=args.neck_share, log=log)
     return 0
 
 
@@ -298,7 +307,7 @@ def cmd_demo(args, log) -> int:
     from ..pipelines import run_demo
 
     out = check_out_folder(args.out, parents=True)          # before any work (missing folders are created)
-    return run_demo(out, log=log)
+    return run_demo(out, log=log, progress=not log.quiet)
 
 
 _HEAD_HELP = ("head motion written with the face (.glb head node, .csv head columns): auto (default) = the "
@@ -308,9 +317,10 @@ _HEAD_HELP = ("head motion written with the face (.glb head node, .csv head colu
 
 _FRAMES_HELP = ("skeleton target keys: which frames are the key poses: a .json {key: frame} (\"neutral\": the rest "
                 "pose, default frame 0), a .csv of key,frame rows, or a .txt/.json list of key names for frames 1, 2, ...")
-_CLIP_HELP = ("control targets: controls outside their declared ranges are written as solved (report, the default: "
-              "the faces of a mesh target of the same keys), clipped (clip), or replaced by the nearest in-range "
-              "controls in the rig's shapes (project); the share outside is reported either way")
+_CLIP_HELP = ("control targets: frames whose controls leave their declared ranges are solved again inside them "
+              "(solve, the default: the nearest blend of the keys in the target's geometry), written as first "
+              "solved (report), clipped (clip), or replaced by the nearest in-range controls in the rig's shapes "
+              "(project); the share outside as first solved is reported either way")
 
 
 def _register_clone(sub) -> None:
@@ -333,7 +343,8 @@ def _register_clone(sub) -> None:
                    "rig whose shapes "
                    "the controls drive, for .glb/.usd/.blend output)")
     c.add_argument("--target-frames", help=_FRAMES_HELP)
-    c.add_argument("--control-ranges", default="report", choices=["report", "clip", "project"], help=_CLIP_HELP)
+    c.add_argument("--control-ranges", default="solve", choices=["solve", "report", "clip", "project"],
+                   help=_CLIP_HELP)
     c.add_argument("--keys", default="combined84",
                    help="key set for rigs: combined84, emotions6, visemes13, arkit, rom-K (default combined84)")
     c.add_argument("--keys-from", help="range-of-motion weight take for rom-K")
@@ -414,7 +425,8 @@ def _register_retarget(sub) -> None:
     r.add_argument("--target-rig", help="with a control table: the target rig whose shapes the controls drive "
                    "(.glb/.usd/.blend output and the solve in the rig's geometry)")
     r.add_argument("--target-frames", help=_FRAMES_HELP)
-    r.add_argument("--control-ranges", default="report", choices=["report", "clip", "project"], help=_CLIP_HELP)
+    r.add_argument("--control-ranges", default="solve", choices=["solve", "report", "clip", "project"],
+                   help=_CLIP_HELP)
     r.add_argument("--head", default="auto", metavar="auto|off|FILE", help=_HEAD_HELP)
     r.add_argument("--bake", action="store_true", help=_BAKE_HELP)
     r.add_argument("--source-rig", help="rig a weight take drives")

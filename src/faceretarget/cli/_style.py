@@ -35,6 +35,7 @@ from ._support import (
     check_inputs,
     check_out,
     neutral_option,
+    require_video_deps,
     run_alone,
     warnings_to_log,
 )
@@ -189,6 +190,7 @@ def cmd_style_fit(args, log) -> int:
     if any(videos) and not all(videos):
         raise InvalidDataError("give all takes as videos (face takes are captured from them) or none")
     if all(videos):                             # the actor's 68 face points, sharing the neutral's rest face
+        require_video_deps("--take", next(iter(takes.values())))
         faces = face_takes({**takes, **adds}, reference=args.reference, log=log)
         perfs, added = {k: faces[k] for k in takes}, {k: faces[k] for k in adds}
     else:
@@ -241,7 +243,10 @@ def cmd_restyle(args, log) -> int:
         f"{' (outside the training range)' if res.range.outside else ''}")
     with warnings_to_log(log):
         if new.kind == "weights":
-            write_animation(out, rig=rig, weights=new.weights, names=new.names, times=new.times)
+            from ..pipelines import keep_arkit_range
+
+            W = keep_arkit_range(new.weights, new.names, rig=rig, what=str(out), log=log)   # ARKit weights in [0, 1]
+            write_animation(out, rig=rig, weights=W, names=new.names, times=new.times)
         else:
             write_animation(out, vertices=new.data(), mesh=new.mesh, times=new.times)
     log(f"wrote {out}")
@@ -262,6 +267,7 @@ def cmd_restyle_video(args, log) -> int:
                     (".mp4",))                                                                # before any work
     check_inputs(("--video", args.video), ("--appearance", args.appearance), ("--landmarker", args.landmarker),
                  ("--speakers", args.speakers), ("--neutral-video", args.neutral_video))
+    require_video_deps("--video", args.video, args.landmarker)
     from ..errors import InputFileError
     from ..pipelines import AppearanceStyleModel, restyle_video
 

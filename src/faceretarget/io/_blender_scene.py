@@ -44,7 +44,9 @@ _PURPOSE = "reading and writing Blender characters (.blend; .fbx without ufbx)"
 
 
 def _bpy():
-    return optional_import("bpy", _PURPOSE, "make blender (Blender 4.5 as a Python module; docs/blender.md)")
+    from ..optional import install_line
+
+    return optional_import("bpy", _PURPOSE, install_line("bpy"))
 
 
 def _open(bpy, path: Path) -> None:

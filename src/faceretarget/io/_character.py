@@ -53,11 +53,6 @@ def character_format(path: str | os.PathLike) -> str:
         ext, "usd" if ext in (".usd", ".usda", ".usdc", ".usdz") else "")
 
 
-#: What each character route needs: (module, purpose, how to install).
-_BLENDER = ("bpy", "Blender (.blend files; .fbx written back)", "make blender (Blender 4.5 as a Python module)")
-_USD = ("pxr", "USD characters", "pip install 'faceretarget[usd]'")
-
-
 def check_character_route(path: str | os.PathLike, out: str | os.PathLike | None = None) -> None:
     """Refuse, before any work, a character route whose optional package is missing: reading ``path``
     and (with ``out``) writing the animation back into a copy of it.
@@ -65,21 +60,20 @@ def check_character_route(path: str | os.PathLike, out: str | os.PathLike | None
     Raises
     ------
     MissingDependencyError
-        Naming what needs it and how to install it.
+        Naming what needs it and the install line that works (:func:`faceretarget.optional.install_line`).
     """
-    from ..errors import MissingDependencyError
-    from ..optional import has_module
+    from ..optional import has_module, require
 
     fmt = character_format(path)
     oext = Path(out).suffix.lower() if out is not None else ""
-    needs = []
-    if fmt == "blend" or (fmt == "fbx" and (oext in (".fbx", ".blend") or not has_module("ufbx"))):
-        needs.append(_BLENDER)
+    if fmt == "blend":
+        require(f"{path} (a Blender file, read by Blender)", "bpy")
+    if fmt == "fbx" and oext in (".fbx", ".blend"):
+        require(f"{out} (written back into the FBX character by Blender)", "bpy")
+    if fmt == "fbx" and not has_module("ufbx"):
+        require(f"{path} (an FBX character: ufbx, else Blender)", "bpy")
     if fmt == "usd":
-        needs.append(_USD)
-    for mod, what, how in needs:
-        if not has_module(mod):
-            raise MissingDependencyError(f"{path}: {what} need the '{mod}' package, not installed: {how}")
+        require(f"{path} (a USD character)", "pxr")
 
 
 def character_from_rig(rig: Rig, path: str | os.PathLike | None = None, route: str = "rig") -> Character:

@@ -620,7 +620,7 @@ def render_drawing(drawing: Drawing, points: np.ndarray, size: int = 512, *,
 
 
 def write_drawing_preview(path: str | os.PathLike, drawing: Drawing, points: np.ndarray, times: np.ndarray, *,
-                          size: int = 512, max_tiles: int = 12) -> Path:
+                          size: int = 512, max_tiles: int = 12, progress: bool = False) -> Path:
     """A picture of drawing frames: ``.png`` (a contact sheet of up to ``max_tiles`` frames evenly
     spread over the take, labelled with their times) or ``.mp4`` (every frame; needs PyAV, the
     ``preview`` extra).
@@ -633,6 +633,8 @@ def write_drawing_preview(path: str | os.PathLike, drawing: Drawing, points: np.
     times : (T,) float
     size : int
         Width of a frame in pixels.
+    progress : bool
+        A progress bar while the ``.mp4``'s frames are drawn and encoded (about 15 frames/s).
     """
     path = check_output_path(path)
     p, t = _check_frames(path, drawing, points, times)
@@ -647,11 +649,14 @@ def write_drawing_preview(path: str | os.PathLike, drawing: Drawing, points: np.
                             text_color=(20, 20, 20)) if len(idx) > 1 else tiles[0]
         return save_png(path, sheet)
     if ext == ".mp4":
+        from tqdm.auto import tqdm
+
         from ..timebase import infer_fps
         from ._video import write_video
 
         fps = infer_fps(t, default=30.0) if len(t) > 1 else 30.0
-        with atomic_path(path) as tmp:
-            write_video(tmp, (render_drawing(drawing, f, size, view=view) for f in p), fps)
+        with atomic_path(path) as tmp, tqdm(total=len(p), desc=f"drawing {path.name}", unit="frame",
+                                            disable=not progress, leave=False) as bar:
+            write_video(tmp, (render_drawing(drawing, f, size, view=view) for f in p), fps, on_frame=bar.update)
         return path
     raise OutputError(f"{path}: a drawing preview is a .png or an .mp4, not '{ext}'")

@@ -173,7 +173,7 @@ def write_usd(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     Raises
     ------
     MissingDependencyError
-        ``usd-core`` is not installed (``pip install 'faceretarget[usd]'``).
+        ``usd-core`` is not installed (the message says how: ``make usd``).
     InvalidDataError
         Wrong weight shape, non-finite weights, times that do not increase, a rig without key
         shapes, or a head pose with missing frames.

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
-from scipy.signal import find_peaks
 
 from ..headmotion import PitchTrack, Segmentation
 from ..headpose import HeadPose
@@ -60,6 +59,8 @@ def motion_beats(head: HeadPose, fps: float, *, sigma: float = 1.0 / 30.0,
     prom = rel_prominence * float(np.median(sp))
     if prom <= 0:
         return np.zeros(0)
+    from scipy.signal import find_peaks  # here, not at import: scipy.signal costs every command 0.5 s
+
     idx, _ = find_peaks(s, prominence=prom)
     return (idx + 0.5) / float(fps)  # speed k lies between frames k and k + 1
 
@@ -82,6 +83,8 @@ def pitch_peaks(track: PitchTrack, *, prominence: float = 1.0) -> np.ndarray:
     least ``prominence`` semitones of prominence within the run."""
     st = track.semitones()
     s, e = runs(np.isfinite(st))
+    from scipy.signal import find_peaks
+
     out = [track.times[a + find_peaks(st[a:b], prominence=prominence)[0]]
            for a, b in zip(s.tolist(), e.tolist(), strict=True)]
     return np.concatenate(out) if out else np.zeros(0)

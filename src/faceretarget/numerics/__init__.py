@@ -23,11 +23,12 @@ from ._bounded import (
     auto_weight_range,
     range_metric,
     solve_bounded,
+    solve_inequality,
     weight_range,
 )
 from ._denoise import denoise_take, estimate_noise_sigma, sure_whittaker
 from ._face import FACE_MAX_MM, MESH_FACE_MAX_MM, FaceMarkers, face_markers, face_mesh
-from ._nnls import extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
+from ._nnls import compile_kernels, extremes_removed, filter_cutoff_hz, solve_nnls, temporal_filter
 from ._rigid import AlignResult, RigidAligner, fit_rigid, select_rigid_markers, similarity_fit
 from ._rotations import blend_rotations, nearest_rotation
 from ._runs import runs
@@ -46,7 +47,7 @@ from ._selection import (
 from ._smooth import smoothstep
 
 __all__ = [
-    "solve_nnls", "solve_bounded", "range_metric", "weight_range", "auto_weight_range", "WeightRange", "FACS_RANGE",
+    "solve_nnls", "compile_kernels", "solve_bounded", "range_metric", "solve_inequality", "weight_range", "auto_weight_range", "WeightRange", "FACS_RANGE",
     "EXAMPLE_RANGE", "temporal_filter", "extremes_removed", "filter_cutoff_hz",
     "denoise_take", "estimate_noise_sigma", "sure_whittaker",
     "RigidAligner", "AlignResult", "fit_rigid", "similarity_fit", "select_rigid_markers", "nearest_rotation", "blend_rotations", "runs",

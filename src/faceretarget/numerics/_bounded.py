@@ -23,7 +23,7 @@ from ..errors import InvalidDataError
 from ..names import is_arkit, normalize_name
 from ._nnls import solve_nnls
 
-__all__ = ["solve_bounded", "range_metric", "weight_range", "auto_weight_range", "WeightRange", "FACS_RANGE", "EXAMPLE_RANGE"]
+__all__ = ["solve_bounded", "solve_inequality", "range_metric", "weight_range", "auto_weight_range", "WeightRange", "FACS_RANGE", "EXAMPLE_RANGE"]
 
 WeightRange = tuple[float, float]
 
@@ -164,3 +164,108 @@ def solve_bounded(K: np.ndarray, F: np.ndarray, lower, upper, *, smooth: float =
     W = V + lo
     np.copyto(W, hi, where=V >= hi - lo)                    # exactly at the bound (V + lo may round below)
     return np.clip(W, lo, hi)
+
+
+def solve_inequality(L: np.ndarray, W: np.ndarray, A: np.ndarray, lower, upper, *, offset=None,
+                     tol: float = 1e-9) -> np.ndarray:
+    """The blend nearest to each frame's weights whose linear values stay inside their ranges.
+
+    Per frame ``t``::
+
+        min_w  ||L (w - w_t)||^2    subject to    lower <= offset + A w <= upper
+
+    where ``offset + A w`` are values the weights drive linearly (a control table's slider values,
+    ``c0 + W @ (C - c0)``; a key set's ARKit curves, ``W @ U``).  Unlike a box on the weights
+    (:func:`solve_bounded`), these are general linear inequalities.  Frames already inside are
+    returned unchanged; the others are solved exactly as a least-distance programme (Lawson and
+    Hanson 1974, Ch. 23: ``z = L (w - w_t)`` with ``E z >= f_t``, through one NNLS of the
+    constraints' dual), a few hundred microseconds per frame with 40 keys and 104 inequalities.
+
+    Parameters
+    ----------
+    L : (N, N) float
+        The metric (:func:`range_metric` of the shapes the weights play: the target's geometry).
+    W : (T, N) or (N,) float
+        The solved weights.
+    A : (M, N) float
+        Value ``j`` of a frame is ``offset_j + A[j] @ w``.
+    lower, upper : float or (M,) float
+        The values' ranges (``-inf`` / ``inf``: no bound on that side).
+    offset : (M,) float, optional
+        The values at zero weights (default 0).
+    tol : float
+        Frames whose values are inside to ``tol`` (relative to each range's width, or absolute
+        for a one-sided range) are left as they are.
+
+    Returns
+    -------
+    (T, N) or (N,) float
+        Weights whose values are inside the ranges up to rounding (about 1e-12 of the shapes'
+        scale; clip the values when writing them).
+
+    Raises
+    ------
+    InvalidDataError
+        Shapes that do not agree, a range with ``lower > upper``, or ranges no blend can reach (a
+        value that no weight moves and that is outside its range).
+
+    Examples
+    --------
+    Two keys whose values are their sum and their difference, both kept in [0, 1]:
+
+    >>> A = np.array([[1.0, 1.0], [1.0, -1.0]])
+    >>> solve_inequality(np.eye(2), np.array([0.9, 0.4]), A, 0.0, 1.0).round(6).tolist()
+    [0.75, 0.25]
+    """
+    from scipy.linalg import solve_triangular
+    from scipy.optimize import nnls
+
+    L = np.asarray(L, dtype=np.float64)
+    A = np.atleast_2d(np.asarray(A, dtype=np.float64))
+    W = np.asarray(W, dtype=np.float64)
+    single = W.ndim == 1
+    W2 = np.atleast_2d(W)
+    N, M = W2.shape[1], A.shape[0]
+    if L.shape != (N, N) or A.shape[1] != N:
+        raise InvalidDataError(f"solve_inequality: L must be ({N}, {N}) and A ({M}, {N}) for weights of {N} "
+                               f"columns, got {L.shape} and {A.shape}")
+    try:
+        lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (M,)).copy()
+        hi = np.broadcast_to(np.asarray(upper, dtype=np.float64), (M,)).copy()
+        off = np.zeros(M) if offset is None else np.broadcast_to(np.asarray(offset, dtype=np.float64), (M,)).copy()
+    except ValueError:
+        raise InvalidDataError(f"solve_inequality: lower, upper and offset must be numbers or have one entry per "
+                               f"value ({M})") from None
+    if np.isnan(lo).any() or np.isnan(hi).any() or (lo > hi).any():
+        raise InvalidDataError("solve_inequality: every lower bound must be at most its upper bound")
+    width = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    slack = tol * np.maximum(width, 1e-300)
+    V = off + W2 @ A.T
+    bad = ((V < lo - slack) | (V > hi + slack)).any(axis=1)
+    out = W2.copy()
+    if bad.any():
+        # every bound as a row of G w >= h, then z = L (w - w_t): E z >= h - G w_t with E = G L^-1
+        has_lo, has_hi = np.isfinite(lo), np.isfinite(hi)
+        G = np.concatenate([A[has_lo], -A[has_hi]])
+        h = np.concatenate([lo[has_lo] - off[has_lo], off[has_hi] - hi[has_hi]])
+        Linv = solve_triangular(L, np.eye(N), lower=False) if np.allclose(L, np.triu(L)) else np.linalg.inv(L)
+        E = G @ Linv
+        norm = np.linalg.norm(E, axis=1)
+        moved = norm > 1e-12 * max(float(norm.max(initial=0.0)), 1e-300)
+        if not moved.all() and (h[~moved] > 0).any():
+            raise InvalidDataError("solve_inequality: a value that no weight moves is outside its range")
+        E, G, h = E[moved] / norm[moved, None], G[moved] / norm[moved, None], h[moved] / norm[moved]
+        Mt = np.vstack([E.T, np.zeros((1, len(E)))])         # (N + 1, m): the dual NNLS's matrix, last row f_t
+        b = np.zeros(N + 1)
+        b[N] = 1.0
+        for t in np.flatnonzero(bad):
+            f = h - G @ W2[t]
+            if f.max(initial=0.0) <= 0.0:
+                continue
+            Mt[N] = f
+            u, _ = nnls(Mt, b, maxiter=50 * Mt.shape[1])
+            r = Mt @ u - b
+            if abs(r[N]) < 1e-12:
+                raise InvalidDataError(f"solve_inequality: frame {t}: no blend keeps every value inside its range")
+            out[t] = W2[t] + Linv @ (-r[:N] / r[N])
+    return out[0] if single else out

@@ -29,7 +29,7 @@ LAPACK solve, so one step over the whole take is a few dozen LAPACK calls.
   run in chunks of 8 consecutive frames, each starting from the free set of the previous one
   (consecutive frames of a take share most of it).
 
-With ``numba`` installed (``pip install 'faceretarget[fast]'``) a compiled kernel
+With ``numba`` installed (``make fast``) a compiled kernel
 (:mod:`._nnls_numba`) solves the frames one after another instead, upper bounds included: bounded
 Lawson-Hanson (BVLS), each frame starting from the previous frame's point and sets, with the
 Cholesky factor of ``G`` on the free set updated (not recomputed) when a variable enters or
@@ -100,7 +100,7 @@ from scipy.linalg import cho_solve_banded, cholesky_banded
 from ..errors import FitWarning, InvalidDataError
 from ..optional import optional_import
 
-__all__ = ["solve_nnls", "temporal_filter", "extremes_removed", "filter_cutoff_hz"]
+__all__ = ["solve_nnls", "temporal_filter", "extremes_removed", "filter_cutoff_hz", "compile_kernels"]
 
 _RIDGE = 1e-13
 _INVERSE_COND = 1e10
@@ -625,6 +625,18 @@ def _lh(G: np.ndarray, H: np.ndarray | None, B: np.ndarray, ub: np.ndarray | Non
             nst[rows] = 0
             act = act[cur[act] < ends[act]]
     return W, Wfree, np.flatnonzero(stuck)
+
+
+def compile_kernels(verbose: bool = False) -> float:
+    """Compile the numba NNLS kernel now, or load it from numba's on-disk cache; the seconds it took.
+
+    The first whole-take solve on a machine otherwise waits about 15 s for the compiler (a terminal
+    is told after 1.5 s); ``make demo`` runs this once with ``verbose`` (one line).  Without numba
+    (the ``fast`` extra) nothing happens.
+    """
+    from . import _nnls_numba
+
+    return _nnls_numba.compile_kernels(verbose)
 
 
 def _use_compiled(backend: str) -> bool:
@@ -1502,7 +1514,7 @@ def solve_nnls(K: np.ndarray, F: np.ndarray, *, upper=None, l2: float = 0.0, l1:
     backend : {"auto", "numpy", "numba"}
         ``"auto"`` solves frame after frame with a compiled bounded Lawson-Hanson kernel
         warm-started from the previous frame (:mod:`._nnls_numba`) when ``numba`` is installed
-        (``pip install 'faceretarget[fast]'``; a probe hands dense, fast-changing weights to block
+        (``make fast``; a probe hands dense, fast-changing weights to block
         pivoting), else with the vectorised NumPy methods; ``"numpy"``: the NumPy methods;
         ``"numba"``: the kernel always (:class:`~faceretarget.errors.MissingDependencyError`
         without numba).  The results agree to rounding (the temporal term is NumPy's either way).

@@ -24,13 +24,16 @@ frame after frame in compiled code:
   is checked against the exact KKT conditions; a frame that fails is finished in exact mode (every
   solve refined, every gradient exact), so forming ``G = R'R`` costs no accuracy.
 
-Install with ``pip install 'faceretarget[fast]'``; without numba the NumPy path of :mod:`._nnls`
+Install with ``make fast`` (or ``pip install 'numba>=0.60'``); without numba the NumPy path of :mod:`._nnls`
 is used and the results are the same to rounding.
 """
 
 from __future__ import annotations
 
 import math
+import sys
+import threading
+import time
 
 import numpy as np
 
@@ -42,7 +45,10 @@ try:  # pragma: no cover - depends on the environment
 except MissingDependencyError:  # pragma: no cover
     numba = None
 
-__all__ = ["available", "box_frames"]
+__all__ = ["available", "box_frames", "compile_kernels", "COMPILE_NOTICE_AFTER"]
+
+#: Seconds a first call may spend compiling before a terminal is told why it waits.
+COMPILE_NOTICE_AFTER = 1.5
 
 AT_ZERO, FREE, AT_UPPER = 0, 1, 2
 
@@ -402,5 +408,38 @@ def box_frames(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None = None, *, ex
         R = np.ascontiguousarray(R, dtype=np.float64)
         C = np.ascontiguousarray(C, dtype=np.float64)
         on = True
-    return _box_frames(G, B, ub, R, C, float(ridge), float(l1), float(tol), int(max_iter), on, state,
-                       int(probe), float(max_solves))
+    args = (G, B, ub, R, C, float(ridge), float(l1), float(tol), int(max_iter), on, state, int(probe),
+            float(max_solves))
+    if _box_frames.signatures:                        # compiled (or loaded from numba's cache) in this process
+        return _box_frames(*args)
+    notice = threading.Timer(COMPILE_NOTICE_AFTER, _compile_notice)
+    notice.daemon = True
+    if sys.stderr is not None and sys.stderr.isatty():    # a person waiting at a terminal, not a log
+        notice.start()
+    try:
+        return _box_frames(*args)
+    finally:
+        notice.cancel()
+
+
+def _compile_notice() -> None:
+    sys.stderr.write("faceretarget: compiling the NNLS solver kernel with numba (first use only: about 15 s, "
+                     "cached afterwards)\n")
+    sys.stderr.flush()
+
+
+def compile_kernels(verbose: bool = False) -> float:
+    """Compile the kernel now (or load it from numba's on-disk cache) and return the seconds it took.
+
+    The first solve on a machine otherwise waits about 15 s for it; ``make demo`` calls this once,
+    with ``verbose``, so the wait is announced.  Without numba, nothing happens (0 s).
+    """
+    if numba is None:
+        return 0.0
+    t0 = time.perf_counter()
+    if verbose and not _box_frames.signatures:
+        print("compiling the NNLS solver kernel with numba (once: about 15 s, cached afterwards)", flush=True)
+    G = np.eye(2)
+    box_frames(G, np.ones((2, 2)), np.ones(2))
+    box_frames(G, np.ones((2, 2)), None, exact=(np.eye(2), np.ones((2, 2)), 0.0, 0.0))
+    return time.perf_counter() - t0

@@ -41,7 +41,15 @@ from ._animate import (
     parse_emotion,
     tracked_take,
 )
-from ._batch import BatchSummary, ClusterError, JobOutcome, local_cluster, read_manifest, run_batch
+from ._batch import (
+    CONNECT_TIMEOUT,
+    BatchSummary,
+    ClusterError,
+    JobOutcome,
+    local_cluster,
+    read_manifest,
+    run_batch,
+)
 from ._capture import (
     APPEARANCE_BYTES,
     appearance_memory,
@@ -94,9 +102,11 @@ from ._transfer import (
     MAX_TEMPORAL,
     Transfer,
     arkit_curves,
+    blender_timeline_note,
     check_result_path,
     clone_take,
     face_and_head_formats,
+    keep_arkit_range,
     result_head,
     retarget_take,
     source_geometry,
@@ -119,7 +129,7 @@ __all__ = [
     "animate", "AnimateResult", "tracked_take", "face_take", "face_frame", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
     "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES", "check_result_path", "MAX_TEMPORAL",
-    "target_weights",
+    "target_weights", "keep_arkit_range", "blender_timeline_note",
     "select_keys", "compose_keys", "key_geometry", "KeySelection", "KeyGeometry", "SELECTION_ALIASES",
     "check_face_take", "check_face_keys",
     "write_animation_preview", "TakeSampler",
@@ -127,6 +137,6 @@ __all__ = [
     "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "appearance_memory", "APPEARANCE_BYTES", "fit_style", "fit_speaker_style", "read_style_take", "build_head_database", "run_demo",
     "AppearanceStyleModel", "RestyledVideo", "fit_appearance_style", "restyle_video", "write_face_video",
     "composited_frames", "align_vector_takes", "speaker_edited_landmarks",
-    "run_batch", "read_jobs", "read_manifest", "local_cluster", "BatchSpec", "BatchSummary", "Job", "JobOutcome", "ClusterError",
+    "run_batch", "CONNECT_TIMEOUT", "read_jobs", "read_manifest", "local_cluster", "BatchSpec", "BatchSummary", "Job", "JobOutcome", "ClusterError",
     "OPERATIONS", "JOB_OPTIONS",
 ]

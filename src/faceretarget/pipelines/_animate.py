@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..capture import Capture, face_points, mouth_opening
-from ..errors import InvalidDataError
+from ..errors import InvalidDataError, StyleRangeWarning
 from ..headpose import HeadPose
 from ..names import is_arkit
 from ..performance import Performance
@@ -42,6 +43,7 @@ from ..retarget import LandmarkSolver, neutral_face, similarity_fit
 from ..rig import Rig
 from ..style import SpeakerStyleModel
 from ..timebase import infer_fps
+from ._progress import working
 
 __all__ = ["FACE_EYE_MM", "GAZE_DEG", "gaze_rotations", "animate", "AnimateResult", "tracked_take", "face_take",
            "face_frame", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks"]
@@ -298,20 +300,24 @@ def _alpha(keys: dict, times: np.ndarray) -> tuple[list[str], np.ndarray]:
 
 
 # --------------------------------------------------------------------------------------- head
-def _video_head(take: Performance, amplitude: float) -> HeadPose | None:
-    """The take's head pose about its rest (mean rotation, median position), scaled by ``amplitude``."""
+def _about_rest(head: HeadPose, amplitude: float, source: str) -> HeadPose:
+    """``head`` about its rest (mean rotation, median position), scaled by ``amplitude``: the motion the
+    character's head makes about its own rest pose."""
     from scipy.spatial.transform import Rotation
 
-    if take.head is None:
-        return None
-    head = take.head
     rot = head.rotation
     rel = rot.mean().inv() * rot
     tr = None
     if head.translation is not None:
         tr = (head.translation - np.nanmedian(head.translation, axis=0)) * amplitude
-    return HeadPose.from_rotation(Rotation.from_rotvec(rel.as_rotvec() * amplitude), tr,
-                                  source=f"{take.source} (tracked head)")
+    return HeadPose.from_rotation(Rotation.from_rotvec(rel.as_rotvec() * amplitude), tr, source=source)
+
+
+def _video_head(take: Performance, amplitude: float) -> HeadPose | None:
+    """The take's head pose about its rest (mean rotation, median position), scaled by ``amplitude``."""
+    if take.head is None:
+        return None
+    return _about_rest(take.head, amplitude, f"{take.source} (tracked head)")
 
 
 def _speech_head(db_path, audio, rate, times, amplitude: float, log) -> HeadPose:
@@ -323,8 +329,12 @@ def _speech_head(db_path, audio, rate, times, amplitude: float, log) -> HeadPose
     res = db.transform(np.asarray(audio, dtype=np.float64).reshape(len(audio), -1).mean(axis=1), rate,
                        amplitude=amplitude, seed=0, fps=infer_fps(times, default=30.0), source="speech")
     take = res.take
-    log(f"head motion synthesized from the speech: {res.info.segmentation.n_segments} segment(s)")
-    return take.head.resample(take.times, np.clip(times - times[0], take.times[0], take.times[-1]))
+    log(f"head motion synthesized from the speech: {res.info.segmentation.n_segments} segment(s), about the "
+        "character's rest pose")
+    # the database's motion is about its speakers' mean pose (a BVH neck may hold the head turned); the
+    # character's head moves about its own rest, as with the tracked head
+    head = take.head.resample(take.times, np.clip(times - times[0], take.times[0], take.times[-1]))
+    return _about_rest(head, 1.0, "speech (synthesized head)")
 
 
 #: The eye rotations (degrees) the tracker's ARKit gaze scores stand for at 1: looking out or in, up, down.
@@ -491,7 +501,8 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
             return sol.transform(points, prior, times).weights
 
         names = list(character.names)
-        W = solve(ftake.points)
+        with working(f"solving {len(ftake.times)} frames on {character.name}", progress):
+            W = solve(ftake.points)
         play = character
         own = None
     else:
@@ -530,9 +541,12 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
             else:
                 r = style_model.transform(ftake, e, 1.0, source=src if src != e else None, warn=False)
             blend += alpha[:, j:j + 1] * solve(r.take.points)
-            log(f"emotion '{e}': up to {alpha[:, j].max():.2f} of the face" +
-                ("" if not r.range.outside else f" ({r.range.frames_outside:.0%} of the restyled frames outside "
-                 "the training range)"))
+            log(f"emotion '{e}': up to {alpha[:, j].max():.2f} of the face")
+            if r.range.outside:                  # the same warning as 'restyle' gives (one line, by the CLI)
+                warnings.warn(f"emotion '{e}': the restyled take leaves the range of the style model's training "
+                              f"data by {r.range.score:.2f} of its width ({r.range.frames_outside:.0%} of frames "
+                              f"beyond {r.range.margin:g}); the face may be implausible (reduce the amount)",
+                              StyleRangeWarning, stacklevel=2)
         W = blend
         timings["emotion"] = time.perf_counter() - t0
 
@@ -558,8 +572,10 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
                         timings=timings, alpha=alpha, emotions=emotions, drive=drive)
     if out is not None:
         t0 = time.perf_counter()
+        log(f"writing {out}")
         if own is not None:                       # controls, skeleton, drawings: the target writes itself
-            res.outputs.append(own.write(out, res.weights[:, own.key_order(names)], res.times, log=log))
+            res.outputs.append(own.write(out, res.weights[:, own.key_order(names)], res.times, log=log,
+                                         progress=progress))
             log(f"wrote {out} ({len(res.times)} frames of the {own.kind} target)")
         elif drive is not None and _writes_back(drive.character, out):
             from ..io import write_character_animation
@@ -666,6 +682,12 @@ def _write(out, rig: Rig, res: AnimateResult, bake: bool, log) -> Path:
                     audio=res.audio, audio_rate=res.audio_rate, bake=bake)
     log(f"wrote {path} ({len(res.times)} frames, {len(res.names)} shapes"
         + (", head" if pose is not None else "") + ")")
+    if path.suffix.lower() == ".glb":
+        from ._transfer import blender_timeline_note
+
+        note = blender_timeline_note(path, res.times)
+        if note:
+            log(note)
     return path
 
 

@@ -53,11 +53,15 @@ import numpy as np
 
 from .. import __version__
 from ..errors import DataWarning, FaceRetargetError, InvalidDataError
-from ..optional import has_module, optional_import
+from ..optional import VIDEO_NEEDS, has_module, optional_import, output_needs, require
 from ._jobs import BatchSpec, Character, Job, read_jobs
+from ._progress import ticking
 
 __all__ = ["run_batch", "read_manifest", "local_cluster", "BatchSummary", "JobOutcome", "ClusterError",
-           "MANIFEST_FIELDS", "WORKER_CONFIG", "file_sha256"]
+           "MANIFEST_FIELDS", "WORKER_CONFIG", "file_sha256", "CONNECT_TIMEOUT"]
+
+#: Seconds ``--scheduler`` waits for the scheduler to answer (Dask's default is 30 s of silence).
+CONNECT_TIMEOUT = 5.0
 
 #: The fields of one manifest line (``batch.jsonl``), in order.
 MANIFEST_FIELDS = ("job", "status", "error", "operation", "character", "input", "output", "output_hash",
@@ -584,7 +588,8 @@ class _ModelFailed(Exception):
 @dataclass
 class JobOutcome:
     """What became of one job in this run: ``status`` is ``"ok"``, ``"failed"``, ``"skipped"`` (up to
-    date) or ``"not run"`` (the batch stopped first)."""
+    date: shown as "up to date") or ``"not run"`` (the batch stopped first); ``warnings``: the job's
+    warnings (and its model's), one line each, as the manifest records them."""
 
     job: Job
     status: str
@@ -592,6 +597,7 @@ class JobOutcome:
     frames: int | None = None
     seconds: float = 0.0
     output_hash: str | None = None
+    warnings: list = field(default_factory=list)
 
 
 @dataclass
@@ -640,6 +646,11 @@ class BatchSummary:
         """0 when every job succeeded or was up to date (or a dry run), else 1."""
         return 0 if self.dry_run or all(o.status in ("ok", "skipped") for o in self.outcomes) else 1
 
+    def warning_lines(self) -> list[str]:
+        """Each distinct warning of the jobs run, once, with how many jobs gave it (``"warning: ... (6 jobs)"``)."""
+        counts: Counter = Counter(w for o in self.outcomes for w in dict.fromkeys(o.warnings))
+        return [f"warning: {w} ({n} job{'s' if n > 1 else ''})" for w, n in counts.items()]
+
     def table(self) -> str:
         """Per character: jobs, run, up to date, failed, frames and seconds of the jobs run."""
         rows: dict[str, list] = {}
@@ -653,10 +664,11 @@ class BatchSummary:
             r[5] += o.seconds
         tot = [sum(r[i] for r in rows.values()) for i in range(6)]
         w = max([9] + [len(k) for k in rows])
-        head = f"{'character':<{w}} {'jobs':>6} {'run':>6} {'skipped':>8} {'failed':>7} {'frames':>9} {'seconds':>9}"
+        head = (f"{'character':<{w}} {'jobs':>6} {'run':>6} {'up to date':>10} {'failed':>7} {'frames':>9} "
+                f"{'seconds':>9}")
         lines = [head, "-" * len(head)]
         for k, r in list(rows.items()) + [("total", tot)]:
-            lines.append(f"{k:<{w}} {r[0]:>6} {r[1]:>6} {r[2]:>8} {r[3]:>7} {r[4]:>9} {r[5]:>9.1f}")
+            lines.append(f"{k:<{w}} {r[0]:>6} {r[1]:>6} {r[2]:>10} {r[3]:>7} {r[4]:>9} {r[5]:>9.1f}")
         return "\n".join(lines)
 
 
@@ -696,10 +708,12 @@ def _cluster(scheduler: str | None, workers: int | None, client, log) -> Iterato
         return
     distributed = optional_import("distributed", "batch processing (faceretarget batch)")
     if scheduler is not None:
+        log(f"connecting to the Dask scheduler at {scheduler} (up to {CONNECT_TIMEOUT:g} s)")
         try:
-            c = distributed.Client(scheduler)        # distributed.comm.timeouts.connect (30 s)
+            c = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT)     # Dask's default waits 30 s
         except (OSError, TimeoutError, ValueError) as e:
-            raise ClusterError(f"--scheduler {scheduler}: cannot connect ({_one_line(e)})") from None
+            raise ClusterError(f"--scheduler {scheduler}: cannot connect within {CONNECT_TIMEOUT:g} s "
+                               f"({_one_line(e)}); is a scheduler running there (dask scheduler)?") from None
         try:
             try:
                 c.wait_for_workers(1, timeout=60)
@@ -710,6 +724,7 @@ def _cluster(scheduler: str | None, workers: int | None, client, log) -> Iterato
         finally:
             c.close()
         return
+    log(f"starting a local Dask cluster: {workers or _cpu_count()} worker process(es)")
     cluster = local_cluster(workers)
     try:
         c = distributed.Client(cluster)
@@ -809,10 +824,11 @@ def run_batch(jobs: str | os.PathLike | BatchSpec, *, scheduler: str | None = No
     ClusterError
         ``scheduler`` unreachable, no worker, or the manifest locked by another batch.
     MissingDependencyError
-        Dask's ``distributed`` is not installed (``pip install 'faceretarget[batch]'``).
+        Dask's ``distributed`` is not installed (``make batch``; :func:`faceretarget.optional.install_line`).
     """
     t_start = time.perf_counter()
     spec = jobs if isinstance(jobs, BatchSpec) else read_jobs(jobs)
+    _require_packages(spec, cluster=not dry_run and client is None)
     run = uuid.uuid4().hex[:12]
     planned = _plan(spec, resume)
     todo = [p for p in planned if not p.up_to_date]
@@ -847,6 +863,25 @@ def run_batch(jobs: str | os.PathLike | BatchSpec, *, scheduler: str | None = No
     summary.outcomes = list(outcomes.values())
     summary.seconds = time.perf_counter() - t_start
     return summary
+
+
+def _require_packages(spec: BatchSpec, *, cluster: bool) -> None:
+    """Raise before anything runs when the batch needs an optional package that is not installed: Dask's
+    ``distributed`` (``cluster``), and what the jobs' outputs and video inputs need (``.blend`` /
+    ``.fbx``: bpy, ``.usd*``: usd-core, videos: MediaPipe, PyAV and the FaceLandmarker model)."""
+    from ._animate import VIDEO_EXTENSIONS
+
+    if cluster:
+        require("faceretarget batch (Dask's distributed scheduler)", "distributed")
+    seen = set()
+    for job in spec.jobs:
+        for name in output_needs(job.out):
+            if name not in seen:
+                seen.add(name)
+                require(f"{spec.path}: job {job.id} (output {job.out.name})", name)
+        if job.operation == "animate" and job.input.suffix.lower() in VIDEO_EXTENSIONS and "video" not in seen:
+            seen.add("video")
+            require(f"{spec.path}: job {job.id} (video {job.input.name}, face tracking)", *VIDEO_NEEDS)
 
 
 def _execute(distributed, client, todo: list[_Planned], outcomes: dict, manifest: _Manifest, run: str,
@@ -894,7 +929,9 @@ def _execute(distributed, client, todo: list[_Planned], outcomes: dict, manifest
 
     done = failed = 0
     stopped = None
-    with tqdm(total=len(todo), desc="batch", unit="job", disable=not progress, leave=True) as bar:
+    with tqdm(total=len(todo), desc="batch", unit="job", disable=not progress, leave=True) as bar, \
+            ticking(bar, progress):
+        bar.set_postfix_str("starting the workers, reading the rigs, fitting the models", refresh=False)
         while queue and len(active) < size():
             submit(queue.popleft())
         for fut in ac:
@@ -930,7 +967,7 @@ def _finish(p: _Planned, res: dict, run: str, manifest: _Manifest, outcomes: dic
     rec = _record(p, res, run)
     manifest.append(rec)
     outcomes[p.job.id] = JobOutcome(p.job, rec["status"], rec["error"], rec["frames"], rec["seconds"] or 0.0,
-                                    rec["output_hash"])
+                                    rec["output_hash"], list(rec["warnings"] or []))
     if rec["status"] == "ok":
         done += 1
     else:

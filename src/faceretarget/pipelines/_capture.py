@@ -70,6 +70,7 @@ def capture_take(video: str | os.PathLike, *, landmarker: str | os.PathLike | No
     if neutral_percentile is not None and not (np.isfinite(neutral_percentile) and 0 <= neutral_percentile <= 100):
         raise InvalidDataError(f"neutral_percentile must be in [0, 100], got {neutral_percentile}")
     t0, tm = time.perf_counter(), {}
+    log(f"tracking the face in {Path(video).name} (MediaPipe FaceLandmarker)")
     raw = track_video(video, model=landmarker, max_frames=max_frames, duration=duration, audio=audio,
                       progress=progress, timings=tm)
     _summary(raw, time.perf_counter() - t0, tm, log)

@@ -60,18 +60,22 @@ def _tracked_demo(ada, take, src: np.ndarray, head: HeadPose, noise_mm: float) -
                        weights=scores, names=list(take.names), head=head, source="ada (tracked)")
 
 
-def _source_video(path: Path, ada, src: np.ndarray, head: HeadPose, fps: float, size: int) -> None:
+def _source_video(path: Path, ada, src: np.ndarray, head: HeadPose, fps: float, size: int,
+                  progress: bool = False) -> None:
     """ada's take rendered with her head moving, as the "input video" of the preview."""
+    from tqdm.auto import tqdm
+
     from ..io import write_video
     from ..render import MeshRenderer
 
     with MeshRenderer(ada.neutral, (size, size), color=demo_vertex_colors("ada"),
-                      mm_per_unit=ada.mm_per_unit) as r:
+                      mm_per_unit=ada.mm_per_unit) as r, tqdm(total=len(src), desc="input video", unit="frame",
+                                                               disable=not progress, leave=False) as bar:
         R, T = head.as_matrix(), head.translation
-        write_video(path, (r.render(src[i], R[i], T[i]) for i in range(len(src))), fps)
+        write_video(path, (r.render(src[i], R[i], T[i]) for i in range(len(src))), fps, on_frame=bar.update)
 
 
-def _main_job(out: Path, ada, bo, take, src, truth, noise_mm: float, log) -> dict:
+def _main_job(out: Path, ada, bo, take, src, truth, noise_mm: float, log, progress: bool = False) -> dict:
     """The main job (:func:`animate`) on the procedural take, compared with the ground truth."""
     from ._animate import animate
 
@@ -80,13 +84,16 @@ def _main_job(out: Path, ada, bo, take, src, truth, noise_mm: float, log) -> dic
     try:
         import av  # noqa: F401  (the preview video needs PyAV)
         video = out / "ada_input.mp4"
-        _source_video(video, ada, src, head, take.fps, 384)
+        log(f"rendering ada's take as the input video ({video.name})")
+        _source_video(video, ada, src, head, take.fps, 384, progress)
         preview = out / "preview.mp4"
     except ImportError:
         video = preview = None
-        log("no preview video: PyAV is missing (pip install 'faceretarget[preview]'; make demo installs it)")
+        from ..optional import install_line
+
+        log(f"no preview video: PyAV is missing ({install_line('av')}; make demo installs it)")
     res = animate(tracked, bo, out=out / "animate.glb", preview=preview, preview_size=384,
-                  preview_video=video, log=log)
+                  preview_video=video, progress=progress, log=log)
     pred = bo.evaluate(res.weights)
     m = metrics(pred, truth, bo.neutral.vertices, bo)
     log(f"animate ada -> bo (bo's own shapes from the tracked landmarks, against bo driven by ada's true "
@@ -95,7 +102,8 @@ def _main_job(out: Path, ada, bo, take, src, truth, noise_mm: float, log) -> dic
     return {k: float(v) for k, v in m.items()} | {"mouth_corr": res.mouth_corr}
 
 
-def run_demo(out: Path, log=print, noise_mm: float = 0.5) -> int:
+def run_demo(out: Path, log=print, noise_mm: float = 0.5, progress: bool = False) -> int:
+    """The demo (module docstring) into ``out``; ``progress``: progress indicators for its longer steps."""
     t0 = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -106,11 +114,13 @@ def run_demo(out: Path, log=print, noise_mm: float = 0.5) -> int:
     src = ada.evaluate(ada.map_weights(take.names, take.weights, warn=False))
     truth = bo.evaluate(bo.map_weights(take.names, take.weights, warn=False))
     log(f"performance: {take.n_frames} frames at {take.fps:g} fps")
-    summary = {"animate": _main_job(out, ada, bo, take, src, truth, noise_mm, log)}
+    summary = {"animate": _main_job(out, ada, bo, take, src, truth, noise_mm, log, progress)}
     sk, tk, _ = keymodel_pair(ada, bo, "rom-20", rom=rom)
     log(f"key-models: 20 frames of a {rom.duration:.0f} s range-of-motion take (pivoted QR), on both characters")
     captured = add_capture_noise(src[:, ada.landmarks], noise_mm, ada.unit, seed=0)
-    rows, results = [], {}
+    results = {}
+    log("cloning ada -> bo through key-models, against ground truth (share of the motion that is wrong): the "
+        "paper's method (pyun), linear and the default (temporal)")
     for method in ("pyun", "linear", "temporal"):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")   # the procedural takes span fewer directions than 20 keys
@@ -119,16 +129,14 @@ def run_demo(out: Path, log=print, noise_mm: float = 0.5) -> int:
         pred = c.blend(w)
         m = metrics(pred, truth, bo.neutral.vertices, bo, target_keys=tk.deltas + bo.neutral.vertices)
         results[method] = {"weights": w, "pred": pred, "metrics": m}
-        rows.append(f"  {method:9s} rel_motion {m['rel_motion_pct']:6.2f} %   err (Eq. 12) {m['err_pct']:.4f} %   "
-                    f"mean vertex error {m['mve_mm']:.3f} mm   lips {m['lve_mm']:.2f} mm")
-    log("cloning ada -> bo through key-models, against ground truth (share of the motion that is wrong; oracle "
-        f"floor {results['temporal']['metrics']['oracle_rel_motion_pct']:.2f} %):")
-    for r in rows:
-        log(r)
+        log(f"  {method:9s} rel_motion {m['rel_motion_pct']:6.2f} %   err (Eq. 12) {m['err_pct']:.4f} %   "
+            f"mean vertex error {m['mve_mm']:.3f} mm   lips {m['lve_mm']:.2f} mm")
+    log(f"  (the best blend of the key-models, the oracle floor: {results['temporal']['metrics']['oracle_rel_motion_pct']:.2f} %)")
     best = results["temporal"]
     glb = out / "clone.glb"
     write_glb(glb, tk, best["weights"], take.times, names=list(tk.names), node_name="bo")
     frames = np.linspace(10, take.n_frames - 10, 5).astype(int)
+    log("rendering preview.png (source, paper, faceretarget, ground truth)")
     size = (220, 240)
     ca, cb = demo_vertex_colors("ada"), demo_vertex_colors("bo")
     src_imgs = list(render_frames(src[frames], ada.neutral, size, color=ca))

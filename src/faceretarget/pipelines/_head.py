@@ -44,6 +44,7 @@ def build_head_database(pairs: Sequence[tuple[str | os.PathLike, str | os.PathLi
         while name in used:
             name, k = f"{motion.stem}_{k}", k + 1
         used.add(name)
+        log(f"reading {audio.name} + {motion.name}")
         take = read_head_take(audio, motion, name=name, allow_mismatch=allow_mismatch)
         pitch = db.pitch(take.audio, take.audio_rate)
         n_voiced = int(np.isfinite(pitch.f0).sum())

@@ -237,7 +237,7 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
     out : path-like
         The ``.mp4`` to write (whole or not at all; never the input video).
     video : path-like
-        Any video FFmpeg reads (PyAV: ``pip install 'faceretarget[capture]'``).
+        Any video FFmpeg reads (PyAV: ``make preview``).
     rig : Rig
         The character.
     weights : (T, K) float

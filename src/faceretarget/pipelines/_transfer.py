@@ -31,7 +31,7 @@ from ._keys import check_face_keys, check_face_take
 
 __all__ = ["CHUNK_FRAMES", "source_geometry", "clone_take", "retarget_take", "write_result", "Transfer",
            "result_head", "arkit_curves", "HEAD_CHOICES", "face_and_head_formats", "check_result_path",
-           "MAX_TEMPORAL", "target_weights"]
+           "MAX_TEMPORAL", "target_weights", "keep_arkit_range", "blender_timeline_note"]
 
 #: The ``head`` choices of :func:`write_result` besides a head-motion file, a take or a pose.
 HEAD_CHOICES = ("auto", "off")
@@ -284,15 +284,68 @@ def arkit_curves(transfer: Transfer, *, path: str | os.PathLike = "result",
     if isinstance(model, BlendshapeRetargeter):
         W, names = model.key_weights(W), list(model.names_)
     if all(_is_arkit(n) for n in names):
+        W = keep_arkit_range(W, names, rig=keys, what=str(path), log=log)
         return W, [normalize_name(n) for n in names]
     if keys.basis is not None and all(_is_arkit(n) for n in keys.basis_names) and all(n in keys for n in names):
         log(f"converted {len(names)} key weights of '{keys.name}' to {len(keys.basis_names)} ARKit curves "
             "(weights @ the keys' ARKit weight vectors)")
-        return keys.to_basis(W, names), list(keys.basis_names)
+        idx = [keys.index(n) for n in names]
+        W = _solve_in_unit_range(W, keys.basis[idx].T, keys.deltas[idx].reshape(len(idx), -1).T, str(path),
+                                 "ARKit curves", list(keys.basis_names), "blend of the keys", log)
+        return np.clip(keys.to_basis(W, names), 0.0, 1.0), list(keys.basis_names)
     bad = next(n for n in names if not _is_arkit(n))
     raise OutputError(f"{path}: a Live Link Face CSV holds ARKit curves, but the target keys '{keys.name}' "
                       f"('{bad}', ...) are neither ARKit shapes nor defined by ARKit weight vectors; write "
                       ".glb, .npz or .blend instead")
+
+
+def _solve_in_unit_range(W: np.ndarray, A: np.ndarray, shapes: np.ndarray | None, what: str, values: str,
+                         value_names: Sequence[str], blend: str, log: Callable[..., None]) -> np.ndarray:
+    """``W`` ``(T, K)`` with every frame whose values ``W @ A.T`` leave [0, 1] solved again: the nearest
+    weights in the metric of ``shapes`` ``(P, K)`` (identity when None) whose values are inside
+    (:func:`~faceretarget.numerics.solve_inequality`), with one log line when any frame was."""
+    from ..numerics import range_metric, solve_inequality
+
+    V = W @ A.T
+    bad = (V < -1e-9) | (V > 1.0 + 1e-9)            # beyond rounding (a clip writes those)
+    if not bad.any():
+        return W
+    j = int(np.argmax(bad.sum(axis=0)))
+    L = range_metric(shapes) if shapes is not None else np.eye(W.shape[1])
+    out = solve_inequality(L, W, A, 0.0, 1.0)
+    frames = int((out != W).any(axis=1).sum())
+    log(f"{what}: {values} kept in [0, 1], ARKit's range: {int(bad.sum())} values ({bad.mean():.1%}) were outside "
+        f"as solved ({V.min():.3f} .. {V.max():.3f}; most often '{value_names[j]}'), so {frames} of {len(W)} frames were "
+        f"solved again as the nearest {blend} inside it{' in the rig' + chr(39) + 's geometry' if shapes is not None else ''}")
+    return out
+
+
+def keep_arkit_range(weights: np.ndarray, names: Sequence[str], *, rig: Rig | None = None, what: str = "weights",
+                     log: Callable[..., None] = _quiet) -> np.ndarray:
+    """ARKit-named weights ``(T, K)`` kept in [0, 1], ARKit's range, as every ARKit consumer plays them.
+
+    Frames with a weight outside are solved again: the nearest in-range weights in the geometry of
+    ``rig``'s shapes of those names (when given; else each weight clipped), with one log line saying
+    how many values were outside.  Weights of names that are not ARKit shapes are left as they are.
+
+    Returns
+    -------
+    (T, K) float
+        A copy (or ``weights`` itself when nothing was outside).
+    """
+    W = np.asarray(weights, dtype=np.float64)
+    arkit = np.array([_is_arkit(n) for n in names])
+    if not arkit.any():
+        return W
+    A = np.eye(len(names))[arkit]
+    shapes = None
+    if rig is not None:                     # each name's shape on the rig (zero for a name it has no shape of)
+        drive = rig.map_weights(list(names), np.eye(len(names)), warn=False)
+        shapes = (drive @ rig.deltas.reshape(rig.n_shapes, -1)).T
+    out = _solve_in_unit_range(W, A, shapes, what, "ARKit weights", [n for n, a in zip(names, arkit, strict=True) if a],
+                               "weights", log).copy()
+    out[:, arkit] = np.clip(out[:, arkit], 0.0, 1.0)          # rounding (1e-12) of the solve, or of the input
+    return out
 
 
 def _own_target(transfer: Transfer) -> Target | None:
@@ -425,7 +478,8 @@ def check_result_path(path: str | os.PathLike, *, keys: Rig | None = None, bake:
 
 
 def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", bake: bool = False,
-                 character=None, neck_share: float = 0.0, log: Callable[..., None] = _quiet) -> Path:
+                 character=None, neck_share: float = 0.0, progress: bool = False,
+                 log: Callable[..., None] = _quiet) -> Path:
     """Write a cloned or retargeted take in the format ``path`` asks for.
 
     ``.glb`` holds the target keys as morph targets and the weights as their animation, with the
@@ -452,6 +506,8 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
         (:func:`arkit_curves`) on the character's shapes and the head motion on its head joint.
     neck_share : float
         With ``character``: the share of the head rotation its neck joint takes.
+    progress : bool
+        A progress bar for outputs that take seconds to draw (a drawing's ``.mp4``).
 
     Raises
     ------
@@ -469,6 +525,9 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
     res, model = transfer.result, transfer.model
     has_head = own.holds_head(path) if own is not None else holds_head(path)
     pose, explicit = result_head(transfer, head)
+    if pose is not None and not explicit and not pose.moves():
+        log(f"the take's head pose never moves (its head columns are all zero): {path.name} gets no head motion")
+        pose = None
     if pose is not None and not has_head:
         if explicit:
             ok = ", ".join(face_and_head_formats())
@@ -480,7 +539,7 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
                  curves=res.curves, curve_names=list(res.curve_names) if res.curves is not None else None)
     if own is not None:
         extra = dict(clock, audio=res.audio, audio_rate=res.audio_rate) if own.kind == "controls" else {}
-        out = own.write(path, target_weights(transfer), res.times, head=pose, log=log, **extra)
+        out = own.write(path, target_weights(transfer), res.times, head=pose, log=log, progress=progress, **extra)
         log(f"wrote {path} ({len(res.times)} frames of the {own.kind} target, {own.n_keys} keys"
             f"{', head motion' if pose is not None else ''})")
         return out
@@ -497,6 +556,10 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
     note = None if bake else _slider_note(path, res.weights)
     if note:
         log(note)
+    if path.suffix.lower() == ".glb":
+        note = blender_timeline_note(path, res.times)
+        if note:
+            log(note)
     return out
 
 
@@ -513,6 +576,26 @@ def _write_back(path: Path, transfer: Transfer, drive, head, neck_share: float, 
                                     audio=res.audio, audio_rate=res.audio_rate, neck_share=neck_share, log=log)
     log(f"wrote {path} ({len(res.times)} frames of {len(names)} ARKit curves on {drive.character.name}'s own shapes)")
     return out
+
+
+#: What Blender's glTF importer leaves the scene at: 24 frames/s, frames 1 to 250 (10.4 s).
+_BLENDER_DEFAULT_FPS, _BLENDER_DEFAULT_END = 24.0, 250
+
+
+def blender_timeline_note(path: str | os.PathLike, times: np.ndarray) -> str | None:
+    """One line when a ``.glb`` take would not play whole in Blender's default scene (24 frames/s, frames
+    1-250): Blender keeps the keys at their times but plays only the scene's range."""
+    times = np.asarray(times, dtype=np.float64)
+    if times.size < 2:
+        return None
+    span = float(times[-1] - times[0])
+    shown = (_BLENDER_DEFAULT_END - 1) / _BLENDER_DEFAULT_FPS
+    if span <= shown + 1e-9:
+        return None
+    return (f"note: Blender opens {Path(path).name} in its default scene (24 fps, frames 1-250), which plays the "
+            f"first {shown:.1f} s of this {span:.1f} s take: set the scene's end frame to "
+            f"{int(np.ceil(span * _BLENDER_DEFAULT_FPS)) + 1} there, or write {Path(path).with_suffix('.blend').name} "
+            "(the take's own rate and frame range)")
 
 
 #: Formats with a baked (mesh points per frame) variant.

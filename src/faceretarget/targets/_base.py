@@ -161,5 +161,7 @@ class MeshTarget(Target):
     def write(self, path, weights, times, *, head=None, log=_quiet, **extra) -> Path:
         from ..io import write_animation
 
+        extra.pop("progress", None)
+
         return write_animation(path, rig=self.rig, weights=weights, names=list(self.rig.names), times=times,
                                head=head, **extra)

@@ -13,14 +13,14 @@ from ..errors import DataWarning, InvalidDataError, OutputError
 from ..io import ControlTable, holds_head, write_animation, write_control_curves
 from ..mesh import Mesh
 from ..names import ARKIT_NAMES, normalize_name, split_parent
-from ..numerics import range_metric, solve_bounded
+from ..numerics import range_metric, solve_bounded, solve_inequality
 from ..rig import Rig
 from ._base import Target, _quiet
 
 __all__ = ["ControlTarget", "RangeReport", "CONTROL_RANGES"]
 
-#: What a :class:`ControlTarget` does with controls outside their declared ranges.
-CONTROL_RANGES = ("report", "clip", "project")
+#: What a :class:`ControlTarget` does with controls outside their declared ranges (the first is the default).
+CONTROL_RANGES = ("solve", "report", "clip", "project")
 
 #: Formats written from the curves alone (``.csv``: Live Link Face for ARKit controls, else ``time,<controls>``).
 _CURVE_FORMATS = (".csv", ".json")
@@ -56,7 +56,7 @@ class RangeReport:
     worst: str
     worst_outside_pct: float
     max_excess: float
-    ranges: str = "report"
+    ranges: str = "solve"
 
     def line(self) -> str:
         s = (f"controls inside their declared range: {self.inside_pct:.2f} % of the values, "
@@ -65,7 +65,8 @@ class RangeReport:
             s += (f"; most often outside: '{self.worst}' ({self.worst_outside_pct:.1f} % of the frames), "
                   f"largest excess {self.max_excess:.3g}")
             s += {"report": " (written as solved)", "clip": "; written clipped to the ranges",
-                  "project": "; written as the nearest in-range controls (in the rig's metric)"}[self.ranges]
+                  "project": "; written as the nearest in-range controls (in the rig's metric)",
+                  "solve": "; solved again inside the ranges"}[self.ranges]
         return s
 
 
@@ -85,19 +86,24 @@ class ControlTarget(Target):
     rig : Rig, optional
         The target rig's shapes (for ``.glb`` / ``.usd`` / ``.blend`` / ``.fbx`` / ``.npz`` output
         and previews); each control must drive one of its shapes.
-    ranges : {"report", "clip", "project"}
-        What happens to controls outside their declared ranges; the share outside as solved is
-        reported in every case (:meth:`range_report`).  ``"report"`` (default): written as solved,
-        so the curves play exactly the faces of a mesh target of the same keys; ``"clip"``: each
-        control clipped to its range; ``"project"``: per frame, the in-range controls whose face is
-        nearest to the solved one (box-constrained least squares in the rig's shapes,
-        :func:`~faceretarget.numerics.solve_bounded`; in the controls scaled by their ranges without
-        a rig), so other controls make up for a clipped one.
+    ranges : {"solve", "report", "clip", "project"}
+        What happens to controls outside their declared ranges; the share outside as first solved
+        is reported in every case (:meth:`range_report`).  ``"solve"`` (default): the key weights of
+        every frame whose controls leave a range are solved again, the blend of the keys nearest to
+        the solved one in the target's geometry (the metric the solvers keep weights in range in)
+        whose controls ``c0 + w @ (C - c0)`` are all inside their ranges
+        (:func:`~faceretarget.numerics.solve_inequality`, a linear-inequality least-squares per
+        frame); the curves are still a blend of the keys, so they play exactly the faces of a mesh
+        target of the same keys driven by those weights (:meth:`key_weights`).  ``"report"``:
+        written as first solved; ``"clip"``: each control clipped to its range; ``"project"``: per
+        frame, the in-range controls whose face is nearest to the solved one (box-constrained least
+        squares in the rig's shapes, :func:`~faceretarget.numerics.solve_bounded`; in the controls
+        scaled by their ranges without a rig), no longer a blend of the keys.
     """
 
     kind = "controls"
 
-    def __init__(self, table: ControlTable, rig: Rig | None = None, *, ranges: str = "report") -> None:
+    def __init__(self, table: ControlTable, rig: Rig | None = None, *, ranges: str = "solve") -> None:
         super().__init__(table.source, table.keys, table.rows)
         if ranges not in CONTROL_RANGES:
             raise InvalidDataError(f"control ranges must be one of {', '.join(CONTROL_RANGES)}, got {ranges!r}")
@@ -126,8 +132,8 @@ class ControlTarget(Target):
                                        "...); name the columns like the rig's shapes")
             if dead:
                 warnings.warn(f"{table.source}: control(s) {', '.join(dead[:8])} drive no shape of the rig '{rig.name}': "
-                              "their curves are written but the rig's shapes do not show them", DataWarning,
-                              stacklevel=2)
+                              "the rig's shapes do not show them (control curves, .csv / .json, still hold them)",
+                              DataWarning, stacklevel=2)
             self._drive = drive
             shapes = drive @ rig.deltas.reshape(rig.n_shapes, -1)                   # (M, 3V) per control
             rest = rig.evaluate(table.neutral @ drive)
@@ -145,6 +151,8 @@ class ControlTarget(Target):
             self.formats = _CURVE_FORMATS
             shapes = np.diag(1.0 / span)
         self._metric = range_metric(shapes.T) if ranges == "project" else None
+        self._key_metric = (range_metric(self._keys.deltas.reshape(self._keys.n_shapes, -1).T) if ranges == "solve"
+                            else None)
 
     @property
     def solve_keys(self) -> Rig:
@@ -160,13 +168,27 @@ class ControlTarget(Target):
         W = self._weights(weights)
         return self.table.neutral + W @ self._offsets
 
+    def key_weights(self, weights: np.ndarray) -> np.ndarray:
+        """The key weights ``(T, K)`` the curves are a blend of: with ``ranges="solve"`` every frame
+        whose controls leave a range solved again inside them (:class:`ControlTarget`), else ``weights``."""
+        W = self._weights(weights)
+        if self.ranges != "solve":
+            return W
+        return solve_inequality(self._key_metric, W, self._offsets.T, self.table.lo, self.table.hi,
+                                offset=self.table.neutral)
+
     def params(self, weights: np.ndarray) -> np.ndarray:
         """Control curves ``(T, M)``: :meth:`solved`, then brought into the ranges as ``ranges`` says."""
+        if self.ranges == "solve":          # a blend of the keys inside the ranges (up to rounding: clipped)
+            return np.clip(self.solved(self.key_weights(weights)), self.table.lo, self.table.hi)
         return self.in_ranges(self.solved(weights))
 
     def in_ranges(self, controls: np.ndarray) -> np.ndarray:
-        """``controls`` ``(T, M)`` after the ``ranges`` policy (unchanged for ``"report"``)."""
+        """``controls`` ``(T, M)`` after the ``ranges`` policy (unchanged for ``"report"``; ``"solve"``
+        works on the key weights, :meth:`params`)."""
         c = np.atleast_2d(np.asarray(controls, dtype=np.float64))
+        if self.ranges == "solve":
+            raise InvalidDataError("ranges='solve' solves the key weights again: use params(weights)")
         lo, hi = self.table.lo, self.table.hi
         if self.ranges == "clip":
             return np.clip(c, lo, hi)
@@ -217,21 +239,33 @@ class ControlTarget(Target):
         ``audio_rate`` and ``bake`` to the animation writers that hold them.
         """
         path = self.check_output(path)
+        extra.pop("progress", None)
         raw = self.solved(weights)
         rep = self.range_report(raw)
-        log(rep.line())
-        if self.ranges == "report" and rep.inside_pct < 99.0:
-            log(f"note: {100 - rep.inside_pct:.1f} % of the control values are outside their ranges as solved; a rig "
-                "that clamps its sliders will not play them as solved: --control-ranges project writes the "
-                "nearest in-range controls (on P1 also slightly more accurate), clip clips them")
-        c = self.in_ranges(raw)
+        if self.ranges == "solve":
+            W = self._weights(weights)
+            Wk = self.key_weights(W)
+            again = int((Wk != W).any(axis=1).sum())
+            c = np.clip(self.solved(Wk), self.table.lo, self.table.hi)        # = params(W)
+            log(f"controls inside their declared ranges: {self.range_report(c).inside_pct:.2f} % of the values; "
+                f"{again} of {len(W)} frames solved again inside the ranges (the nearest blend of the keys in the "
+                f"target's geometry; {rep.inside_pct:.2f} % of the values were inside as first solved)")
+        else:
+            log(rep.line())
+            if self.ranges == "report" and rep.inside_pct < 99.0:
+                log(f"note: {100 - rep.inside_pct:.1f} % of the control values are outside their ranges as written; a "
+                    "rig that clamps its sliders will not play them: the default --control-ranges solve keeps them "
+                    "inside")
+            c = self.in_ranges(raw)
         ext = self.output_ext(path)
         if ext == ".json" or (ext == ".csv" and not self.arkit):
             return write_control_curves(path, times, c, self.controls)
         if ext == ".csv":
             keep = {k: v for k, v in extra.items() if k in ("timecode", "timecode_rate", "curves", "curve_names")}
             return write_animation(path, weights=c, names=self.controls, times=times, head=head, **keep)
-        return write_animation(path, rig=self.rig, weights=c, names=self.controls, times=times, head=head, **extra)
+        live = np.abs(self._drive).any(axis=1)      # controls that drive none of the rig's shapes were warned about
+        return write_animation(path, rig=self.rig, weights=c[:, live], names=[n for n, k in zip(self.controls, live,
+                               strict=True) if k], times=times, head=head, **extra)
 
 
 def _rig_formats() -> list[str]:

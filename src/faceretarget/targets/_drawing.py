@@ -82,8 +82,8 @@ class DrawingTarget(Target):
     def write(self, path: str | os.PathLike, weights: np.ndarray, times: np.ndarray, *, head=None,
               log=_quiet, **extra) -> Path:
         """Write the animated drawing: ``.svg`` (SMIL, one file), a folder (one SVG per frame), ``.png``
-        (a contact sheet of frames), ``.mp4`` (every frame; PyAV) or ``.npz`` (``points`` ``(T, N, 2)``
-        and ``times``)."""
+        (a contact sheet of frames), ``.mp4`` (every frame; PyAV; ``progress=True`` in ``extra`` shows a
+        progress bar) or ``.npz`` (``points`` ``(T, N, 2)`` and ``times``)."""
         path = self.check_output(path)
         P = self.params(weights)
         ext = self.output_ext(path)
@@ -93,4 +93,4 @@ class DrawingTarget(Target):
             return write_svg_frames(path, self.neutral, P, times)
         if ext == ".npz":
             return save_npz_arrays(path, {"points": P, "times": np.asarray(times, dtype=np.float64)})
-        return write_drawing_preview(path, self.neutral, P, times)
+        return write_drawing_preview(path, self.neutral, P, times, progress=bool(extra.get("progress")))

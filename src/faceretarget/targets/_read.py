@@ -98,7 +98,7 @@ def _glb_as_bvh(path: Path) -> tuple[Bvh, str]:
 
 
 def read_target(path: str | os.PathLike, *, rig: Rig | None = None, frames=None, neutral=None,
-                landmarks=None, unit: str | None = None, ranges: str = "report") -> Target:
+                landmarks=None, unit: str | None = None, ranges: str = "solve") -> Target:
     """Read the target keys at ``path`` (:func:`target_kind` decides how).
 
     Parameters
@@ -119,7 +119,7 @@ def read_target(path: str | os.PathLike, *, rig: Rig | None = None, frames=None,
         A mesh folder's landmark index file.
     unit : str, optional
         A skeleton's length unit (default ``cm`` for BVH, ``m`` for glTF).
-    ranges : {"report", "clip", "project"}
+    ranges : {"solve", "report", "clip", "project"}
         What a control target does with controls outside their declared ranges (:class:`ControlTarget`).
 
     Raises
