@@ -319,6 +319,8 @@ def load_character(character, *, landmarks: str | os.PathLike | None = None, mes
     else:
         path = Path(character)
         ch = read_character(path, prefer=prefer)
+        log(f"read {path.name} ({ch.route}): {len(ch.meshes)} mesh(es), {len(ch.joints)} joint(s) in "
+            f"{time.perf_counter() - t0:.1f} s")
     timings = {"read": time.perf_counter() - t0}
     if not ch.face_meshes():
         raise MissingShapeError(ch.no_shapes_message())
@@ -343,6 +345,7 @@ def load_character(character, *, landmarks: str | os.PathLike | None = None, mes
 def _search(ch: Character, tracker, log) -> None:
     from ..capture import find_landmarks
 
+    log(f"landmarks: looking for the face on renders of '{ch.meshes[ch.primary].name}' (once: then cached)")
     res = find_landmarks(ch, tracker=tracker, log=log)
     ch.landmarks = res.landmarks
     ch.up, ch.front = res.up, res.front
