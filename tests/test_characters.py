@@ -267,6 +267,30 @@ def test_fbx_by_ufbx_equals_blender_importer(chars):
                                @ BLENDER_AXES.T, atol=2e-5)
 
 
+def test_slow_reads_are_cached_by_content(tmp_path, chars, monkeypatch):
+    """An .fbx read out of process is kept by its SHA-256: read back the same, fast; a damaged entry or an
+    edited file is read again."""
+    monkeypatch.setenv("FACERETARGET_CACHE", str(tmp_path / "cache"))
+    src = tmp_path / "rb.fbx"
+    shutil.copyfile(chars / "rocketbox" / "Female_Adult_01_facial.fbx", src)
+    a = load_character(src, find=False)
+    entries = list((tmp_path / "cache" / "characters").glob("*.pickle"))
+    assert len(entries) == 1
+    lines = []
+    b = load_character(src, find=False, log=lines.append)
+    assert any("from the cache" in ln for ln in lines) and b.timings["read"] < 0.5
+    assert b.path == src and b.meshes[0].shape_names == a.meshes[0].shape_names
+    np.testing.assert_array_equal(b.meshes[0].deltas, a.meshes[0].deltas)
+    entries[0].write_bytes(b"not a pickle")
+    lines = []
+    c = load_character(src, find=False, log=lines.append)
+    assert not any("from the cache" in ln for ln in lines) and c.meshes[0].n_shapes == 175
+    with open(src, "ab") as f:                   # another file: another entry
+        f.write(b"\0" * 16)
+    load_character(src, find=False)
+    assert len(list((tmp_path / "cache" / "characters").glob("*.pickle"))) == 2
+
+
 # ------------------------------------------------------------------------------------------ shapes
 def test_shape_choice_arkit_visemes_names_and_duplicates():
     names = ["blendShape1.AK_25_JawOpen", "blendShape1.SR_21_Jaw_Open", "blendShape1.AA_VI_10_aa", "Fcl_MTH_A",

@@ -19,6 +19,14 @@ takes)::
      "triangles": [[a, b, c], ...68], "bary": [[u, v, w], ...68], "up": [0, 1, 0], "front": [0, 0, 1],
      "source": "found on a render"}
 
+The read cache
+--------------
+The readers that run outside this process (``.fbx`` through ufbx in a child process, ``.fbx`` / ``.blend``
+through Blender) take about a second before any work; what they read is kept in
+``$FACERETARGET_CACHE/characters/<sha256>-<route>.pickle`` (never beside the file: it holds every shape)
+and read back when the file's SHA-256 and the reader's own code are unchanged.  ``cache=False`` (or
+deleting the folder) reads the file again.
+
 ``--landmarks FILE.txt`` takes 68 vertex indices of the face mesh (``landmarks68.txt``'s layout) or 68
 lines of ``x y z`` (metres, the file's world frame), each put on the nearest point of the face mesh.
 """
@@ -95,6 +103,56 @@ def landmark_cache_path(path: str | os.PathLike, sha: str | None = None, *, for_
             return beside
     sha = sha or _sha256(p)
     return _cache_dir() / "landmarks" / f"{sha}.json"
+
+
+#: Formats whose reader runs out of process: what they read is cached (module docstring).
+SLOW_READ = (".fbx", ".blend")
+READ_CACHE_FORMAT = "faceretarget.character-read/1"
+
+
+def _reader_code_hash() -> str:
+    """A digest of the code that makes a character from a file: a change to it invalidates the read cache."""
+    from .. import character as _c
+    from ..io import _blender_scene, _character, _fbx_scene
+
+    h = hashlib.sha256(READ_CACHE_FORMAT.encode())
+    for mod in (_c, _character, _fbx_scene, _blender_scene):
+        h.update(Path(mod.__file__).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _read_cache_path(sha: str, prefer: str | None) -> Path:
+    return _cache_dir() / "characters" / f"{sha}-{prefer or 'auto'}-{_reader_code_hash()}.pickle"
+
+
+def _read_character_cached(path: Path, prefer: str | None, cache: bool, log) -> tuple[Character, str | None]:
+    """``read_character(path)``, through the read cache for the slow routes; also the file's SHA-256 when it
+    was computed."""
+    import pickle
+
+    from ..io import read_character
+
+    if not (cache and path.is_file() and path.suffix.lower() in SLOW_READ):
+        return read_character(path, prefer=prefer), None
+    sha = _sha256(path)
+    cand = _read_cache_path(sha, prefer)
+    if cand.is_file():
+        try:
+            ch = pickle.loads(cand.read_bytes())
+        except Exception:  # a damaged or foreign cache entry is read again from the file
+            ch = None
+        if isinstance(ch, Character):
+            ch.path = path
+            log(f"read {path.name} from the cache {cand}")
+            return ch, sha
+    ch = read_character(path, prefer=prefer)
+    try:
+        cand.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(cand) as tmp:
+            Path(tmp).write_bytes(pickle.dumps(ch, protocol=pickle.HIGHEST_PROTOCOL))
+    except OSError:
+        pass                                    # no writable cache folder: the file is read again next time
+    return ch, sha
 
 
 def _read_cache(character: Character, path: Path, sha: str, log) -> bool:
@@ -290,7 +348,7 @@ def load_character(character, *, landmarks: str | os.PathLike | None = None, mes
     find : bool
         Search the landmarks on a render when neither the file, ``landmarks`` nor the cache gives them.
     cache : bool
-        Read and write the landmark cache.
+        Read and write the landmark cache and the read cache (module docstring).
 
     Returns
     -------
@@ -307,9 +365,10 @@ def load_character(character, *, landmarks: str | os.PathLike | None = None, mes
     InvalidDataError
         Two heads and no ``mesh``.
     """
-    from ..io import character_from_rig, read_character
+    from ..io import character_from_rig
 
     t0 = time.perf_counter()
+    sha = None
     if isinstance(character, Character):
         ch = character
         path = ch.path
@@ -318,7 +377,7 @@ def load_character(character, *, landmarks: str | os.PathLike | None = None, mes
         path = None
     else:
         path = Path(character)
-        ch = read_character(path, prefer=prefer)
+        ch, sha = _read_character_cached(path, prefer, cache, log)
         log(f"read {path.name} ({ch.route}): {len(ch.meshes)} mesh(es), {len(ch.joints)} joint(s) in "
             f"{time.perf_counter() - t0:.1f} s")
     timings = {"read": time.perf_counter() - t0}
@@ -330,7 +389,7 @@ def load_character(character, *, landmarks: str | os.PathLike | None = None, mes
         ch.landmarks = read_landmark_file(ch, landmarks)
         log(f"landmarks: read from {landmarks}")
     elif ch.landmarks is None and path is not None:
-        sha = _sha256(path)
+        sha = sha or _sha256(path)
         if not (cache and _read_cache(ch, path, sha, log)) and find:
             _search(ch, tracker, log)
             if cache:
