@@ -112,12 +112,12 @@ READ_CACHE_FORMAT = "faceretarget.character-read/1"
 
 def _reader_code_hash() -> str:
     """A digest of the code that makes a character from a file: a change to it invalidates the read cache."""
-    from .. import character as _c
-    from ..io import _blender_scene, _character, _fbx_scene
+    from .. import character, io
 
     h = hashlib.sha256(READ_CACHE_FORMAT.encode())
-    for mod in (_c, _character, _fbx_scene, _blender_scene):
-        h.update(Path(mod.__file__).read_bytes())
+    here = Path(io.__file__).parent
+    for f in (Path(character.__file__), here / "_character.py", here / "_fbx_scene.py", here / "_blender_scene.py"):
+        h.update(f.read_bytes() if f.is_file() else f.name.encode())
     return h.hexdigest()[:16]
 
 
