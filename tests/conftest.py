@@ -19,6 +19,19 @@ def require_data() -> bool:
     return os.environ.get("FACERETARGET_REQUIRE_DATA", "") not in ("", "0")
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _own_cache(tmp_path_factory):
+    """Landmarks and character reads are cached in the session's folder (also for the CLI run in a child
+    process), never beside the shared files or in the user's ~/.cache."""
+    old = os.environ.get("FACERETARGET_CACHE")
+    os.environ["FACERETARGET_CACHE"] = str(tmp_path_factory.mktemp("faceretarget-cache"))
+    yield
+    if old is None:
+        os.environ.pop("FACERETARGET_CACHE", None)
+    else:
+        os.environ["FACERETARGET_CACHE"] = old
+
+
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
     """``../shared/data``; skips when absent, fails instead under FACERETARGET_REQUIRE_DATA=1."""

@@ -291,6 +291,26 @@ def test_slow_reads_are_cached_by_content(tmp_path, chars, monkeypatch):
     assert len(list((tmp_path / "cache" / "characters").glob("*.pickle"))) == 2
 
 
+def test_landmark_cache_never_goes_into_a_read_only_folder(tmp_path, monkeypatch):
+    """Beside the file when its folder is writable; a folder marked read-only (shared data, even for root)
+    sends the cache to the user's cache folder."""
+    from faceretarget.pipelines import landmark_cache_path
+
+    monkeypatch.delenv("FACERETARGET_CACHE", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    folder = tmp_path / "data"
+    folder.mkdir()
+    f = folder / "a.glb"
+    f.write_bytes(b"glTF")
+    assert landmark_cache_path(f, "abc", for_writing=True) == folder / "a.glb.landmarks.json"
+    folder.chmod(0o555)
+    try:
+        assert landmark_cache_path(f, "abc", for_writing=True) == tmp_path / "xdg" / "faceretarget" / "landmarks" / \
+            "abc.json"
+    finally:
+        folder.chmod(0o755)
+
+
 # ------------------------------------------------------------------------------------------ shapes
 def test_shape_choice_arkit_visemes_names_and_duplicates():
     names = ["blendShape1.AK_25_JawOpen", "blendShape1.SR_21_Jaw_Open", "blendShape1.AA_VI_10_aa", "Fcl_MTH_A",

@@ -92,6 +92,18 @@ def _cache_dir() -> Path:
     return Path(base) / "faceretarget"
 
 
+def _writable(folder: Path) -> bool:
+    """A folder we may write into: allowed, and not marked read-only (root may write anywhere, but a folder
+    whose mode has no write bit is someone's read-only data)."""
+    import stat
+
+    try:
+        mode = folder.stat().st_mode
+    except OSError:
+        return False
+    return os.access(folder, os.W_OK) and bool(mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
+
+
 def landmark_cache_path(path: str | os.PathLike, sha: str | None = None, *, for_writing: bool = False) -> Path:
     """Where the landmarks of the character ``path`` are cached (module docstring)."""
     p = Path(path)
@@ -99,7 +111,7 @@ def landmark_cache_path(path: str | os.PathLike, sha: str | None = None, *, for_
     if not os.environ.get("FACERETARGET_CACHE"):
         if not for_writing and beside.is_file():
             return beside
-        if for_writing and os.access(beside.parent, os.W_OK):
+        if for_writing and _writable(beside.parent):
             return beside
     sha = sha or _sha256(p)
     return _cache_dir() / "landmarks" / f"{sha}.json"
