@@ -13,6 +13,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -72,6 +73,7 @@ def report(built, data_dir, tmp_path_factory) -> dict:
                          timeout=1800)
     assert out.is_file(), (res.returncode, res.stdout[-2000:], res.stderr[-3000:])
     rep = json.loads(out.read_text())
+    shutil.rmtree(work / "user", ignore_errors=True)       # the installed wheels: 0.9 GB
     assert "fatal" not in rep, rep.get("traceback")
     print(json.dumps({k: v for k, v in rep.items() if k != "characters"}, indent=1))
     print(summary(rep))
