@@ -16,7 +16,7 @@ PUPPETEER_CORE_VERSION ?= 24.43.1
 # three-vrm and three-vrm-animation for the VRM playback check (tests/test_characters.py, bench/characters.py)
 THREE_VRM_VERSION ?= 3.5.5
 
-.PHONY: venv install capture fast batch extras demo docs test lint bench tools browser gl blender clean
+.PHONY: venv install capture fast batch extras demo docs test lint bench tools browser gl blender blender-extension clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -48,6 +48,13 @@ $(VENV)/.blender: $(VENV)/.installed
 	touch $@
 
 blender: $(VENV)/.blender
+
+# The Blender extension (docs/blender-extension.md): dist/blender/faceretarget-VERSION-linux_x64.zip, which Blender
+# 4.5 installs offline; the project's wheel and its dependencies' wheels for Blender's Python 3.11 (manylinux x86_64)
+# are downloaded here, resolved with the NumPy Blender ships (1.26.4, left out of the zip).  The wheels stay in
+# build/blender-wheels, from which tests/test_blender_extension.py rebuilds the zip offline.
+blender-extension: $(VENV)/.installed
+	$(PY) blender/build.py --out dist/blender --cache build/blender-wheels
 
 # The Khronos glTF validator (npm); tests that need it skip when node/npm are absent.
 $(TOOLS)/node_modules/gltf-validator/package.json:
@@ -110,8 +117,8 @@ $(VENV)/.docs: $(VENV)/.installed
 docs: $(VENV)/.docs
 	$(VENV)/bin/mkdocs build --strict --quiet --site-dir build/site
 
-test: install extras tools browser gl blender docs
-	$(VENV)/bin/ruff check src tests bench
+test: install extras tools browser gl blender blender-extension docs
+	$(VENV)/bin/ruff check src tests bench blender
 	$(PY) -m pytest -q
 
 bench: install

@@ -305,7 +305,26 @@ def pose_from_matrices(matrices: np.ndarray, *, source: str = "video") -> HeadPo
     return HeadPose(np.where(ok[:, None], head.quaternions, np.nan), head.translation, source=source)
 
 
-def _progress(total: int | None, enabled: bool, desc: str):
+class _Callback:
+    """A progress "bar" that calls ``fn(done, total)`` (``total`` None when unknown) after every frame."""
+
+    def __init__(self, fn, total: int | None):
+        self.fn, self.total, self.n = fn, total or None, 0
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+        self.fn(self.n, self.total)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        return None
+
+
+def _progress(total: int | None, enabled, desc: str):
+    if callable(enabled):
+        return _Callback(enabled, total)
     from tqdm.auto import tqdm
 
     return tqdm(total=total or None, disable=not enabled, desc=desc, unit="frame", leave=False)
@@ -326,8 +345,9 @@ def track_video(path: str | os.PathLike, *, model: str | os.PathLike | None = No
         Track only the first frames / seconds.
     audio : bool
         Also read the audio track.
-    progress : bool
-        Show a tqdm progress bar.
+    progress : bool or callable
+        Show a tqdm progress bar, or call ``progress(frames_done, total)`` after every frame (``total``
+        None when the container does not say).
     timings : dict, optional
         Filled with ``decode_s`` (decoding and colour conversion), ``track_s`` (MediaPipe) and
         ``frames``.

@@ -13,8 +13,17 @@ it could not write.
 """
 
 from ..files import atomic_dir, atomic_path, check_output_path, input_file, load_npz_arrays, save_npz_arrays
-from ._audio import read_audio
+from ._audio import read_audio, write_audio
 from ._blender import blender_timebase, import_bpy, write_blend, write_fbx
+from ._blender_scene import (
+    HeadBone,
+    character_objects,
+    head_bones,
+    read_blender_scene_character,
+    run_steps,
+    scene_action_steps,
+    scene_character_steps,
+)
 from ._bvh import (
     Bvh,
     BvhJoint,
@@ -36,7 +45,7 @@ from ._character import (
     is_character_file,
     read_character,
 )
-from ._character_write import WRITE_BACK, write_character_animation, write_vrma, writes_back
+from ._character_write import WRITE_BACK, write_character_animation, write_plain_glb, write_vrma, writes_back
 from ._controls import (
     CONTROL_TABLE_FORMATS,
     ControlTable,
@@ -110,7 +119,9 @@ from ._video import VideoInfo, iter_frames, probe_video, read_video_audio, write
 __all__ = [
     "read_character", "character_from_rig", "is_character_file", "CHARACTER_EXTENSIONS", "read_gltf_character",
     "character_format", "check_character_route",
-    "GltfDocument", "write_character_animation", "writes_back", "WRITE_BACK", "write_vrma",
+    "read_blender_scene_character", "scene_character_steps", "scene_action_steps", "character_objects", "run_steps",
+    "head_bones", "HeadBone",
+    "GltfDocument", "write_character_animation", "writes_back", "WRITE_BACK", "write_plain_glb", "write_vrma",
     "read_obj", "read_obj_vertices", "write_obj", "read_obj_sequence", "write_obj_sequence",
     "read_rig", "write_rig", "write_rig_npz", "read_rig_npz",
     "read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo",
@@ -123,7 +134,7 @@ __all__ = [
     "read_performance", "MAX_TAKE_WEIGHT", "write_animation", "READ_FORMATS", "WRITE_FORMATS", "READERS", "WRITERS",
     "register_reader", "register_writer", "Animation", "holds_head",
     "read_c3d", "write_c3d",
-    "read_audio",
+    "read_audio", "write_audio",
     "Bvh", "BvhJoint", "bvh_chain", "make_head_bvh", "read_bvh", "write_bvh", "bvh_pose", "bvh_world_positions",
     "bvh_with_pose", "read_key_frames", "GlbSkeleton", "write_glb_skeleton", "read_glb_skeleton",
     "ControlTable", "read_control_table", "write_control_template", "write_control_table",

@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
 from ..files import input_file
 
-__all__ = ["read_audio", "checked_audio", "write_wav"]
+__all__ = ["read_audio", "checked_audio", "write_wav", "write_audio"]
 
 
 def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
@@ -185,6 +185,18 @@ def checked_audio(path, audio, audio_rate) -> tuple[np.ndarray, int] | None:
     if abs(rate - float(audio_rate)) > 1e-6 * rate:
         raise InvalidDataError(f"{path}: a WAV needs an integer sampling rate, got {audio_rate} Hz")
     return a, rate
+
+
+def write_audio(path: str | os.PathLike, audio: np.ndarray, rate: float) -> Path:
+    """Write a take's sound as a 16-bit PCM WAV, checked first (:func:`checked_audio`: finite samples, an
+    integer rate; the message names ``path``) and written whole or not at all; returns the path."""
+    from ..files import atomic_path, check_output_path
+
+    path = check_output_path(path)
+    a, r = checked_audio(path, audio, rate)
+    with atomic_path(path) as tmp:
+        write_wav(tmp, a, r)
+    return path
 
 
 def write_wav(path: str | os.PathLike, audio: np.ndarray, rate: int) -> Path:

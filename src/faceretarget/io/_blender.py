@@ -524,11 +524,12 @@ def _head_rig(bpy, scene, obj, action, strip, head_keys, pivot: np.ndarray, fram
             _fcurve(bag, 'pose.bones["head"].location', i, co, linear, group)
 
 
-def _sound_strip(bpy, scene, path: Path, audio_and_rate, scratch: Path) -> None:
-    wav = write_wav(scratch / f"{path.stem}.wav", *audio_and_rate)
+def _sound_strip(bpy, scene, path: Path, audio_and_rate, scratch: Path | None, name: str = "audio",
+                 wav: str | os.PathLike | None = None) -> None:
+    wav = write_wav(scratch / f"{path.stem}.wav", *audio_and_rate) if wav is None else Path(wav)
     editor = scene.sequence_editor_create()
     strips = editor.strips if hasattr(editor, "strips") else editor.sequences
-    strip = strips.new_sound("audio", str(wav), 1, 1)
+    strip = strips.new_sound(name, str(wav), 1, 1)
     strip.sound.pack()
     strip.sound.name = f"{path.stem}.wav"
     strip.sound.filepath = f"//{path.stem}.wav"  # where Blender's "unpack" would put it

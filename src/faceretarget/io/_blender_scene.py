@@ -25,12 +25,14 @@ import math
 import os
 import shutil
 import tempfile
+from collections.abc import Generator
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
 from ..character import Channel, Character, EncodedImage, Joint, Material, SceneMesh, joint_motions, shape_key
-from ..errors import InputFileError, OutputError
+from ..errors import InputFileError, MissingShapeError, OutputError
 from ..files import atomic_path
 from ..headpose import HeadPose, continuous_quaternions
 from ..mesh import Mesh
@@ -38,7 +40,10 @@ from ..optional import optional_import
 from ._audio import checked_audio
 from ._blender import _blender_output, _fcurve, _sound_strip, blender_timebase
 
-__all__ = ["read_blender_character", "write_blender_animation"]
+__all__ = ["read_blender_character", "write_blender_animation", "read_blender_scene_character", "scene_character_steps",
+           "character_objects", "run_steps", "scene_action_steps", "head_bones", "HeadBone"]
+
+T = TypeVar("T")
 
 _PURPOSE = "reading and writing Blender characters (.blend; .fbx without ufbx)"
 
@@ -79,82 +84,263 @@ def read_blender_character(path: str | os.PathLike) -> Character:
                 bpy.ops.wm.read_factory_settings(use_empty=True)
 
 
+def run_steps(steps: Generator[float, None, T]) -> T:
+    """Run a step generator (:func:`scene_character_steps`, :func:`scene_action_steps`) to its end; its result."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
+
+
+def character_objects(objects) -> list:
+    """The whole character of some Blender objects (the selection): the mesh objects among them, their
+    armatures (an Armature modifier's object or the parent), the armatures among them, and every visible
+    mesh object those armatures deform or parent (eyes, teeth, hair), in scene order without duplicates."""
+    objects = [o for o in objects if o is not None]
+    arms = {o.name: o for o in objects if o.type == "ARMATURE"}
+    for o in objects:
+        if o.type != "MESH":
+            continue
+        for m in o.modifiers:
+            if m.type == "ARMATURE" and m.object is not None:
+                arms.setdefault(m.object.name, m.object)
+        if o.parent is not None and o.parent.type == "ARMATURE":
+            arms.setdefault(o.parent.name, o.parent)
+    names = {o.name for o in objects if o.type == "MESH"}
+    out = []
+    for o in _scene_objects(objects):
+        if o.type == "ARMATURE" and o.name in arms:
+            out.append(o)
+        elif o.type == "MESH" and (o.name in names or (_visible(o) and (
+                (o.parent is not None and o.parent.name in arms)
+                or any(m.type == "ARMATURE" and m.object is not None and m.object.name in arms for m in o.modifiers)))):
+            out.append(o)
+    return out
+
+
+def _scene_objects(objects) -> list:
+    """The objects of the scene the given objects are in (Blender's order), or the objects themselves."""
+    import bpy
+
+    scene = bpy.context.scene
+    try:
+        return list(scene.objects)
+    except (AttributeError, ReferenceError):
+        return list(objects)
+
+
+def _visible(obj) -> bool:
+    try:
+        return not obj.hide_render and obj.visible_get()
+    except (RuntimeError, ReferenceError):
+        return not obj.hide_render
+
+
+def read_blender_scene_character(objects=None, *, name: str | None = None) -> Character:
+    """The character in the open Blender scene as a :class:`~faceretarget.character.Character`.
+
+    Parameters
+    ----------
+    objects : iterable of bpy objects, optional
+        The character, or any of its objects (its face mesh, its armature): :func:`character_objects`
+        completes it.  Default: the selected objects (else every object of the scene).
+    name : str, optional
+        The character's name (default: its armature's, else its first mesh object's).
+
+    Returns
+    -------
+    Character
+        Blender's world frame (metres, +Z up), format ``"blend"``, route ``"Blender scene (bpy)"``, no
+        path (the scene may differ from any saved file): meshes posed as the scene shows them, their
+        relative shape keys, the armatures' bones (module docstring).  The same code as
+        :func:`read_blender_character` reads a file with.
+    """
+    return run_steps(scene_character_steps(objects, name=name))
+
+
+def scene_character_steps(objects=None, *, name: str | None = None) -> Generator[float, None, Character]:
+    """:func:`read_blender_scene_character` in steps: yields the fraction done after every few milliseconds of
+    work (a shape key, a thousand vertices), so a user interface can keep its main thread responsive;
+    the character is the generator's return value (:func:`run_steps`)."""
+    bpy = _bpy()
+    if objects is None:
+        objects = list(bpy.context.selected_objects) or list(bpy.context.scene.objects)
+    objs = character_objects(list(objects))
+    meshes = [o for o in objs if o.type == "MESH"]
+    if not meshes:
+        raise MissingShapeError("the selection holds no mesh object: select the character's face mesh or its "
+                                "armature")
+    arms = [o for o in objs if o.type == "ARMATURE"]
+    name = name or (arms[0].name if arms else meshes[0].name)
+    playing = _unplay(bpy, arms)          # the character as it is without the actions this module keyed
+    if playing:
+        yield 0.0
+    try:
+        ch = yield from _character_steps(bpy, None, arms, meshes)
+    finally:
+        _replay(bpy, playing)
+    ch.format, ch.route, ch.name = "blend", "Blender scene (bpy)", name
+    return ch
+
+
+def _unplay(bpy, arms: list) -> list:
+    """Take the actions :func:`scene_action_steps` keyed off the armatures (their bones back in the pose
+    they had before); what to put back (:func:`_replay`)."""
+    out = []
+    for arm in arms:
+        ad = arm.animation_data
+        act = ad.action if ad is not None else None
+        if act is not None and "faceretarget_rest" in act:
+            out.append((arm, act, ad.action_slot, {b.name: (b.rotation_mode, tuple(b.rotation_quaternion))
+                                                   for b in arm.pose.bones}))
+            _restore_rest(bpy, arm)
+    return out
+
+
+def _replay(bpy, playing: list) -> None:
+    for arm, act, slot, pose in playing:
+        for bone, (mode, q) in pose.items():
+            pb = arm.pose.bones.get(bone)
+            if pb is not None:
+                pb.rotation_mode = mode
+                pb.rotation_quaternion = q
+        arm.animation_data.action = act
+        if slot is not None:
+            arm.animation_data.action_slot = slot
+    if playing:
+        bpy.context.view_layer.update()
+
+
 def _m(M) -> np.ndarray:
     return np.array([list(r) for r in M], dtype=np.float64)
 
 
 def _character(bpy, path: Path) -> Character:
+    arms = [o for o in bpy.data.objects if o.type == "ARMATURE"]
+    meshes = [o for o in bpy.data.objects if o.type == "MESH" and not o.hide_render]
+    return run_steps(_character_steps(bpy, path, arms, meshes))
+
+
+def _character_steps(bpy, path: Path | None, arms: list, mesh_objects: list) -> Generator[float, None, Character]:
     notes: list[str] = []
     joints: list[Joint] = []
     bone_index: dict[tuple[str, str], int] = {}
+    bone_skin: dict[tuple[str, str], np.ndarray] = {}
     scale = float(bpy.context.scene.unit_settings.scale_length or 1.0)
-    for arm in [o for o in bpy.data.objects if o.type == "ARMATURE"]:
+    for arm in arms:
         Aw = _m(arm.matrix_world)
-        for b in arm.data.bones:
-            pb = arm.pose.bones[b.name]
-            world = Aw @ _m(pb.matrix)
+        bones = list(arm.data.bones)
+        pose = np.array([_m(arm.pose.bones[b.name].matrix) for b in bones]).reshape(-1, 4, 4)
+        rest = np.array([_m(b.matrix_local) for b in bones]).reshape(-1, 4, 4)
+        world_all = Aw @ pose
+        inv_world = np.linalg.inv(world_all) if len(bones) else world_all
+        skin = pose @ np.linalg.inv(rest) if len(bones) else pose    # armature-space skinning matrix of each bone
+        row = {b.name: i for i, b in enumerate(bones)}
+        for i, b in enumerate(bones):
+            world = world_all[i].copy()
             parent = bone_index.get((arm.name, b.parent.name), -1) if b.parent else -1
-            local = np.linalg.inv(Aw @ _m(arm.pose.bones[b.parent.name].matrix)) @ world if b.parent else world
+            local = inv_world[row[b.parent.name]] @ world if b.parent else world.copy()
             bone_index[(arm.name, b.name)] = len(joints)
+            bone_skin[(arm.name, b.name)] = skin[i]
             world[:3, 3] *= scale
             joints.append(Joint(b.name, parent, world, f"{arm.name}/{b.name}", local))
+        yield 0.0
     meshes: list[SceneMesh] = []
     images: dict[str, EncodedImage | None] = {}
-    for obj in bpy.data.objects:
-        if obj.type != "MESH" or obj.hide_render:
-            continue
-        sm = _mesh(bpy, obj, path, bone_index, notes, images, scale)
+    work = [max(1, len(o.data.vertices)) * (1 + _n_keys(o)) for o in mesh_objects]
+    done = 0
+    for obj, w in zip(mesh_objects, work, strict=True):
+        sm = None
+        for f in _mesh_steps(bpy, obj, path, (bone_index, bone_skin), notes, images, scale):
+            if isinstance(f, SceneMesh):
+                sm = f
+            else:
+                yield (done + f * w) / sum(work)
+        done += w
         if sm is not None:
             meshes.append(sm)
-    fmt = "blend" if path.suffix.lower() == ".blend" else "fbx"
+    fmt = "blend" if path is None or path.suffix.lower() == ".blend" else "fbx"
     return Character(path, fmt, "Blender 4.5 (bpy)", meshes, joints, up=np.array([0.0, 0.0, 1.0]), front=None,
                      notes=notes, source_unit="m")
 
 
-def _skin_matrices(obj, me, bone_index) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+def _n_keys(obj) -> int:
+    keys = obj.data.shape_keys
+    return len(keys.key_blocks) if keys is not None else 0
+
+
+#: Vertices whose vertex groups are read between two steps of a step generator.
+_STEP_VERTICES = 1000
+
+
+def _skin_steps(obj, me, bones):
     """Per-vertex armature-space linear blend skinning matrices of the object's current pose, and the
-    top four (joint, weight) influences; None without an armature modifier."""
+    top four (joint, weight) influences (the generator's value: ``(M, joints, weights)``, Nones without
+    an armature modifier); yields the fraction of vertices read."""
     mod = next((m for m in obj.modifiers if m.type == "ARMATURE" and m.object is not None and m.show_render), None)
     if mod is None or not mod.use_vertex_groups:
         return None, None, None
     arm = mod.object
     V = len(me.vertices)
-    groups = {g.index: g.name for g in obj.vertex_groups}
-    bones = {}
-    for gi, gname in groups.items():
-        if gname in arm.pose.bones:
-            pb = arm.pose.bones[gname]
-            bones[gi] = (_m(pb.matrix) @ np.linalg.inv(_m(pb.bone.matrix_local)), bone_index.get((arm.name, gname), -1))
-    M = np.zeros((V, 4, 4))
-    tot = np.zeros(V)
+    index, skin = bones
+    mats = {}
+    for g in obj.vertex_groups:
+        if g.name in arm.pose.bones:
+            m = skin.get((arm.name, g.name))
+            if m is None:                                   # an armature outside the character
+                pb = arm.pose.bones[g.name]
+                m = _m(pb.matrix) @ np.linalg.inv(_m(pb.bone.matrix_local))
+            mats[g.index] = (m, index.get((arm.name, g.name), -1))
+    vi, gi, wi = [], [], []
+    verts = me.vertices
+    for a in range(0, V, _STEP_VERTICES):
+        for v in verts[a:a + _STEP_VERTICES]:
+            i = v.index
+            for g in v.groups:
+                vi.append(i)
+                gi.append(g.group)
+                wi.append(g.weight)
+        yield min(1.0, (a + _STEP_VERTICES) / V)
+    vi, gi, wi = np.array(vi, np.int64), np.array(gi, np.int64), np.array(wi, np.float64)
+    ok = (wi > 0) & np.isin(gi, np.fromiter(mats, np.int64, len(mats)))
+    vi, gi, wi = vi[ok], gi[ok], wi[ok]
+    groups = sorted(mats)
+    slot = np.searchsorted(np.array(groups, np.int64), gi)
+    B = np.stack([mats[g][0] for g in groups]) if groups else np.zeros((0, 4, 4))
+    J = np.array([mats[g][1] for g in groups], np.int64)
+    Bf = B.reshape(-1, 16)
+    M = np.stack([np.bincount(vi, weights=wi * Bf[slot, c], minlength=V) for c in range(16)], axis=1).reshape(V, 4, 4)
+    tot = np.bincount(vi, weights=wi, minlength=V)
+    has = tot > 0
+    M[has] /= tot[has, None, None]
+    M[~has] = np.eye(4)
+    # the four largest influences of each vertex (ties: the group listed first)
+    order = np.lexsort((np.arange(len(vi)), -wi, vi))
+    vs = vi[order]
+    rank = np.arange(len(vs)) - np.searchsorted(vs, vs)
+    top = rank < 4
     jn = np.full((V, 4), -1, np.int64)
     jw = np.zeros((V, 4))
-    for v in me.vertices:
-        for g in v.groups:
-            b = bones.get(g.group)
-            if b is None or g.weight <= 0:
-                continue
-            M[v.index] += g.weight * b[0]
-            tot[v.index] += g.weight
-            slot = int(np.argmin(jw[v.index]))
-            if g.weight > jw[v.index, slot]:
-                jn[v.index, slot], jw[v.index, slot] = b[1], g.weight
-    ok = tot > 0
-    M[ok] /= tot[ok, None, None]
-    M[~ok] = np.eye(4)
+    jn[vs[top], rank[top]] = J[slot[order][top]]
+    jw[vs[top], rank[top]] = wi[order][top]
     A = _m(arm.matrix_world)
     Oinv_A = np.linalg.inv(A) @ _m(obj.matrix_world)
-    return np.einsum("ij,vjk,kl->vil", A, M, Oinv_A), jn, jw
+    return A @ M @ Oinv_A, jn, jw
 
 
-def _mesh(bpy, obj, path: Path, bone_index, notes, images, scale) -> SceneMesh | None:
+def _mesh_steps(bpy, obj, path: Path | None, bones, notes, images, scale):
+    """One mesh object as a :class:`SceneMesh` (yielded last; None when it has no vertex), yielding the
+    fraction done before it."""
     me = obj.data
     V = len(me.vertices)
     if V == 0:
-        return None
+        yield None
+        return
     co = np.empty(V * 3, np.float32)
     me.vertices.foreach_get("co", co)
     local = co.reshape(V, 3).astype(np.float64)
+    yield 0.0
     counts = np.empty(len(me.polygons), np.int32)
     me.polygons.foreach_get("loop_total", counts)
     loops = np.empty(len(me.loops), np.int32)
@@ -162,8 +348,10 @@ def _mesh(bpy, obj, path: Path, bone_index, notes, images, scale) -> SceneMesh |
     ok = counts >= 3
     starts = np.empty(len(me.polygons), np.int32)
     me.polygons.foreach_get("loop_start", starts)
-    corner = np.concatenate([np.arange(s, s + c) for s, c in zip(starts[ok], counts[ok], strict=True)]) \
-        if ok.any() else np.zeros(0, np.int64)
+    kept = counts[ok].astype(np.int64)
+    corner = (np.repeat(starts[ok].astype(np.int64) - (np.cumsum(kept) - kept), kept) + np.arange(int(kept.sum()))
+              if ok.any() else np.zeros(0, np.int64))
+    yield 0.0
     uvs = fuv = None
     if me.uv_layers.active is not None and len(me.loops):
         uv = np.empty(len(me.loops) * 2, np.float32)
@@ -171,39 +359,63 @@ def _mesh(bpy, obj, path: Path, bone_index, notes, images, scale) -> SceneMesh |
         uv = uv.reshape(-1, 2).astype(np.float64)
         uvs = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
         fuv = corner
-    M, jn, jw = _skin_matrices(obj, me, bone_index)
+    yield 0.0
+    keys = me.shape_keys
+    K = len(keys.key_blocks) if keys is not None else 0
+    share = 1.0 / (1 + K)
+    skin = _skin_steps(obj, me, bones)
+    while True:
+        try:
+            f = next(skin)
+        except StopIteration as stop:
+            M, jn, jw = stop.value
+            break
+        yield f * share
     if M is None:
         G = _m(obj.matrix_world)
         L = np.broadcast_to(G[:3, :3], (V, 3, 3))
         T = np.broadcast_to(G[:3, 3], (V, 3))
     else:
         L, T = M[:, :3, :3], M[:, :3, 3]
-    world = ((L * local[:, None, :]).sum(axis=2) + T) * scale
-    names, deltas = [], []
-    keys = me.shape_keys
+    world = (np.einsum("vij,vj->vi", L, local) + T) * scale
+    yield share
+    names = []
+    D = np.zeros((max(K - 1, 0), V, 3), np.float32)
     if keys is not None and keys.use_relative:
         kbs = keys.key_blocks
         basis = kbs[0] if len(kbs) else None
-        for kb in list(kbs)[1:]:
-            rel = kb.relative_key if kb.relative_key is not None else basis
+        # the coordinates of a key other keys are relative to (the basis) are read once
+        shared = {basis.name} | {kb.relative_key.name for kb in kbs if kb.relative_key is not None}
+        read: dict[str, np.ndarray] = {}
+
+        def coords(kb) -> np.ndarray:
+            if kb.name in read:
+                return read[kb.name]
             a = np.empty(V * 3, np.float32)
-            b = np.empty(V * 3, np.float32)
             kb.data.foreach_get("co", a)
-            rel.data.foreach_get("co", b)
-            d = (a - b).reshape(V, 3).astype(np.float64)
+            if kb.name in shared:
+                read[kb.name] = a
+            return a
+
+        for k, kb in enumerate(list(kbs)[1:], 1):
+            rel = kb.relative_key if kb.relative_key is not None else basis
+            d = (coords(kb) - coords(rel)).reshape(V, 3).astype(np.float64)
+            D[len(names)] = np.einsum("vij,vj->vi", L, d) * scale
             names.append(kb.name)
-            deltas.append((L * d[:, None, :]).sum(axis=2) * scale)
+            yield share * (1 + k)
     elif keys is not None:
         notes.append(f"{obj.name}: absolute shape keys (a keyed blend, not expressions) are left out")
+    yield 1.0
     mats = [_material(bpy, s.material, images, notes) for s in obj.material_slots] or [Material("default")]
     tri_mat = None
     if len(mats) > 1:
         mi = np.empty(len(me.polygons), np.int32)
         me.polygons.foreach_get("material_index", mi)
         tri_mat = np.repeat(mi[ok], counts[ok] - 2).astype(np.int64)
+    yield 1.0
     mesh = Mesh(world, counts[ok], loops[corner], uvs, fuv, name=obj.name)
-    D = np.stack(deltas).astype(np.float32) if deltas else np.zeros((0, V, 3), np.float32)
-    return SceneMesh(obj.name, obj.name, mesh, names, D, mats, tri_mat, skin_joints=jn, skin_weights=jw)
+    D = D[:len(names)]
+    yield SceneMesh(obj.name, obj.name, mesh, names, D, mats, tri_mat, skin_joints=jn, skin_weights=jw)
 
 
 def _material(bpy, mat, images, notes) -> Material:
@@ -308,9 +520,49 @@ def _key_block(obj, want: str):
     return next((kb for kb in kbs if shape_key(kb.name) == k), None)
 
 
-def _animate_scene(bpy, out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
-                   head: HeadPose | None, neck_share: float, gaze, name: str, sound, scratch: Path, start: float,
-                   msgs: list) -> None:
+def scene_action_steps(character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray, *,
+                       head: HeadPose | None = None, neck_share: float = 0.0, gaze: dict | None = None,
+                       name: str = "faceretarget",
+                       sound=None, scratch: Path | None = None, sound_file: str | os.PathLike | None = None,
+                       start: float = 1.0, where: str | os.PathLike = "scene", strip_name: str = "audio",
+                       replace_sound: bool = False, msgs: list | None = None) -> Generator[float, None, object]:
+    """Key one new action in the open Blender scene, in steps (a few fcurves each; :func:`run_steps`).
+
+    What :func:`write_blender_animation` adds to a file, on the scene Blender has open (the character
+    read from it by :func:`read_blender_character` or :func:`read_blender_scene_character`): every
+    channel's shape keys keyed at every frame (``LINEAR``, sliders widened where a weight leaves them),
+    the head (and neck) bone's ``rotation_quaternion`` relative to its pose (and the eye bones' by
+    ``gaze``, ``{role: Rotation}`` relative to the head: :func:`~faceretarget.character.joint_motions`), the scene's frame rate and
+    range set to the take's (:func:`~faceretarget.io.blender_timebase`, the take's first frame at
+    ``start``), and with ``sound`` (``(samples, rate)`` and a ``scratch`` folder for its WAV) or
+    ``sound_file`` (a WAV written already) a sound strip ``strip_name`` packed into the file (a strip of
+    that name there before is replaced; with ``replace_sound`` it is removed even when the take has no
+    sound, so an earlier take's sound does not play with this one).  An action this function made before, still playing on the
+    armature, is taken off first and its bones go back to the pose they had under it, so keys are
+    always relative to the character's own pose.  The action an ID played before stays in the file
+    (a fake user).
+
+    Parameters
+    ----------
+    character : Character
+    chans : list of Channel
+    W : (T, C) float
+        One column per channel.
+    t : (T,) float
+        Seconds, strictly increasing.
+    where : path-like
+        For messages.
+
+    Returns
+    -------
+    bpy.types.Action
+        The generator's value; tagged ``action["faceretarget"]`` with what made it.
+    """
+    import json
+
+    bpy = _bpy()
+    msgs = [] if msgs is None else msgs
+    out = Path(where)
     scene = bpy.context.scene
     fps, base, frames = blender_timebase(t, start)
     scene.render.fps, scene.render.fps_base = fps, base
@@ -318,6 +570,7 @@ def _animate_scene(bpy, out: Path, character: Character, chans: list[Channel], W
     scene.frame_end = max(int(start), int(math.ceil(frames[-1] - 1e-6)))
     linear = bpy.types.Keyframe.bl_rna.properties["interpolation"].enum_items["LINEAR"].value
     action = bpy.data.actions.new(name)
+    action["faceretarget"] = json.dumps({"frames": int(len(t)), "fps": fps / base, "character": character.name})
     strip = action.layers.new("Layer").strips.new(type="KEYFRAME")
     co = np.empty((len(t), 2), np.float32)
     co[:, 0] = frames
@@ -351,40 +604,134 @@ def _animate_scene(bpy, out: Path, character: Character, chans: list[Channel], W
             co[:, 1] = col
             _fcurve(bag, f'key_blocks["{bpy.utils.escape_identifier(kb.name)}"].value', 0, co, linear)
             keyed += 1
+            if keyed % 8 == 0:
+                yield keyed / max(1, len(chans))
     if missing:
         raise OutputError(f"{out}: Blender's copy of the character lacks {', '.join(missing[:4])}"
                           f"{' ...' if len(missing) > 4 else ''} (a name the file reader and Blender read differently)")
+    yield 1.0
     motions = joint_motions(character, head, neck_share, gaze)
     if motions:
         _joint_action(bpy, out, character, motions, action, strip, frames, linear, msgs)
-    if sound is not None:
-        _sound_strip(bpy, scene, out, sound, scratch)
+        yield 1.0
+    has_sound = sound is not None or sound_file is not None
+    if has_sound or (replace_sound and scene.sequence_editor is not None):
+        if sound is not None and scratch is None:
+            raise OutputError(f"{out}: a sound strip needs a scratch folder for its WAV")
+        editor = scene.sequence_editor_create()
+        strips = editor.strips if hasattr(editor, "strips") else editor.sequences
+        for old in [x for x in strips if x.name == strip_name or x.name.startswith(f"{strip_name}.")]:
+            strips.remove(old)
+        if has_sound:
+            _sound_strip(bpy, scene, out, sound, scratch, name=strip_name, wav=sound_file)
     msgs.append(f"keyed {keyed} shape key(s) on {len(per_obj)} object(s)")
+    return action
 
 
-def _joint_action(bpy, out, character, motions: list, action, strip, frames, linear, msgs) -> None:
+def _animate_scene(bpy, out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
+                   head: HeadPose | None, neck_share: float, gaze, name: str, sound, scratch: Path, start: float,
+                   msgs: list) -> None:
+    run_steps(scene_action_steps(character, chans, W, t, head=head, neck_share=neck_share, gaze=gaze, name=name,
+                                 sound=sound, scratch=scratch, start=start, where=out, msgs=msgs))
+
+
+class HeadBone:
+    """A head, neck or eye pose bone of the open scene and how a rotation in the head frame turns it.
+
+    Attributes
+    ----------
+    label : str
+        ``"Bip01 Head (head)"``.
+    pose_bone : bpy.types.PoseBone
+    share : float
+        The share of the head rotation this bone takes.
+    """
+
+    def __init__(self, label: str, pose_bone, share: float, P0: np.ndarray, G: np.ndarray, B: np.ndarray):
+        self.label, self.pose_bone, self.share = label, pose_bone, share
+        self._P0, self._G, self._B = P0, G, B
+
+    def quaternions(self, rotation) -> np.ndarray:
+        """``(T, 4)`` ``rotation_quaternion`` keys (``w, x, y, z``, on one hemisphere) that turn the head by
+        ``rotation`` (a scipy ``Rotation`` of ``T`` head poses in the head frame, about the rest pose)."""
+        from scipy.spatial.transform import Rotation
+
+        Rh = Rotation.from_rotvec(rotation.as_rotvec().reshape(-1, 3) * self.share).as_matrix()
+        Rb = self._B @ Rh @ self._B.T
+        G = self._G
+        return continuous_quaternions(Rotation.from_matrix(self._P0 @ (G.T @ Rb @ G)).as_quat())[:, [3, 0, 1, 2]]
+
+
+def head_bones(character: Character, neck_share: float = 0.0) -> list[HeadBone]:
+    """The character's head (and neck) pose bones in the open scene, each with the pose it has now (an
+    action this module made is taken off first: :func:`scene_action_steps`); bones the scene lacks are
+    left out."""
+    roles = (("head", 1.0 - neck_share), ("neck", neck_share)) if neck_share > 0 else (("head", 1.0),)
+    return [hb for role, share in roles if (j := character.joint(role)) is not None
+            and (hb := _pose_bone(character, role, j, share)) is not None]
+
+
+def _pose_bone(character: Character, role: str, j: Joint, share: float) -> HeadBone | None:
+    """The pose bone of joint ``j`` in the open scene, or None when the scene lacks it."""
     from scipy.spatial.transform import Rotation
 
     from ..character import character_frame
     from ._blender import BLENDER_AXES
 
+    bpy = _bpy()
     F = character_frame(character)
     # the character's world frame -> Blender's world: identity for a Blender read, Y-up -> Z-up for ufbx
     A = np.eye(3) if character.route.startswith("Blender") else BLENDER_AXES
+    bone = j.ref.split("/")[-1] if "/" in j.ref else j.name
+    arm = next((o for o in bpy.data.objects if o.type == "ARMATURE" and bone in o.pose.bones), None)
+    if arm is None:
+        return None
+    _restore_rest(bpy, arm)
+    pb = arm.pose.bones[bone]
+    G = _m(arm.matrix_world)[:3, :3] @ _m(pb.matrix)[:3, :3]
+    U, _, Vt = np.linalg.svd(G)
+    G = U @ Vt
+    P0 = Rotation.from_quat(np.r_[pb.rotation_quaternion[1:], pb.rotation_quaternion[0]]).as_matrix() \
+        if pb.rotation_mode == "QUATERNION" else np.array(pb.matrix_basis.to_3x3())
+    return HeadBone(f"{bone} ({role})", pb, share, P0, G, A @ F.T)
+
+
+def _restore_rest(bpy, arm) -> None:
+    """Take an action this module made off ``arm`` and put its bones back in the pose they had before it."""
+    import json
+
+    ad = arm.animation_data
+    act = ad.action if ad is not None else None
+    if act is None or "faceretarget_rest" not in act:
+        return
+    rest = json.loads(act["faceretarget_rest"])
+    ad.action = None
+    for bone, q in rest.items():
+        pb = arm.pose.bones.get(bone)
+        if pb is not None:
+            pb.rotation_mode = "QUATERNION"
+            pb.rotation_quaternion = q
+    bpy.context.view_layer.update()
+
+
+def _joint_action(bpy, out, character, motions: list, action, strip, frames, linear, msgs) -> None:
+    """Key the rotations of :func:`~faceretarget.character.joint_motions` (head, neck, eyes; each with its
+    share already in it) on their pose bones."""
+    import json
+
     placed = []
-    for role, j, rot in motions:
-        bone = j.ref.split("/")[-1] if "/" in j.ref else j.name
-        arm = next((o for o in bpy.data.objects if o.type == "ARMATURE" and bone in o.pose.bones), None)
-        if arm is None:
-            continue
-        pb = arm.pose.bones[bone]
-        G = _m(arm.matrix_world)[:3, :3] @ _m(pb.matrix)[:3, :3]
-        U, _, Vt = np.linalg.svd(G)
-        G = U @ Vt
-        Rb = A @ F.T @ rot.as_matrix() @ F @ A.T
-        P0 = Rotation.from_quat(np.r_[pb.rotation_quaternion[1:], pb.rotation_quaternion[0]]).as_matrix() \
-            if pb.rotation_mode == "QUATERNION" else np.array(pb.matrix_basis.to_3x3())
-        wxyz = continuous_quaternions(Rotation.from_matrix(P0 @ (G.T @ Rb @ G)).as_quat())[:, [3, 0, 1, 2]]
+    # every bone found (and an earlier action of ours taken off) before any is keyed: taking ours off an
+    # armature after keying one of its bones would drop those keys
+    bones = [(hb, rot) for role, j, rot in motions if (hb := _pose_bone(character, role, j, 1.0)) is not None]
+    for hb, rot in bones:
+        pb, label = hb.pose_bone, hb.label
+        wxyz = hb.quaternions(rot)
+        arm = pb.id_data
+        bone = pb.name
+        rest = json.loads(action.get("faceretarget_rest", "{}"))
+        rest[bone] = [float(x) for x in pb.rotation_quaternion] if pb.rotation_mode == "QUATERNION" else \
+            [float(x) for x in pb.matrix_basis.to_quaternion()]
+        action["faceretarget_rest"] = json.dumps(rest)
         pb.rotation_mode = "QUATERNION"
         if arm.animation_data is None or arm.animation_data.action != action:
             _keep_existing(arm)
@@ -398,7 +745,6 @@ def _joint_action(bpy, out, character, motions: list, action, strip, frames, lin
         for i in range(4):
             co[:, 1] = wxyz[:, i]
             _fcurve(bag, f'pose.bones["{bpy.utils.escape_identifier(bone)}"].rotation_quaternion', i, co, linear)
-        placed.append(f"{bone} ({role})")
+        placed.append(label)
     msgs.append(f"head and gaze rotation on the bone(s) {', '.join(placed)}" if placed else
                 f"{character.name}: no head bone; the head motion is left out")
-

@@ -40,7 +40,7 @@ from ..errors import InvalidDataError, OutputError
 from ..files import atomic_path, check_output_path
 from ..headpose import HeadPose
 
-__all__ = ["write_character_animation", "writes_back", "WRITE_BACK", "write_vrma", "check_motion"]
+__all__ = ["write_character_animation", "writes_back", "WRITE_BACK", "write_vrma", "check_motion", "write_plain_glb"]
 
 #: Output extensions that write back into the user's file, per character format.
 WRITE_BACK = {"gltf": (".glb", ".gltf"), "vrm0": (".vrm", ".glb"), "vrm1": (".vrm", ".glb"),
@@ -385,3 +385,54 @@ def _write_gltf_json(out: Path, js: dict, doc, new: bytes) -> None:
             Path(tmp).write_bytes(data)
     with atomic_path(out) as tmp:
         Path(tmp).write_text(json.dumps(js, indent=1, ensure_ascii=False), encoding="utf-8")
+
+
+# ----------------------------------------------------------------------------------------- plain copy
+def write_plain_glb(src: str | os.PathLike, out: str | os.PathLike) -> Path:
+    """A ``.glb`` copy of a glTF character with its ``EXT_meshopt_compression`` data decoded, for readers
+    that do not decode it (Blender 4.5's glTF importer refuses such a file).
+
+    Every buffer view is written plain into one binary chunk (compressed views decoded, meshopt
+    fallback buffers dropped, external buffers and data URIs read in); the JSON is otherwise kept as it
+    is, so nodes, meshes, morph targets, skins, materials and images are the file's own
+    (``KHR_mesh_quantization`` and ``EXT_texture_webp`` stay: Blender reads both).
+
+    Parameters
+    ----------
+    src : path-like
+        ``.glb``, ``.gltf`` or ``.vrm``.
+    out : path-like
+        The ``.glb`` to write (not ``src``).
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    from ._gltf_scene import GltfDocument
+
+    out = check_output_path(out)
+    doc = GltfDocument(src)
+    if out.exists() and os.path.samefile(doc.path, out):
+        raise OutputError(f"{out}: is the input file; write the plain copy to another name")
+    js = copy.deepcopy(doc.json)
+    chunk = bytearray()
+    for i, v in enumerate(js.get("bufferViews", [])):
+        data = doc.view(i)
+        ext = v.pop("extensions", {})
+        meshopt = ext.pop("EXT_meshopt_compression", None)
+        if ext:
+            v["extensions"] = ext
+        if meshopt is not None and meshopt.get("mode", "ATTRIBUTES") == "ATTRIBUTES" and "byteStride" not in v:
+            v["byteStride"] = int(meshopt["byteStride"])
+        chunk.extend(b"\0" * ((-len(chunk)) % 4))
+        v.update(buffer=0, byteOffset=len(chunk), byteLength=len(data))
+        chunk.extend(data)
+    js["buffers"] = [{"byteLength": len(chunk)}] if chunk else []
+    for key in ("extensionsUsed", "extensionsRequired"):
+        if key in js:
+            js[key] = [e for e in js[key] if e != "EXT_meshopt_compression"]
+            if not js[key]:
+                del js[key]
+    _write_glb(out, js, bytes(chunk))
+    return out

@@ -24,6 +24,10 @@
 :mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
 :mod:`._batch`, :mod:`._jobs`     :func:`run_batch`: a jobs file (:func:`read_jobs`) of takes x characters on
                                  Dask, each model fitted once, resumable from its manifest (``batch``)
+:mod:`._apply`                   :func:`apply_take`: a take file onto a character's own shapes by the clone,
+                                 retarget or landmark route (the Blender extension's *Apply a take*)
+:mod:`._worker`                  :func:`serve_jobs`: the worker process a host UI (the Blender extension)
+                                 runs the long jobs in, JSON lines in and out; :func:`cached_capture`
 ================================ ================================================================
 """
 
@@ -41,6 +45,7 @@ from ._animate import (
     parse_emotion,
     tracked_take,
 )
+from ._apply import TAKE_ROUTES, AppliedTake, apply_take, landmark_points
 from ._batch import (
     CONNECT_TIMEOUT,
     BatchSummary,
@@ -61,12 +66,15 @@ from ._capture import (
 from ._character import (
     CharacterReport,
     DriveRig,
+    apply_landmark_record,
     character_weights,
     drive_rig,
     inspect_character,
     landmark_cache_path,
+    landmark_record,
     load_character,
     look_rig,
+    mesh_sha256,
     read_landmark_file,
 )
 from ._demo import run_demo
@@ -113,6 +121,7 @@ from ._transfer import (
     target_weights,
     write_result,
 )
+from ._worker import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_path, serve_jobs
 
 __all__ = [
     "gaze_rotations",
@@ -125,7 +134,7 @@ __all__ = [
     "inspect_character",
     "CharacterReport",
     "landmark_cache_path",
-    "read_landmark_file",
+    "read_landmark_file", "landmark_record", "apply_landmark_record", "mesh_sha256",
     "animate", "AnimateResult", "tracked_take", "face_take", "face_frame", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
     "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES", "check_result_path", "MAX_TEMPORAL",
@@ -137,6 +146,8 @@ __all__ = [
     "capture_take", "tracked_videos", "fit_appearance", "encode_appearance", "appearance_memory", "APPEARANCE_BYTES", "fit_style", "fit_speaker_style", "read_style_take", "build_head_database", "run_demo",
     "AppearanceStyleModel", "RestyledVideo", "fit_appearance_style", "restyle_video", "write_face_video",
     "composited_frames", "align_vector_takes", "speaker_edited_landmarks",
+    "apply_take", "AppliedTake", "TAKE_ROUTES", "landmark_points",
+    "serve_jobs", "JOB_KINDS", "WorkerChannel", "cached_capture", "capture_cache_path",
     "run_batch", "CONNECT_TIMEOUT", "read_jobs", "read_manifest", "local_cluster", "BatchSpec", "BatchSummary", "Job", "JobOutcome", "ClusterError",
     "OPERATIONS", "JOB_OPTIONS",
 ]

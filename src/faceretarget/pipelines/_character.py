@@ -57,7 +57,7 @@ from ..files import atomic_path
 from ..rig import Rig
 
 __all__ = ["load_character", "drive_rig", "DriveRig", "inspect_character", "CharacterReport", "landmark_cache_path",
-           "look_rig", "character_weights",
+           "look_rig", "character_weights", "landmark_record", "apply_landmark_record", "mesh_sha256",
            "read_landmark_file",
            "LANDMARKS_FORMAT"]
 
@@ -206,14 +206,51 @@ def _apply(character: Character, d: dict, where: str) -> None:
         character.front = np.asarray(d["front"], dtype=np.float64)
 
 
-def _write_cache(character: Character, path: Path, sha: str, log) -> Path | None:
+def landmark_record(character: Character, sha: str | None = None) -> dict:
+    """The character's landmarks as the cache's JSON record (module docstring); ``sha`` defaults to
+    :func:`mesh_sha256` of the mesh they lie on (what a character without a file is checked by)."""
     lm = character.landmarks
+    if lm is None:
+        raise InvalidDataError(f"{character.name}: no landmarks to record")
     m = character.meshes[lm.mesh]
-    d = {"format": LANDMARKS_FORMAT, "sha256": sha, "mesh": m.name, "vertices": m.mesh.n_vertices,
-         "triangles": lm.triangles.tolist(), "bary": np.round(lm.bary, 9).tolist(),
-         "up": None if character.up is None else np.asarray(character.up, float).tolist(),
-         "front": None if character.front is None else np.asarray(character.front, float).tolist(),
-         "source": lm.source}
+    return {"format": LANDMARKS_FORMAT, "sha256": sha or mesh_sha256(m.mesh), "mesh": m.name,
+            "vertices": m.mesh.n_vertices, "triangles": lm.triangles.tolist(), "bary": np.round(lm.bary, 9).tolist(),
+            "up": None if character.up is None else np.asarray(character.up, float).tolist(),
+            "front": None if character.front is None else np.asarray(character.front, float).tolist(),
+            "source": lm.source}
+
+
+def apply_landmark_record(character: Character, record: dict, where: str = "landmark record") -> bool:
+    """Put a :func:`landmark_record` on the character when it was made for the same mesh (name, vertex
+    count and, when the record holds :func:`mesh_sha256`, the same rest shape); False when it was not."""
+    if record.get("format") != LANDMARKS_FORMAT:
+        return False
+    names = [m.name for m in character.meshes]
+    if record.get("mesh") not in names:
+        return False
+    sha = record.get("sha256")
+    mesh = character.meshes[names.index(record["mesh"])].mesh
+    if sha and len(sha) == 64 and sha != mesh_sha256(mesh):
+        return False
+    try:
+        _apply(character, record, where)
+    except (InvalidDataError, InputFileError, KeyError, ValueError, TypeError):
+        return False
+    return True
+
+
+def mesh_sha256(mesh) -> str:
+    """SHA-256 of a mesh's rest shape (vertices rounded to 0.1 micrometre, faces): what identifies the
+    face a character without a file had its landmarks found on."""
+    h = hashlib.sha256()
+    h.update(np.round(np.asarray(mesh.vertices, np.float64) * 1e7).astype(np.int64).tobytes())
+    h.update(np.asarray(mesh.face_counts, np.int64).tobytes())
+    h.update(np.asarray(mesh.face_indices, np.int64).tobytes())
+    return h.hexdigest()
+
+
+def _write_cache(character: Character, path: Path, sha: str, log) -> Path | None:
+    d = landmark_record(character, sha)
     for cand in (landmark_cache_path(path, sha, for_writing=True), _cache_dir() / "landmarks" / f"{sha}.json"):
         try:
             cand.parent.mkdir(parents=True, exist_ok=True)
