@@ -39,7 +39,7 @@ class Session:
         self.work = Path(args.work)
         self.work.mkdir(parents=True, exist_ok=True)
         self.report: dict = {"characters": {}}
-        self.ticks: list[tuple[float, float]] = []
+        self.ticks: list[tuple[float, float, str]] = []
 
     # ---------------------------------------------------------------------------------- setup
     def install(self) -> None:
@@ -70,7 +70,7 @@ class Session:
         r["numpy_file"] = numpy.__file__
         r["imports"] = self.import_wheels(Path(faceretarget.__file__).parents[1])
         self.jobs = self.ext.jobs
-        self.jobs.tick_hooks.append(lambda wall, cpu: self.ticks.append((wall, cpu)))
+        self.jobs.tick_hooks.append(lambda wall, cpu, what: self.ticks.append((wall, cpu, what)))
 
     def import_wheels(self, site: Path) -> dict:
         """Every top-level module of every wheel the extension installed, imported here beside NumPy 1.26.4."""
@@ -151,8 +151,9 @@ class Session:
                                                            round(job.slowest[1] * 1000, 1), job.slowest[2]],
                 "seconds": round(time.perf_counter() - t0, 2), "op_ms": round(op_wall * 1000, 1),
                 "op_cpu_ms": round(op_cpu * 1000, 1), "ticks": len(ticks),
-                "max_tick_ms": round(max((w for w, _ in ticks), default=0) * 1000, 1),
-                "max_tick_cpu_ms": round(max((c for _, c in ticks), default=0) * 1000, 1)}
+                "max_tick_ms": round(max((w for w, _, _ in ticks), default=0) * 1000, 1),
+                "max_tick_cpu_ms": round(max((c for _, c, _ in ticks), default=0) * 1000, 1),
+                "slowest_tick": _slowest(ticks)}
 
     def scene_character(self, names: list[str]):
         from faceretarget.io import read_blender_scene_character
@@ -421,8 +422,9 @@ class Session:
                 "live_worker_gone": pid is not None and not _alive(pid), "live_flag": st.live,
                 "threads": [t.name for t in threading.enumerate() if t.name.startswith("faceretarget") and t.is_alive()
                             and t.name != "faceretarget-worker-reader"],
-                "max_tick_ms": round(max((w for w, _ in ticks), default=0) * 1000, 1),
-                "max_tick_cpu_ms": round(max((c for _, c in ticks), default=0) * 1000, 1)}
+                "max_tick_ms": round(max((w for w, _, _ in ticks), default=0) * 1000, 1),
+                "max_tick_cpu_ms": round(max((c for _, c, _ in ticks), default=0) * 1000, 1),
+                "slowest_tick": _slowest(ticks)}
 
     def landmarks(self, name: str, names: list[str]) -> dict:
         bpy = self.bpy
@@ -554,13 +556,23 @@ class Session:
                 rep["exception"] = f"{type(e).__name__}: {e}"
                 rep["traceback"] = traceback.format_exc()[-3000:]
             first = False
-        self.report["ticks"] = {"n": len(self.ticks), "max_ms": round(max((w for w, _ in self.ticks), default=0) * 1000, 1),
-                                "max_cpu_ms": round(max((c for _, c in self.ticks), default=0) * 1000, 1),
-                                "p99_ms": round(float(np.percentile([w for w, _ in self.ticks], 99)) * 1000, 1)
-                                if self.ticks else None}
+        self.report["ticks"] = {"n": len(self.ticks), "max_ms": round(max((w for w, _, _ in self.ticks), default=0) * 1000, 1),
+                                "max_cpu_ms": round(max((c for _, c, _ in self.ticks), default=0) * 1000, 1),
+                                "p99_ms": round(float(np.percentile([w for w, _, _ in self.ticks], 99)) * 1000, 1)
+                                if self.ticks else None,
+                                "slowest": _slowest(self.ticks), "over_50_ms": sorted(
+                                    {what for _, c, what in self.ticks if c > 0.05})}
         self.report["unregister"] = self.unregister()
         self.report["load"] = os.getloadavg()
         return self.report
+
+
+def _slowest(ticks) -> list | None:
+    """The tick that held the main thread longest (CPU ms, wall ms, what it ran)."""
+    if not ticks:
+        return None
+    w, c, what = max(ticks, key=lambda t: t[1])
+    return [round(c * 1000, 1), round(w * 1000, 1), what]
 
 
 def _alive(pid: int) -> bool:

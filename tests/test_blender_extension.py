@@ -200,9 +200,9 @@ def test_main_thread_is_never_held_by_the_extension(report):
     time (what the extension holds it for) and wall time (which also counts the OS giving the core to others)."""
     for name in CHARACTERS:
         a = report["characters"][name]["animate"]
-        assert a["max_tick_cpu_ms"] < BLOCK_MS, (name, a["slowest_step"])
+        assert a["max_tick_cpu_ms"] < BLOCK_MS, (name, a["slowest_tick"], a["slowest_step"])
         assert a["op_ms"] < BLOCK_MS
-    assert report["ticks"]["max_cpu_ms"] < BLOCK_MS
+    assert report["ticks"]["max_cpu_ms"] < BLOCK_MS, report["ticks"]["slowest"]
     assert report["ticks"]["p99_ms"] < BLOCK_MS
 
 

@@ -42,8 +42,9 @@ _jobs: list[Job] = []
 _import: dict = {"thread": None, "error": None, "done": False}
 _worker: Worker | None = None
 _ids = itertools.count(1)
-#: Called with each tick's duration: wall-clock and main-thread CPU seconds (measurements).
-tick_hooks: list[Callable[[float, float], None]] = []
+#: Called with each tick's duration: wall-clock and main-thread CPU seconds, and what it ran (the
+#: longest step's job label and place, or ``finish`` for a job's undo step and reports) (measurements).
+tick_hooks: list[Callable[[float, float, str], None]] = []
 #: What a job's step yields when it only waits (for the worker): the tick ends at once.
 IDLE = "idle"
 
@@ -264,6 +265,7 @@ class Job:
         self.started = time.perf_counter()
         self.on_cancel: list[Callable[[], None]] = []
         self.slowest: tuple[float, float, str] = (0.0, 0.0, "")     # the longest step: CPU s, wall s, where
+        self.last_step: tuple[float, str] = (0.0, "")                 # the longest step of the last tick
         self._steps = body(self)
 
     def set_progress(self, fraction: float, stage: str = "") -> None:
@@ -274,8 +276,11 @@ class Job:
 
     def step(self, until: float) -> None:
         """Run steps until ``until`` (perf_counter) or the end."""
+        self.last_step = (0.0, "")
         if self.status == "finishing":                  # the undo step and the reports, a tick of their own
+            c = time.thread_time()
             self._finish("done", "")
+            self.last_step = (time.thread_time() - c, f"{self.label}: finish (undo step, reports)")
             return
         try:
             while time.perf_counter() < until:
@@ -283,6 +288,8 @@ class Job:
                 where = _where(self._steps)
                 idle = next(self._steps) is IDLE
                 cpu = time.thread_time() - c
+                if cpu > self.last_step[0]:
+                    self.last_step = (cpu, f"{self.label}: {where}")
                 if cpu > self.slowest[0]:
                     self.slowest = (cpu, time.perf_counter() - a, where)
                 if idle:
@@ -365,15 +372,17 @@ def _tick() -> float | None:
     t0 = time.perf_counter()
     c0 = time.thread_time()
     until = t0 + BUDGET
+    what = (0.0, "")
     for job in list(_jobs):
         if job.status in ("running", "finishing"):
             job.step(until)
+            what = max(what, job.last_step)
         if job.status not in ("running", "finishing"):
             _jobs.remove(job)
     _show_progress()
     wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
     for hook in tick_hooks:
-        hook(wall, cpu)
+        hook(wall, cpu, what[1])
     return INTERVAL if _jobs else None
 
 

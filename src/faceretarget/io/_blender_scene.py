@@ -25,6 +25,7 @@ import math
 import os
 import shutil
 import tempfile
+import time
 from collections.abc import Generator
 from pathlib import Path
 from typing import TypeVar
@@ -270,8 +271,9 @@ def _n_keys(obj) -> int:
     return len(keys.key_blocks) if keys is not None else 0
 
 
-#: Vertices whose vertex groups are read between two steps of a step generator.
-_STEP_VERTICES = 1000
+#: Vertices whose vertex groups are read at a time, and for how long at most before a step generator yields.
+_STEP_VERTICES = 100
+_STEP_SECONDS = 0.004
 
 
 def _skin_steps(obj, me, bones):
@@ -294,14 +296,18 @@ def _skin_steps(obj, me, bones):
             mats[g.index] = (m, index.get((arm.name, g.name), -1))
     vi, gi, wi = [], [], []
     verts = me.vertices
-    for a in range(0, V, _STEP_VERTICES):
-        for v in verts[a:a + _STEP_VERTICES]:
-            i = v.index
-            for g in v.groups:
-                vi.append(i)
-                gi.append(g.group)
-                wi.append(g.weight)
-        yield min(1.0, (a + _STEP_VERTICES) / V)
+    a = 0
+    while a < V:                    # a step reads vertices for a few milliseconds (wigs carry dozens of groups each)
+        until = time.perf_counter() + _STEP_SECONDS
+        while a < V and time.perf_counter() < until:
+            for v in verts[a:a + _STEP_VERTICES]:
+                i = v.index
+                for g in v.groups:
+                    vi.append(i)
+                    gi.append(g.group)
+                    wi.append(g.weight)
+            a += _STEP_VERTICES
+        yield min(1.0, a / V)
     vi, gi, wi = np.array(vi, np.int64), np.array(gi, np.int64), np.array(wi, np.float64)
     ok = (wi > 0) & np.isin(gi, np.fromiter(mats, np.int64, len(mats)))
     vi, gi, wi = vi[ok], gi[ok], wi[ok]
@@ -315,6 +321,7 @@ def _skin_steps(obj, me, bones):
     has = tot > 0
     M[has] /= tot[has, None, None]
     M[~has] = np.eye(4)
+    yield 1.0
     # the four largest influences of each vertex (ties: the group listed first)
     order = np.lexsort((np.arange(len(vi)), -wi, vi))
     vs = vi[order]
