@@ -48,8 +48,9 @@ try {
 }
 try {
   const report = await validator.validateBytes(bytes, { uri: basename(file), maxIssues: 1000 });
-  console.log(JSON.stringify(report, null, 2));
-  process.exit(report.issues.numErrors > 0 ? 1 : 0);
+  // exitCode, not exit(): a pipe's writes are asynchronous, and exit() would cut the report at 64-128 KB
+  process.stdout.write(JSON.stringify(report, null, 2) + "\n");
+  process.exitCode = report.issues.numErrors > 0 ? 1 : 0;
 } catch (e) {
   console.error(`${file}: validator failed: ${e}`);
   process.exit(2);
