@@ -460,7 +460,10 @@ def test_cli_live_bad_input_is_one_line(data_dir, tmp_path, capsys):
 def test_cli_live_stops_cleanly_on_ctrl_c(video, data_dir):
     cmd = [sys.executable, "-c", "import sys; from faceretarget.cli import main; sys.exit(main(sys.argv[1:]))",
            "live", "--video", str(video), "--character", str(data_dir / "arkit-face"), "--serve", "127.0.0.1:0"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C as a terminal sends it: a test run in the background (``make test &``) has SIGINT ignored, which the
+    # child would inherit, and Python then never raises KeyboardInterrupt
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     try:
         for line in proc.stdout:                  # wait until frames flow (after calibration)
