@@ -441,7 +441,7 @@ def _write_blender(out: Path, character: Character, shapes: dict, replace: bool,
 def _add_shape_keys(bpy, out: Path, character: Character, shapes: dict, replace: bool, msgs: list) -> int:
     """Add the shapes as shape keys on the objects of the open scene; how many were written."""
     from ._blender import BLENDER_AXES
-    from ._blender_scene import _m, _skin_steps, run_steps
+    from ._blender_scene import _key_block, _m, _skin_steps, run_steps
 
     A = np.eye(3) if character.route.startswith("Blender") else np.asarray(BLENDER_AXES, dtype=np.float64)
     scale = float(bpy.context.scene.unit_settings.scale_length or 1.0)
@@ -477,15 +477,14 @@ def _add_shape_keys(bpy, out: Path, character: Character, shapes: dict, replace:
         Linv = np.linalg.inv(np.asarray(L, dtype=np.float64))
         if me.shape_keys is None:
             obj.shape_key_add(name="Basis", from_mix=False)
-        kbs = me.shape_keys.key_blocks
         basis = me.shape_keys.reference_key
         bco = np.empty(V * 3, np.float32)
         basis.data.foreach_get("co", bco)
         bco = bco.reshape(V, 3).astype(np.float64)
         for name, D, existing in _split(sm, items, replace, msgs.append):
             dl = np.einsum("vij,vj->vi", Linv, D @ A.T) / scale
-            if existing is not None and name in kbs:
-                kb = kbs[name]
+            kb = _key_block(obj, name) if existing is not None else None
+            if kb is not None:
                 rel = kb.relative_key if kb.relative_key is not None else basis
                 r = np.empty(V * 3, np.float32)
                 rel.data.foreach_get("co", r)
@@ -495,7 +494,7 @@ def _add_shape_keys(bpy, out: Path, character: Character, shapes: dict, replace:
                 kb.relative_key = basis
                 base = bco
             kb.data.foreach_set("co", (base + dl).astype(np.float32).reshape(-1))
-            if kb.name != name:
+            if existing is None and kb.name != name:
                 raise OutputError(f"{out}: Blender named shape key '{name}' '{kb.name}' on '{obj.name}' (a clash)")
             n += 1
         me.update()
