@@ -254,3 +254,59 @@ def test_contact_sheet(tmp_path, chars):
     assert Image.open(j).format == "JPEG" and Image.open(j).size == (3 * 68 + 4, 64 + 18 + 8)
     with pytest.raises(MissingShapeError, match="nothing_like_this"):
         shape_sheet(ch, tmp_path / "x.png", shapes="nothing_like_this")
+
+
+def test_usd_layer_adds_blend_shapes(tmp_path, chars, arkit_rig):
+    """USD: a layer over the asset (untouched) adds bound BlendShape prims: a face written by write_usd
+    (.usda) and Rocketbox exported by Blender (.usdc, skinned, centimetres); read back by usd-core, and
+    UsdSkel's blend shape query and Blender's USD importer see them under their names."""
+    pytest.importorskip("pxr")
+    from pxr import Usd, UsdSkel
+
+    from faceretarget.io import write_usd
+
+    a = write_usd(tmp_path / "arkit.usda", arkit_rig, np.zeros((1, arkit_rig.n_shapes)), np.zeros(1))
+    assets = [(a, tmp_path / "arkit_new.usda")]
+    bpy = None
+    try:
+        import bpy  # noqa: F401
+    except ImportError:
+        pass
+    if bpy is not None:
+        from faceretarget.io._blender import _blender_output  # noqa: PLC2701
+
+        rb = tmp_path / "rb.usdc"
+        with _blender_output():
+            bpy.ops.wm.read_factory_settings(use_empty=True)
+            bpy.ops.import_scene.fbx(filepath=str(chars / "rocketbox" / "Female_Adult_01_facial.fbx"))
+            bpy.ops.wm.usd_export(filepath=str(rb), export_armatures=True, export_shapekeys=True,
+                                  export_animation=False, export_textures=False)
+            bpy.ops.wm.read_factory_settings(use_empty=True)
+        assets.append((rb, tmp_path / "rb_new.usdc"))
+    for src, out in assets:
+        before = src.read_bytes()
+        ch = read_character(src)
+        sm, added = _added(ch, ["cheekPuffBig", "jawOpen"])
+        added[sm.name]["jawOpen"] *= 2
+        write_character_shapes(out, ch, added, replace=True)
+        assert src.read_bytes() == before
+        ch2 = read_character(out)
+        sm2 = next(m for m in ch2.meshes if m.name == sm.name)
+        err = max(float(np.abs(sm2.deltas[sm2.shape_names.index(n)] - d).max()) for n, d in added[sm.name].items())
+        assert err < 1e-5, err
+        assert sm2.n_shapes == sm.n_shapes + (0 if "jawOpen" in sm.shape_names else 1) + 1
+        keep = [k for k, n in enumerate(sm.shape_names) if n not in added[sm.name]]
+        assert sm2.shape_names[:sm.n_shapes] == sm.shape_names
+        assert np.abs(sm2.deltas[keep] - sm.deltas[keep]).max() == 0, np.abs(sm2.deltas[keep] - sm.deltas[keep]).max()
+        print(f"USD {src.name}: max error {err:.2e} m")
+        stage = Usd.Stage.Open(str(out))
+        q = UsdSkel.BindingAPI(stage.GetPrimAtPath(sm.ref))
+        assert "cheekPuffBig" in list(q.GetBlendShapesAttr().Get())
+        if bpy is not None and src.suffix == ".usdc":
+            with _blender_output():
+                bpy.ops.wm.read_factory_settings(use_empty=True)
+                bpy.ops.wm.usd_import(filepath=str(out))
+                keys = {kb.name for o in bpy.data.objects if o.type == "MESH" and o.data.shape_keys
+                        for kb in o.data.shape_keys.key_blocks}
+                bpy.ops.wm.read_factory_settings(use_empty=True)
+            assert "cheekPuffBig" in keys, sorted(keys)[:5]

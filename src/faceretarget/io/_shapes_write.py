@@ -503,4 +503,72 @@ def _add_shape_keys(bpy, out: Path, character: Character, shapes: dict, replace:
 
 # ------------------------------------------------------------------------------------------ USD
 def _write_usd(out: Path, character: Character, shapes: dict, replace: bool, log) -> Path:
-    raise OutputError(f"{out}: writing shapes into USD is not implemented yet; write an OBJ folder instead")
+    """A layer over the USD asset (its sublayer, by a relative path) adding a ``BlendShape`` prim per new
+    shape under its mesh, bound through the mesh's ``skel:blendShapes`` / ``skel:blendShapeTargets``."""
+    from ._usd_scene import _pxr, _skins, point_maps
+
+    Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt = _pxr()
+    from pxr import Tf
+
+    asset = Path(character.path).resolve()
+    total = 0
+    with atomic_path(out) as tmp:
+        base = Usd.Stage.Open(str(asset))                    # stage metadata is the root layer's: copied over
+        mpu = float(UsdGeom.GetStageMetersPerUnit(base) or 0.01)
+        up_axis = UsdGeom.GetStageUpAxis(base)
+        del base
+        layer = Sdf.Layer.CreateAnonymous("faceretarget.usda")
+        layer.subLayerPaths.append(str(asset))
+        stage = Usd.Stage.Open(layer)
+        layer.customLayerData = {"generator": "faceretarget", "asset": asset.name}
+        UsdGeom.SetStageMetersPerUnit(stage, mpu)
+        UsdGeom.SetStageUpAxis(stage, up_axis)
+        xcache = UsdGeom.XformCache(Usd.TimeCode.Default())
+        _, skin_of = _skins(stage, xcache, mpu, [])
+        for mi, items in shapes.items():
+            sm = character.meshes[mi]
+            prim = stage.GetPrimAtPath(sm.ref)
+            if not prim or not prim.IsA(UsdGeom.Mesh):
+                raise OutputError(f"{out}: {asset.name} has no mesh prim {sm.ref} (mesh '{sm.name}')")
+            V = len(UsdGeom.Mesh(prim).GetPointsAttr().Get() or [])
+            if V != sm.mesh.n_vertices:
+                raise OutputError(f"{out}: mesh prim {sm.ref} has {V} points, the character's mesh '{sm.name}' "
+                                  f"{sm.mesh.n_vertices}")
+            M, _, _ = point_maps(prim, skin_of.get(sm.ref), xcache, V)
+            Linv = np.linalg.inv(np.asarray(M[:, :3, :3], dtype=np.float64))
+            bapi = UsdSkel.BindingAPI.Apply(prim)
+            names = [str(n) for n in (bapi.GetBlendShapesAttr().Get() or [])]
+            targets = list(bapi.GetBlendShapeTargetsRel().GetTargets()) if bapi.GetBlendShapeTargetsRel() else []
+            taken = {str(c.GetName()) for c in prim.GetChildren()}
+            for name, D, existing in _split(sm, items, replace, log):
+                off = np.einsum("vij,vj->vi", Linv, D) / mpu
+                if existing is not None and name in names and names.index(name) < len(targets):
+                    bs = UsdSkel.BlendShape(stage.GetPrimAtPath(targets[names.index(name)]))
+                else:
+                    base = Tf.MakeValidIdentifier(name)
+                    pn, k = base, 2
+                    while pn in taken:
+                        pn, k = f"{base}_{k}", k + 1
+                    taken.add(pn)
+                    bs = UsdSkel.BlendShape.Define(stage, prim.GetPath().AppendChild(pn))
+                    names.append(name)
+                    targets.append(bs.GetPath())
+                moved = np.flatnonzero(np.abs(off).max(axis=1) > 0)
+                bs.CreateOffsetsAttr().Set(Vt.Vec3fArray.FromNumpy(off[moved].astype(np.float32)))
+                bs.CreatePointIndicesAttr().Set(Vt.IntArray.FromNumpy(moved.astype(np.int32)))
+                total += 1
+            bapi.CreateBlendShapesAttr().Set(Vt.TokenArray(names))
+            bapi.CreateBlendShapeTargetsRel().SetTargets(targets)
+        del stage
+        layer.subLayerPaths[0] = os.path.relpath(asset, out.resolve().parent).replace(os.sep, "/")
+        dst = tmp.with_name(tmp.name + (".usda" if out.suffix.lower() == ".usda" else ".usdc"))
+        try:
+            if not layer.Export(str(dst)):
+                raise OutputError(f"{out}: USD could not write the layer")
+            os.replace(dst, tmp)
+        except Tf.ErrorException as e:
+            raise OutputError(f"{out}: USD could not write the layer ({str(e).strip()[:160]})") from e
+        finally:
+            dst.unlink(missing_ok=True)
+    log(f"wrote {out} (a layer over {asset.name} adding {total} blend shape(s))")
+    return out
