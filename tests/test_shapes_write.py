@@ -110,6 +110,16 @@ def test_valid_avatar_morph_targets_round_trip(tmp_path, chars):
     assert any(own in m and "kept" in m for m in logs)
     ch2, err = _check_gltf(src, out, ch, sm, added)
     print(f"VALID glb: max error {err:.2e} m")
+    from faceretarget.io import GltfDocument
+
+    doc = GltfDocument(out)                    # its targets have normals: the new ones too, zero for a shift
+    gm = doc.json["meshes"][doc.json["nodes"][int(sm.ref.split(":")[1])]["mesh"]]
+    shift = {sm.name: {"shift": np.tile(np.float32([0.001, -0.002, 0.0005]), (sm.mesh.n_vertices, 1))}}
+    doc2 = GltfDocument(write_character_shapes(tmp_path / "shift.glb", ch, shift))
+    for p, p2 in zip(gm["primitives"], doc2.json["meshes"][doc.json["nodes"][int(sm.ref.split(":")[1])]["mesh"]][
+            "primitives"], strict=True):
+        assert "NORMAL" in p["targets"][-1]
+        assert np.abs(doc2.accessor(p2["targets"][-1]["NORMAL"])).max() < 1e-4
     sm2 = ch2.meshes[ch.meshes.index(sm)]
     assert sm2.n_shapes == sm.n_shapes + len(ARKIT)
     # the new ARKit names are found by --shapes arkit
@@ -136,6 +146,13 @@ def test_robot_three_primitives_and_weight_animations(tmp_path, chars):
     mesh = js["meshes"][js["nodes"][int(sm.ref.split(':')[1])]["mesh"]]
     assert len(mesh["primitives"]) == 3 and all(len(p["targets"]) == 5 for p in mesh["primitives"])
     assert mesh["extras"]["targetNames"][-2:] == ["jawOpen", "eyeBlinkLeft"]
+    # three.js (headless Chromium) loads it with the new morph targets under their names
+    chromium = shutil.which("chromium") or "/usr/bin/chromium"
+    if shutil.which("node") and (REPO / ".tools" / "node_modules" / "three").is_dir() and Path(chromium).is_file():
+        r = subprocess.run(["node", str(REPO / "tests" / "browser" / "run_three.mjs"), str(out), "--times", "0",
+                            "--head", "none"], capture_output=True, text=True, timeout=200)
+        assert r.returncode == 0, r.stderr[-300:]
+        assert json.loads(r.stdout)["names"][-2:] == ["jawOpen", "eyeBlinkLeft"]
 
 
 @pytest.mark.parametrize("version", ["0", "1"])

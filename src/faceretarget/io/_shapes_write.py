@@ -175,6 +175,11 @@ def _vertex_normals(P: np.ndarray, T: np.ndarray) -> np.ndarray:
     return np.where(ln > 0, n / np.where(ln > 0, ln, 1.0), 0.0)
 
 
+def _unit(n: np.ndarray) -> np.ndarray:
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(ln > 0, n / np.where(ln > 0, ln, 1.0), 0.0)
+
+
 def _gltf_rest_maps(doc, js: dict, node_i: int, gmi: int, world: list) -> tuple[list, np.ndarray, np.ndarray]:
     """What the reader did to glTF mesh ``gmi`` drawn by node ``node_i``: the primitives it kept with their
     vertex slices ``[(p_i, start, count, local positions, triangles)]``, the rest world positions (V, 3) and
@@ -294,12 +299,16 @@ def _write_gltf(out: Path, character: Character, shapes: dict, replace: bool, lo
                 while len(tg) < k:                           # a primitive with fewer targets: zeros up to k
                     tg.append({"POSITION": zeros(count)})
                 if p_i in slices:
-                    a, n, pos, tri = slices[p_i]
+                    a, n, _pos, tri = slices[p_i]
                     dl = local[a:a + n]
                     entry = {"POSITION": add(dl)}
                     if any("NORMAL" in t for t in tg[:k] + tg[k + 1:]):
-                        entry["NORMAL"] = add(_vertex_normals(pos + dl, tri) - _vertex_normals(pos, tri),
-                                              minmax=False)
+                        # normals of the world surface at rest and deformed, in the primitive's normal space
+                        # (a normal maps to the world by L^-T, so back by L^T)
+                        Lp, Pw = L[a:a + n], P[a:a + n]
+                        n0 = _unit(np.einsum("vji,vj->vi", Lp, _vertex_normals(Pw, tri)))
+                        n1 = _unit(np.einsum("vji,vj->vi", Lp, _vertex_normals(Pw + D[a:a + n], tri)))
+                        entry["NORMAL"] = add(n1 - n0, minmax=False)
                 else:
                     entry = {"POSITION": zeros(count)}
                 if k < len(tg):
