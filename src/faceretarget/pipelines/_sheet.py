@@ -4,7 +4,7 @@
 shapes of other meshes tied to it: teeth, lashes follow) with the software renderer
 (:func:`~faceretarget.render.render_scene`, textures on), the same front view of the face for every
 tile, cropped to the face: the landmarks' box when they were found, else the box of the face mesh's
-vertices its shapes move, seen along :func:`~faceretarget.character.character_frame`.  Tiles go in a
+vertices its shapes move most (over a fifth of the largest motion), seen along :func:`~faceretarget.character.character_frame`.  Tiles go in a
 grid of ``cols`` columns with the shape's name under each; PNG, or JPEG by suffix.
 """
 
@@ -34,13 +34,17 @@ def _face_box(ch: Character) -> tuple[np.ndarray, np.ndarray, float, float]:
     if ch.landmarks is not None:
         pts = ch.landmark_positions()
         pad = (1.35, 1.35)
-    else:
+    else:                                   # the vertices the face shapes move most, their 1-99 % box
         from ..capture import face_region
 
         pts = face_region(ch)
-        pad = (1.15, 1.15)
+        m = ch.meshes[ch.primary]
+        mv = np.sqrt(m.vertex_motion2().max(axis=0)) if m.n_shapes else np.zeros(0)
+        if mv.size and mv.max() > 0 and (mv > 0.2 * mv.max()).sum() >= 20:
+            pts = m.mesh.vertices[mv > 0.2 * mv.max()]
+        pad = (1.3, 1.3)
     q = pts @ R.T
-    lo, hi = q.min(axis=0), q.max(axis=0)
+    lo, hi = np.percentile(q, 1, axis=0), np.percentile(q, 99, axis=0)
     c = ((lo + hi) / 2.0) @ R
     w, h = float(hi[0] - lo[0]) * pad[0], float(hi[1] - lo[1]) * pad[1]
     side = max(w, h, 1e-6)
