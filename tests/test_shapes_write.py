@@ -327,3 +327,46 @@ def test_usd_layer_adds_blend_shapes(tmp_path, chars, arkit_rig):
                         for kb in o.data.shape_keys.key_blocks}
                 bpy.ops.wm.read_factory_settings(use_empty=True)
             assert "cheekPuffBig" in keys, sorted(keys)[:5]
+
+
+def test_sheet_cli_without_landmarks_and_a_mesh_drawn_twice(tmp_path, chars, arkit_rig):
+    """``inspect --sheet`` on RobotExpressive (no human face found): the sheet is written before the error;
+    a glTF mesh drawn by two nodes turned differently: written, with a warning naming the other node."""
+    import sys
+
+    pytest.importorskip("mediapipe")
+    sheet = tmp_path / "robot.png"
+    r = subprocess.run([sys.executable, "-m", "faceretarget.cli._main", "character", "inspect",
+                        str(chars / "robot" / "RobotExpressive.glb"), "--sheet", str(sheet)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "no face found" in r.stderr and "contact sheet" in r.stderr + r.stdout
+    from PIL import Image
+
+    with Image.open(sheet) as im:
+        assert im.size == (4 * (224 + 4) + 4, 224 + 22 + 4 + 4)         # neutral and the three moods
+
+    from faceretarget.io import write_glb
+
+    src = write_glb(tmp_path / "a.glb", arkit_rig, np.zeros((1, arkit_rig.n_shapes)), np.zeros(1))
+    js, binchunk = _glb_parts(src)
+    mesh_node = next(i for i, n in enumerate(js["nodes"]) if "mesh" in n)
+    twin = {**js["nodes"][mesh_node], "name": "twin", "rotation": [0.0, 0.7071068, 0.0, 0.7071068]}
+    twin.pop("weights", None)
+    js["nodes"].append(twin)
+    js["scenes"][0]["nodes"].append(len(js["nodes"]) - 1)
+    body = json.dumps(js).encode()
+    body += b" " * ((-len(body)) % 4)
+    two = tmp_path / "two.glb"
+    two.write_bytes(struct.pack("<III", 0x46546C67, 2, 28 + len(body) + len(binchunk))
+                    + struct.pack("<II", len(body), 0x4E4F534A) + body
+                    + struct.pack("<II", len(binchunk), 0x004E4942) + binchunk)
+    ch = read_character(two)
+    assert len(ch.meshes) == 2
+    sm, added = _added(ch, ["x"], mesh=0)
+    logs: list[str] = []
+    out = write_character_shapes(tmp_path / "two_out.glb", ch, added, log=logs.append)
+    assert any("warning" in m and "twin" in m for m in logs), logs
+    ch2 = read_character(out)
+    assert np.abs(ch2.meshes[0].deltas[-1] - added[sm.name]["x"]).max() < 1e-5
+    with pytest.raises(InvalidDataError, match="same glTF mesh"):
+        write_character_shapes(tmp_path / "x.glb", ch, {**added, ch.meshes[1].name: added[sm.name]})
