@@ -125,6 +125,14 @@ def test_valid_avatar_morph_targets_round_trip(tmp_path, chars):
     # the new ARKit names are found by --shapes arkit
     dr = drive_rig(ch2, "arkit", need_landmarks=False)
     assert {c.name for c in dr.channels} >= set(ARKIT)
+    # a mesh with no morph targets at all (the hair) gets its first, with names
+    wig = next(m for m in ch.meshes if m.n_shapes == 0 and m.mesh.n_vertices > 1000)
+    d = _field(wig.mesh.vertices, 11)
+    w2 = read_character(write_character_shapes(tmp_path / "wig.glb", ch, {wig.name: {"jawOpen": d}}))
+    w2m = w2.meshes[ch.meshes.index(wig)]
+    assert w2m.shape_names == ["jawOpen"] and np.abs(w2m.deltas[0] - d).max() < 1e-5
+    va, vb = _validator(src), _validator(tmp_path / "wig.glb")
+    assert va is None or not (vb - va)
     # replace=True: the file's own shape replaced, indices unchanged
     new = _field(sm.mesh.vertices, 7)
     out2 = write_character_shapes(tmp_path / "busi2.glb", ch, {sm.name: {own: new}}, replace=True)
