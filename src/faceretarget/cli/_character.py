@@ -1,4 +1,4 @@
-"""Command line: ``faceretarget character inspect FILE [--out check.png]``.
+"""Command line: ``faceretarget character inspect FILE [--out check.png] [--sheet shapes.png]``.
 
 What the character reader and the landmark search make of a character file (:func:`faceretarget.pipelines.
 inspect_character`): the route and meshes, the face meshes and joints found, the shapes grouped by the face
@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..errors import OutputError
+from ..errors import FaceNotFoundError, OutputError
 from ._support import check_inputs, warnings_to_log
 
 __all__ = ["register", "cmd_inspect"]
@@ -31,10 +31,30 @@ def cmd_inspect(args, log) -> int:
         from ..files import check_output_path
 
         check_output_path(out)
+    sheet = getattr(args, "sheet", None)
+    if sheet is not None:
+        if Path(sheet).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+            raise OutputError(f"{sheet}: the contact sheet is a .png or .jpg")
+        from ..files import check_output_path
+
+        check_output_path(sheet)
     check_character_route(args.file)
     with warnings_to_log(log):
-        rep = inspect_character(args.file, out=args.out, shapes=args.shapes, landmarks=args.landmarks,
-                                mesh=args.mesh, log=log)
+        try:
+            rep = inspect_character(args.file, out=args.out, shapes=args.shapes, landmarks=args.landmarks,
+                                    mesh=args.mesh, log=log)
+        except FaceNotFoundError:
+            if sheet is None:
+                raise
+            from ..pipelines import load_character, shape_sheet
+
+            log("no landmarks: the contact sheet frames the face mesh's moving vertices instead")
+            shape_sheet(load_character(args.file, mesh=args.mesh, find=False), sheet, shapes=args.shapes, log=log)
+            raise
+        if sheet is not None:
+            from ..pipelines import shape_sheet
+
+            shape_sheet(rep.character, sheet, shapes=args.shapes, log=log)
     if args.json:
         ch = rep.character
         print(json.dumps({
@@ -63,6 +83,8 @@ def register(subparsers) -> argparse.ArgumentParser:
     i.add_argument("--shapes", default="auto", help="which shapes drive: auto, arkit, visemes, all or names")
     i.add_argument("--landmarks", help="a landmark file to use instead of the automatic search")
     i.add_argument("--mesh", help="the face mesh when the file holds several heads")
+    i.add_argument("--sheet", metavar="OUT", help="contact sheet (.png or .jpg): the neutral and every shape "
+                   "chosen by --shapes (auto means all) rendered at weight 1, front view of the face")
     i.add_argument("--json", action="store_true", help="also print what was found as one JSON line")
     i.set_defaults(func=cmd_inspect)
     return c

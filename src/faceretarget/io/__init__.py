@@ -101,6 +101,7 @@ from ._registry import (
     write_head_motion,
 )
 from ._rig import read_rig, read_rig_npz, write_rig, write_rig_npz
+from ._shapes_write import SHAPES_WRITE, write_character_shapes
 from ._svg import (
     DRAWING_FORMATS,
     POINT_SET_FORMATS,
@@ -121,7 +122,8 @@ __all__ = [
     "character_format", "check_character_route",
     "read_blender_scene_character", "scene_character_steps", "scene_action_steps", "character_objects", "run_steps",
     "head_bones", "HeadBone",
-    "GltfDocument", "write_character_animation", "writes_back", "WRITE_BACK", "write_plain_glb", "write_vrma",
+    "GltfDocument", "write_character_shapes", "SHAPES_WRITE",
+    "write_character_animation", "writes_back", "WRITE_BACK", "write_plain_glb", "write_vrma",
     "read_obj", "read_obj_vertices", "write_obj", "read_obj_sequence", "write_obj_sequence",
     "read_rig", "write_rig", "write_rig_npz", "read_rig_npz",
     "read_livelinkface", "write_livelinkface", "LiveLinkFaceInfo",

@@ -359,9 +359,10 @@ def _write_glb(out: Path, js: dict, binchunk: bytes) -> None:
             f.write(binpad)
 
 
-def _write_gltf_json(out: Path, js: dict, doc, new: bytes) -> None:
+def _write_gltf_json(out: Path, js: dict, doc, new: bytes, new_name: str | None = None) -> None:
     """A ``.gltf`` copy: external files referenced where they are (relative to the copy), the new data
-    in ``<out>.anim.bin``; a GLB input's binary chunk is written beside it too (``<out>.bin``)."""
+    in ``<out>.anim.bin`` (or ``new_name`` beside it); a GLB input's binary chunk is written beside it too
+    (``<out>.bin``)."""
     buffers = js.setdefault("buffers", [])
     extra: list[tuple[Path, bytes]] = []
     for i, b in enumerate(buffers):
@@ -374,7 +375,7 @@ def _write_gltf_json(out: Path, js: dict, doc, new: bytes) -> None:
     for img in js.get("images", []):
         if "uri" in img and not img["uri"].startswith("data:"):
             img["uri"] = _rebase(img["uri"], doc.folder, out.parent)
-    anim = out.with_name(out.stem + ".anim.bin")
+    anim = out.with_name(new_name or out.stem + ".anim.bin")
     buffers.append({"uri": anim.name, "byteLength": len(new)})
     for v in js["bufferViews"]:
         if v.get("buffer") == -1:

@@ -75,6 +75,24 @@ def read_usd_character(path: str | os.PathLike) -> Character:
     t = Usd.TimeCode.Default()
     xcache = UsdGeom.XformCache(t)
     notes: list[str] = []
+    joints, skin_of = _skins(stage, xcache, mpu, notes)
+    meshes: list[SceneMesh] = []
+    images: dict[str, EncodedImage | None] = {}
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdGeom.Mesh) or UsdGeom.Imageable(prim).ComputeVisibility(t) == UsdGeom.Tokens.invisible:
+            continue
+        sm = _mesh(prim, path, skin_of.get(str(prim.GetPath())), xcache, mpu, notes, images, Sdf, UsdGeom,
+                   UsdShade, UsdSkel)
+        if sm is not None:
+            meshes.append(sm)
+    return Character(path, "usd", "usd-core", meshes, joints, up=up, front=None, notes=notes,
+                     source_unit={0.01: "cm", 1.0: "m", 0.001: "mm"}.get(round(mpu, 6), f"{mpu:g} m"))
+
+
+def _skins(stage, xcache, mpu: float, notes: list) -> tuple[list[Joint], dict[str, tuple]]:
+    """Every skeleton's joints (rest world matrices, metres) and, per skinned mesh prim path, its skinning
+    query, the joints' world skinning matrices (J, 4, 4) and its first joint's index."""
+    Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt = _pxr()
     joints: list[Joint] = []
     skin_of: dict[str, tuple] = {}              # mesh path -> (skinning query, skin xforms (J,4,4) world, joint offset)
     cache = UsdSkel.Cache()
@@ -107,17 +125,32 @@ def read_usd_character(path: str | os.PathLike) -> Character:
             skinx = np.stack([S @ skel_space[j] @ np.linalg.inv(bind[j]) for j in range(len(names))])
             for sq in binding.GetSkinningTargets():
                 skin_of[str(sq.GetPrim().GetPath())] = (sq, skinx, off)
-    meshes: list[SceneMesh] = []
-    images: dict[str, EncodedImage | None] = {}
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Mesh) or UsdGeom.Imageable(prim).ComputeVisibility(t) == UsdGeom.Tokens.invisible:
-            continue
-        sm = _mesh(prim, path, skin_of.get(str(prim.GetPath())), xcache, mpu, notes, images, Sdf, UsdGeom,
-                   UsdShade, UsdSkel)
-        if sm is not None:
-            meshes.append(sm)
-    return Character(path, "usd", "usd-core", meshes, joints, up=up, front=None, notes=notes,
-                     source_unit={0.01: "cm", 1.0: "m", 0.001: "mm"}.get(round(mpu, 6), f"{mpu:g} m"))
+    return joints, skin_of
+
+
+def point_maps(prim, skin, xcache, V: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """A mesh prim's points to the world at rest: per-point (V, 4, 4) matrices (linear blend skinning with
+    the skeleton's rest pose and the geomBindTransform, or the prim's world transform), and the top four
+    skin joints and weights (None without a skin).  A mesh bound to a skeleton only for its blend shapes
+    (no joint influences, as :func:`~faceretarget.io.write_usd` writes a face) is placed by its transform."""
+    if skin is None or not skin[0].HasJointInfluences():
+        M = np.broadcast_to(np.array(xcache.GetLocalToWorldTransform(prim), dtype=np.float64).T, (V, 4, 4))
+        return M, None, None
+    sq, skinx, _off = skin
+    geom = np.array(sq.GetGeomBindTransform(), dtype=np.float64).T
+    ji, jw = sq.ComputeJointInfluences()
+    n = sq.GetNumInfluencesPerComponent()
+    ji = np.asarray(ji, dtype=np.int64).reshape(-1, n)
+    jw = np.asarray(jw, dtype=np.float64).reshape(-1, n)
+    if len(ji) == 1:                                  # constant interpolation: one set for every point
+        ji, jw = np.repeat(ji, V, axis=0), np.repeat(jw, V, axis=0)
+    M = (jw[:, :, None, None] * skinx[ji]).sum(axis=1) @ geom
+    tot = jw.sum(axis=1)
+    M[tot <= 0] = skinx[0] @ geom if len(skinx) else np.eye(4)
+    order = np.argsort(-jw, axis=1)[:, :4]
+    sj = np.take_along_axis(ji, order, axis=1) + _off
+    sw = np.take_along_axis(jw, order, axis=1)
+    return M, sj, sw
 
 
 def _mesh(prim, path, skin, xcache, mpu, notes, images, Sdf, UsdGeom, UsdShade, UsdSkel) -> SceneMesh | None:
@@ -135,24 +168,7 @@ def _mesh(prim, path, skin, xcache, mpu, notes, images, Sdf, UsdGeom, UsdShade, 
         if ok_faces.any() else np.zeros(0, np.int64)
     if m.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
         notes.append(f"{prim.GetPath()}: left-handed orientation; faces kept as written")
-    if skin is not None:
-        sq, skinx, _off = skin
-        geom = np.array(sq.GetGeomBindTransform(), dtype=np.float64).T
-        ji, jw = sq.ComputeJointInfluences()
-        n = sq.GetNumInfluencesPerComponent()
-        ji = np.asarray(ji, dtype=np.int64).reshape(-1, n)
-        jw = np.asarray(jw, dtype=np.float64).reshape(-1, n)
-        if len(ji) == 1:                                  # constant interpolation: one set for every point
-            ji, jw = np.repeat(ji, V, axis=0), np.repeat(jw, V, axis=0)
-        M = (jw[:, :, None, None] * skinx[ji]).sum(axis=1) @ geom
-        tot = jw.sum(axis=1)
-        M[tot <= 0] = skinx[0] @ geom if len(skinx) else np.eye(4)
-        order = np.argsort(-jw, axis=1)[:, :4]
-        sj = np.take_along_axis(ji, order, axis=1) + _off
-        sw = np.take_along_axis(jw, order, axis=1)
-    else:
-        M = np.broadcast_to(np.array(xcache.GetLocalToWorldTransform(prim), dtype=np.float64).T, (V, 4, 4))
-        sj = sw = None
+    M, sj, sw = point_maps(prim, skin, xcache, V)
     L = M[:, :3, :3]
     world = ((L * local[:, None, :]).sum(axis=2) + M[:, :3, 3]) * mpu
     names, deltas = [], []

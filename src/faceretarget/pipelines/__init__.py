@@ -103,6 +103,7 @@ from ._restyle_video import (
     speaker_edited_landmarks,
     write_face_video,
 )
+from ._sheet import shape_sheet
 from ._style import fit_speaker_style, fit_style, read_style_take
 from ._transfer import (
     CHUNK_FRAMES,
@@ -132,6 +133,7 @@ __all__ = [
     "look_rig",
     "DriveRig",
     "inspect_character",
+    "shape_sheet",
     "CharacterReport",
     "landmark_cache_path",
     "read_landmark_file", "landmark_record", "apply_landmark_record", "mesh_sha256",
