@@ -514,7 +514,7 @@ def _add_shape_keys(bpy, out: Path, character: Character, shapes: dict, replace:
 def _write_usd(out: Path, character: Character, shapes: dict, replace: bool, log) -> Path:
     """A layer over the USD asset (its sublayer, by a relative path) adding a ``BlendShape`` prim per new
     shape under its mesh, bound through the mesh's ``skel:blendShapes`` / ``skel:blendShapeTargets``."""
-    from ._usd_scene import _pxr, _skins, point_maps
+    from ._usd_scene import _pxr, _skins, copy_stage_metrics, point_maps
 
     Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt = _pxr()
     from pxr import Tf
@@ -522,16 +522,12 @@ def _write_usd(out: Path, character: Character, shapes: dict, replace: bool, log
     asset = Path(character.path).resolve()
     total = 0
     with atomic_path(out) as tmp:
-        base = Usd.Stage.Open(str(asset))                    # stage metadata is the root layer's: copied over
-        mpu = float(UsdGeom.GetStageMetersPerUnit(base) or 0.01)
-        up_axis = UsdGeom.GetStageUpAxis(base)
-        del base
         layer = Sdf.Layer.CreateAnonymous("faceretarget.usda")
         layer.subLayerPaths.append(str(asset))
         stage = Usd.Stage.Open(layer)
         layer.customLayerData = {"generator": "faceretarget", "asset": asset.name}
-        UsdGeom.SetStageMetersPerUnit(stage, mpu)
-        UsdGeom.SetStageUpAxis(stage, up_axis)
+        copy_stage_metrics(stage, asset)                     # stage metadata is the root layer's: copied over
+        mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
         xcache = UsdGeom.XformCache(Usd.TimeCode.Default())
         _, skin_of = _skins(stage, xcache, mpu, [])
         for mi, items in shapes.items():

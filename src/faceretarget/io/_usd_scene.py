@@ -249,6 +249,19 @@ def _material(prim, path, notes, images, UsdShade) -> Material:
 
 
 # ------------------------------------------------------------------------------------------ writing
+def copy_stage_metrics(stage, asset: Path) -> None:
+    """Give a layer over ``asset`` the asset's ``metersPerUnit`` and ``upAxis``: a stage reads them from its root
+    layer only, so without them a centimetre or Z-up asset is shown at the wrong size or on its back."""
+    from pxr import Usd, UsdGeom
+
+    base = Usd.Stage.Open(str(asset))
+    mpu = UsdGeom.GetStageMetersPerUnit(base)
+    up = UsdGeom.GetStageUpAxis(base)
+    del base
+    UsdGeom.SetStageMetersPerUnit(stage, float(mpu or 0.01))
+    UsdGeom.SetStageUpAxis(stage, up)
+
+
 def write_usd_animation(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray, *,
                         head: HeadPose | None = None, audio=None, audio_rate=None, neck_share: float = 0.0,
                         gaze: dict | None = None, name: str = "faceretarget", log=None) -> Path:
@@ -282,6 +295,7 @@ def write_usd_animation(out: Path, character: Character, chans: list[Channel], W
         layer = Sdf.Layer.CreateAnonymous("faceretarget.usda")
         layer.subLayerPaths.append(str(asset))              # absolute while composing, relative when saved
         stage = Usd.Stage.Open(layer)
+        copy_stage_metrics(stage, asset)
         stage.SetTimeCodesPerSecond(fps)
         stage.SetFramesPerSecond(fps)
         stage.SetStartTimeCode(0.0)
