@@ -82,7 +82,33 @@ def face_region(character: Character, mesh: int | None = None) -> np.ndarray:
         sel = mv > 0.05 * mv.max() if mv.max() > 0 else np.zeros(len(mv), bool)
         if sel.sum() >= 20:
             return m.mesh.vertices[sel]
-    return m.mesh.vertices
+    return head_part(character, m.mesh.vertices)
+
+
+def head_part(character: Character, V: np.ndarray) -> np.ndarray:
+    """The vertices of a mesh without face shapes that make its head: those near the head joint and
+    above the neck joint when the skeleton has them; else, for a tall mesh (a whole figure, taller than
+    twice its width), its top eighth along the up direction; else all of them."""
+    up = np.array([0.0, 1.0, 0.0]) if character.up is None else np.asarray(character.up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    head, neck = character.joint("head"), character.joint("neck")
+    if head is not None:
+        h = V @ up
+        ref = neck.position if neck is not None else head.position
+        r = 2.5 * float(np.linalg.norm(head.position - neck.position)) if neck is not None else 0.0
+        r = max(r, 0.15)
+        sel = (np.linalg.norm(V - head.position, axis=1) < r) & (h >= float(ref @ up))
+        if sel.sum() >= 20:
+            return V[sel]
+    h = V @ up
+    height = float(np.ptp(h))
+    flat = V - np.outer(h, up)
+    width = float(np.ptp(flat, axis=0).max())
+    if height > 2.0 * width:
+        sel = h >= h.max() - 0.125 * height
+        if sel.sum() >= 20:
+            return V[sel]
+    return V
 
 
 def _candidates(character: Character) -> list[tuple[np.ndarray, np.ndarray]]:
