@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     out = {"neutral": V, "triangles": T, "landmarks": np.asarray(rig.landmarks, np.int32),
            "names": np.array(list(rig.source_names or rig.names))}
     worst = 0.0
-    for i, n in enumerate(out["names"]):
+    for i in range(len(out["names"])):
         mv = np.flatnonzero(np.abs(D[i]).max(axis=1) > 1e-7)
         d16 = D[i, mv].astype(np.float16)
         worst = max(worst, float(np.abs(d16.astype(np.float64) - D[i, mv]).max(initial=0.0)))

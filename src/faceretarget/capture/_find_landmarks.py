@@ -209,6 +209,46 @@ def _separate_lips(character: Character, prim: int, alone, pts: np.ndarray, tris
             bary[k] = barycentric_2d(proj[tv, :2], np.array([xs[j], ys[j]], dtype=np.float64))
 
 
+def _front_surface(character: Character, prim: int, alone, pts: np.ndarray, tris: np.ndarray, bary: np.ndarray,
+                   front: np.ndarray, radius: int) -> None:
+    """Move a point that fell through a hole of the face (an eye socket or the mouth of a head whose eyes
+    and teeth are other meshes: the render of the face mesh alone shows the inside of the back of the head
+    there) to the nearest pixel of the face's front surface.  A point is through a hole when it lies
+    further behind the others' median depth than half the face's width.  Changes ``tris`` and ``bary``."""
+    ok = tris[:, 0] >= 0
+    if ok.sum() < 20:
+        return
+    V = character.meshes[prim].mesh.vertices
+    f = np.asarray(front, dtype=np.float64)
+    P = np.einsum("pk,pkd->pd", bary[ok], V[tris[ok]])
+    depth = np.full(len(tris), np.nan)
+    depth[ok] = P @ f
+    inner = np.arange(17, 68)
+    med = float(np.nanmedian(depth[inner]))
+    width = float(np.ptp(P, axis=0).max())
+    bad = np.flatnonzero(ok & (depth < med - 0.5 * width))
+    if not len(bad):
+        return
+    faces = character.meshes[prim].mesh.triangles()
+    ys, xs = np.nonzero(alone.mesh == prim)
+    tri_at = alone.triangle[ys, xs]
+    tdepth = V[faces[tri_at]].mean(axis=1) @ f
+    good_px = tdepth >= med - 0.5 * width
+    proj = alone.camera.project(V)
+    from ..render import barycentric_2d
+
+    for k in bad:
+        x, y = pts[k]
+        dd = (xs - x) ** 2 + (ys - y) ** 2
+        cand = np.flatnonzero(good_px & (dd <= radius ** 2))
+        if not len(cand):
+            continue
+        j = cand[np.argmin(dd[cand])]
+        tv = faces[tri_at[j]]
+        tris[k] = tv
+        bary[k] = barycentric_2d(proj[tv, :2], np.array([xs[j], ys[j]], dtype=np.float64))
+
+
 def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=None) -> LandmarkSearch:
     """Find the character's 68 landmarks on a render of its neutral face (module docstring).
 
@@ -282,6 +322,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         alone = render_scene(character.meshes, cam2, only=[prim], textures=False)
         tris, bary, dist = pick(alone, character.meshes, pts, prim, radius=max(6, size // 40))
         _separate_lips(character, prim, alone, pts, tris, bary, radius=max(4, size // 40))
+        _front_surface(character, prim, alone, pts, tris, bary, front, radius=max(8, size // 25))
         if (tris < 0).any():
             bad = np.flatnonzero((tris < 0).any(axis=1))
             raise FaceNotFoundError(

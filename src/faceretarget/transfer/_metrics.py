@@ -9,7 +9,8 @@ import numpy as np
 from ..character import Character, character_frame
 from ..names import normalize_name
 
-__all__ = ["blink_gap_pct", "lip_gap_pct", "inverted_triangles", "mirror_err_pct", "shape_metrics", "shape_delta"]
+__all__ = ["blink_gap_pct", "lip_gap_pct", "inverted_triangles", "mirror_err_pct", "shape_metrics", "shape_delta",
+           "eye_parts"]
 
 LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))
 LIP_PAIRS = ((61, 67), (62, 66), (63, 65))
@@ -119,8 +120,9 @@ def inverted_triangles(character: Character, names: list[str] | None = None, mes
 def mirror_err_pct(character: Character, *, symmetric_tol: float = 0.02) -> float | None:
     """How far left/right shape pairs are from mirror images about the face's symmetry plane: the motion
     of ``xxxLeft`` minus the mirrored motion of ``xxxRight`` at the mirrored vertex, RMS over the moving
-    vertices, over the RMS motion, %, the worst pair; None when the face is not symmetric (its mirrored
-    vertices further than ``symmetric_tol`` of the outer-eye-corner distance from the mesh, mean)."""
+    vertices of the face's skin (the piece of the mesh the landmarks are on), over the RMS motion, %, the
+    worst pair; None when the face is not symmetric (its mirrored vertices further than ``symmetric_tol``
+    of the outer-eye-corner distance from the mesh, mean)."""
     from scipy.spatial import cKDTree
 
     mi = character.landmarks.mesh
@@ -128,16 +130,21 @@ def mirror_err_pct(character: Character, *, symmetric_tol: float = 0.02) -> floa
     F = character_frame(character)
     lm = _lm(character, None)
     size = float(np.linalg.norm(lm[36] - lm[45]))
+    from ._parts import components
+
     H = (V - lm[27:36].mean(0)) @ F.T                    # head frame about the nose line
-    near = np.linalg.norm(V - lm[17:68].mean(0), axis=1) < 1.5 * size
-    Hm = H * np.array([-1.0, 1.0, 1.0])
-    x0 = float(np.median(H[near, 0]))
+    T = character.meshes[mi].mesh.triangles()
+    lab = components(len(V), T)
+    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    near = skin & (np.linalg.norm(V - lm[17:68].mean(0), axis=1) < 1.5 * size)
+    idx = np.flatnonzero(near)
+    Hm = H[idx] * np.array([-1.0, 1.0, 1.0])
+    x0 = float(np.median(H[idx, 0]))
     Hm[:, 0] += 2 * x0
-    tree = cKDTree(H)
-    dist, mate = tree.query(Hm[near])
+    dist, mate = cKDTree(H[idx]).query(Hm)
+    mate = idx[mate]
     if float(dist.mean()) > symmetric_tol * size:
         return None
-    idx = np.flatnonzero(near)
     worst = None
     names = {normalize_name(n) for n in character.meshes[mi].shape_names}
     for n in sorted(names):
@@ -155,8 +162,26 @@ def mirror_err_pct(character: Character, *, symmetric_tol: float = 0.02) -> floa
     return worst
 
 
-def shape_metrics(character: Character, eyes=None) -> dict:
-    """``blink_gap_pct``, ``lid_inside_eye``, ``lip_gap_pct``, ``inverted_triangles``, ``mirror_err_pct``."""
+def eye_parts(character: Character) -> list:
+    """The character's eyeballs (:class:`~faceretarget.transfer.Part` with ``centre`` and ``radius``), found
+    as :func:`~faceretarget.transfer.generate_shapes` finds them."""
+    from ._parts import components, find_parts
+
+    mi = character.landmarks.mesh
+    m = character.meshes[mi]
+    V = m.mesh.vertices
+    lab = components(len(V), m.mesh.triangles())
+    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    lm = _lm(character, None)
+    size = float(np.linalg.norm(lm[36] - lm[45]))
+    return [p for p in find_parts(character, mi, skin, lm, character_frame(character), size) if p.role == "eye"]
+
+
+def shape_metrics(character: Character, eyes="auto") -> dict:
+    """``blink_gap_pct``, ``lid_inside_eye``, ``lip_gap_pct``, ``inverted_triangles``, ``mirror_err_pct``
+    (``eyes="auto"``: :func:`eye_parts`)."""
+    if isinstance(eyes, str):
+        eyes = eye_parts(character)
     bg, inside = blink_gap_pct(character, eyes)
     return {"blink_gap_pct": bg, "lid_inside_eye": inside, "lip_gap_pct": lip_gap_pct(character),
             "inverted_triangles": inverted_triangles(character), "mirror_err_pct": mirror_err_pct(character)}

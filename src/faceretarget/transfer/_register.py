@@ -103,7 +103,7 @@ def register_template(tv: np.ndarray, tt: np.ndarray, t_lm: tuple[np.ndarray, np
     Xs = np.zeros((4 * n, 3))
     Xs[0::4], Xs[1::4], Xs[2::4] = np.eye(3)[0], np.eye(3)[1], np.eye(3)[2]
     beta0 = 3.0
-    for level, alpha in enumerate(schedule):
+    for alpha in schedule:
         beta = beta0 * (alpha / schedule[0]) ** 0.5
         for _ in range(iterations):
             P = D0 @ Xs

@@ -30,7 +30,7 @@ EYE_LOOK_DEGREES = {"Up": 25.0, "Down": 25.0, "In": 30.0, "Out": 30.0}
 METHODS = ("deformation", "barycentric")
 #: Weight of the positional anchor (the barycentric transfer) relative to the gradient term, per unit of
 #: (outer-eye-corner distance)^-2, and of the lid / lip landmark constraints.
-_ANCHOR, _PIN = 0.05, 200.0
+_ANCHOR, _PIN = 0.05, 20000.0
 
 
 @dataclass(eq=False)
@@ -262,9 +262,29 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-30)
     vn = vertex_normals(V, T)
     ridx = np.flatnonzero(region)
-    ttree = cKDTree(reg[tt].mean(axis=1))
-    ctri, cbar, cdist = closest_points(reg, tt, V[ridx], k=8, normals=tn, point_normals=vn[ridx], min_cos=0.3,
-                                       tree=ttree)
+    t_lm_reg = np.einsum("pk,pkd->pd", tmpl.lm_bary, reg[tmpl.lm_triangles])
+    t_side = _mouth_side(reg, t_lm_reg, F, size)
+    t_tri_side = np.sign(t_side[tt].sum(axis=1))
+    c_side = _mouth_side(V, lm, F, size)
+
+    def corr(P, normals, side):
+        """Closest compatible template point: a point of the character's upper lip only on the template's
+        upper lip, of the lower only on the lower (closed lips touch: nearness alone mixes them)."""
+        tri = np.zeros(len(P), np.int64)
+        bar = np.zeros((len(P), 3))
+        dist = np.zeros(len(P))
+        for sd in (-1, 0, 1):
+            sel = np.flatnonzero(side == sd)
+            if not len(sel):
+                continue
+            allowed = np.flatnonzero(t_tri_side != -sd) if sd else np.arange(len(tt))
+            sub = tt[allowed]
+            t_, b_, d_ = closest_points(reg, sub, P[sel], k=8, normals=tn[allowed], point_normals=normals[sel],
+                                        min_cos=0.3)
+            tri[sel], bar[sel], dist[sel] = allowed[t_], b_, d_
+        return tri, bar, dist
+
+    ctri, cbar, cdist = corr(V[ridx], vn[ridx], c_side[ridx])
     # coverage: 1 on the template, fading to 0 within a fifth of the eye-corner distance off it, and
     # towards the template's own outer border
     te = np.concatenate([tt[:, [0, 1]], tt[:, [1, 2]], tt[:, [2, 0]]])
@@ -288,6 +308,13 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     free = np.flatnonzero(w > 1e-3)
     if len(free) < 20:
         raise InvalidDataError(f"{ch.name}: the template covers no part of '{hm.name}' (registration failed)")
+    if "jawOpen" in tmpl.shapes:
+        d_jaw = tmpl.shapes["jawOpen"] @ (s * R).T
+        ub_jaw = np.zeros((len(V), 3))
+        ub_jaw[ridx] = np.einsum("nk,nkd->nd", cbar, d_jaw[tt[ctri]]) * w[ridx, None]
+        moved = _separate_lips(ch, V, ub_jaw, size)
+        if moved:
+            notes.append(f"inner-lip landmarks {', '.join(map(str, moved))} moved onto the lip that opens with the jaw")
     # the system: gradients of the free vertices' motion on the triangles that touch them
     ft = T[(w[T] > 1e-3).any(axis=1)]
     Gfull = gradient_operator(V, ft)
@@ -326,11 +353,9 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     timings["factor"] = time.perf_counter() - t0
     say(f"factorised the {len(free)}-vertex system in {timings['factor']:.2f} s")
     # per character triangle: the template triangle under its centroid; per vertex: coverage
-    ttri_c, _, _ = closest_points(reg, tt, V[ft].mean(axis=1), k=8, normals=tn,
-                                  point_normals=np.cross(V[ft[:, 1]] - V[ft[:, 0]], V[ft[:, 2]] - V[ft[:, 0]])
-                                  / np.maximum(np.linalg.norm(np.cross(V[ft[:, 1]] - V[ft[:, 0]],
-                                                                       V[ft[:, 2]] - V[ft[:, 0]]), axis=1,
-                                                              keepdims=True), 1e-30), min_cos=0.3, tree=ttree)
+    fnrm = np.cross(V[ft[:, 1]] - V[ft[:, 0]], V[ft[:, 2]] - V[ft[:, 0]])
+    fnrm /= np.maximum(np.linalg.norm(fnrm, axis=1, keepdims=True), 1e-30)
+    ttri_c, _, _ = corr(V[ft].mean(axis=1), fnrm, np.sign(c_side[ft].sum(axis=1)))
     wt = w[ft].mean(axis=1)
     grad0 = (Gfull @ V).reshape(-1, 3, 3)                # per triangle: rows d/dk of x_c -> J[k, c]
     parts = find_parts(ch, head, skin, lm, F, size)
@@ -443,9 +468,12 @@ def _pin_targets(a, pins, lm_pos, rows, ch, V, added, eyes, tmpl, d_t, size) -> 
         return f"lids closed at {n} landmark pairs" if n else ""
     if a == "mouthClose" and "jawOpen" in added:
         op = lm_pos(added["jawOpen"])
+        t_d = np.einsum("pk,pkd->pd", tmpl.lm_bary, d_t[tmpl.lm_triangles])
         for up, lo in LIP_PAIRS:
             U1, L1 = op[rows[up]], op[rows[lo]]
-            M = 0.5 * (U1 + L1)
+            a_u, a_l = float(np.linalg.norm(t_d[up])), float(np.linalg.norm(t_d[lo]))
+            r = a_u / (a_u + a_l) if a_u + a_l > 0 else 0.5      # how much of the closing the upper lip does
+            M = U1 + r * (L1 - U1)
             pins[rows[up]] = M - U1
             pins[rows[lo]] = M - L1
         return "inner lips of jawOpen met"
@@ -512,3 +540,65 @@ def _symmetrise(added: dict, mirror, F) -> None:
             out = d.copy()
             out[idx] = 0.5 * (d[idx] + mirrored(d))
             added[a] = out
+
+
+_UPPER_INNER, _LOWER_INNER = (61, 62, 63), (65, 66, 67)
+
+
+def _separate_lips(ch: Character, V: np.ndarray, ub: np.ndarray, size: float) -> list[int]:
+    """Put each inner-lip landmark of a closed mouth on its own lip (in place on ``ch.landmarks``): at rest
+    the upper and the lower inner-lip points lie on one line, and a point on the wrong lip would keep the
+    lips from opening or meeting.  A surface point is on the lower lip when its motion under the template's
+    ``jawOpen`` (``ub``) is nearer that of the outer lower-lip middle (point 57) than the upper's (51), along
+    the line between the two; a point on the wrong lip moves to the nearest vertex clearly on the right one
+    within a tenth of ``size``."""
+    from ..character import SurfacePoints
+
+    lm = ch.landmarks
+    P = lm.positions(V)
+    mot = lm.positions(ub)
+    up, lo = mot[51], mot[57]
+    if np.linalg.norm(lo - up) < 1e-3 * size:
+        return []
+
+    span = lo - up
+
+    def lower_score(M):                    # > 0: moves more like the lower lip than like the upper
+        return (M - up) @ span / float(span @ span) - 0.5
+
+    tri, bar = lm.triangles.copy(), lm.bary.copy()
+    moved = []
+    for group, want_lower in ((_UPPER_INNER, False), (_LOWER_INNER, True)):
+        for k in group:
+            if (lower_score(mot[k]) > 0) == want_lower:
+                continue
+            d = np.linalg.norm(V - P[k], axis=1)
+            sc = lower_score(ub)
+            ok = (d < 0.1 * size) & ((sc > 0.1) if want_lower else (sc < -0.1))
+            if not ok.any():
+                continue
+            v = int(np.flatnonzero(ok)[np.argmin(d[ok])])
+            tri[k] = v
+            bar[k] = (1.0, 0.0, 0.0)
+            moved.append(k)
+    if moved:
+        ch.landmarks = SurfacePoints(lm.mesh, tri, bar, lm.source + "; inner lips separated by the template's jawOpen")
+    return moved
+
+
+def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float) -> np.ndarray:
+    """+1 for points of the upper lip, -1 of the lower, 0 elsewhere: in the mouth's zone (between the
+    corners, within a third of ``size`` of the lips' line), above or below the inner-lip line (the
+    middles of the facing inner-lip landmarks and the corners, interpolated across)."""
+    H = P @ F.T
+    L = lm @ F.T
+    xs = [L[60, 0], L[61:64, 0].mean() * 0 + 0.5 * (L[61, 0] + L[67, 0]), 0.5 * (L[62, 0] + L[66, 0]),
+          0.5 * (L[63, 0] + L[65, 0]), L[64, 0]]
+    ys = [L[60, 1], 0.5 * (L[61, 1] + L[67, 1]), 0.5 * (L[62, 1] + L[66, 1]), 0.5 * (L[63, 1] + L[65, 1]), L[64, 1]]
+    order = np.argsort(xs)
+    xs, ys = np.asarray(xs)[order], np.asarray(ys)[order]
+    line = np.interp(H[:, 0], xs, ys)
+    zone = (H[:, 0] > xs[0] + 0.05 * size) & (H[:, 0] < xs[-1] - 0.05 * size) & (np.abs(H[:, 1] - line) < size / 3)
+    zone &= np.abs(H[:, 2] - L[60:68, 2].mean()) < size / 3
+    out = np.where(H[:, 1] >= line, 1, -1)
+    return np.where(zone, out, 0)
