@@ -8,7 +8,15 @@ Eyeballs turn for ``eyeLook*``, the lower teeth and tongue ride the jaw, lids cl
 eyeballs, the inner lips meet for ``jawOpen + mouthClose``.  See docs/shapes.md.
 """
 
-from ._metrics import blink_gap_pct, eye_parts, inverted_triangles, lip_gap_pct, mirror_err_pct, shape_metrics
+from ._metrics import (
+           blink_gap_pct,
+           eye_parts,
+           inverted_triangles,
+           lip_gap_pct,
+           mirror_err_pct,
+           shape_delta,
+           shape_metrics,
+)
 from ._parts import Part, find_parts, fit_sphere
 from ._register import register_template
 from ._template import TEMPLATES, Template, ict_to_arkit, load_template, packaged_template_path
@@ -17,4 +25,4 @@ from ._transfer import EYE_LOOK_DEGREES, LID_PAIRS, LIP_PAIRS, METHODS, Generate
 __all__ = ["generate_shapes", "GeneratedShapes", "load_template", "Template", "TEMPLATES", "ict_to_arkit",
            "packaged_template_path", "register_template", "find_parts", "fit_sphere", "Part", "LID_PAIRS",
            "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS", "blink_gap_pct", "lip_gap_pct", "inverted_triangles",
-           "mirror_err_pct", "shape_metrics", "eye_parts"]
+           "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta"]
