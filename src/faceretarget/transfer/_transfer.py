@@ -201,8 +201,8 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     method : str
         ``"deformation"`` (default) or ``"barycentric"`` (:data:`METHODS`).
     symmetric : bool
-        On a face that is its own mirror image (each vertex's mirror within 0.5 % of the outer-eye-corner
-        distance of a vertex, over the face), make ``xxxLeft`` and ``xxxRight`` exact mirror images (the
+        On a face that is its own mirror image (each vertex's mirror within 2 % of the outer-eye-corner
+        distance of a vertex, mean over the face), make ``xxxLeft`` and ``xxxRight`` exact mirror images (the
         mean of the two) and the other shapes symmetric.
 
     Returns
@@ -249,6 +249,11 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     skin = (lab == skin_label)
     region = skin & near
     rt = T[region[T].all(axis=1)]
+    snapped = _onto_skin(ch, V, rt, region)
+    if snapped:
+        notes.append(f"landmarks {', '.join(map(str, snapped))} were on another piece of '{hm.name}' (an eyeball, "
+                     "teeth): put on the nearest point of the face's skin")
+        lm = ch.landmark_positions()
     t0 = time.perf_counter()
     say(f"registering the template {tmpl.name} ({len(tmpl.vertices)} vertices) onto '{hm.name}' "
         f"({int(region.sum())} face vertices)")
@@ -315,6 +320,10 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
         moved = _separate_lips(ch, V, ub_jaw, size)
         if moved:
             notes.append(f"inner-lip landmarks {', '.join(map(str, moved))} moved onto the lip that opens with the jaw")
+    mirror = _mirror_map(V, lm, F, skin, size) if symmetric else None
+    if mirror is not None:                  # a symmetric face: its lid and lip points made mirror images too
+        _mirror_landmarks(ch, V, rt, F, mirror[2])
+        lm = ch.landmark_positions()
     # the system: gradients of the free vertices' motion on the triangles that touch them
     ft = T[(w[T] > 1e-3).any(axis=1)]
     Gfull = gradient_operator(V, ft)
@@ -390,11 +399,18 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
         u = _outside_eyes(u, V, eyes, size)
         added[a] = u
         say(f"shape {k + 1}/{len(order)} {a}")
-    mirror = _mirror_map(V, lm, F, skin, size) if symmetric else None
     if mirror is not None:
         _symmetrise(added, mirror, F)
-        for a in added:
-            added[a] = _outside_eyes(added[a], V, eyes, size)
+        for a in order:                                   # the lids and lips closed again where averaging opened them
+            u_s = added[a]
+            if method != "barycentric":
+                pins = Cm @ u_s[free]
+                _pin_targets(a, pins, lm_pos, pair_rows, ch, V, added, eyes, tmpl,
+                             tmpl.shapes[a] @ (s * R).T, size)
+                rhs = G.T @ (Aw @ (Gfull @ u_s)) + lam * varea[free, None] * u_s[free] + mu * (Cm.T @ pins)
+                u_s = u_s.copy()
+                u_s[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
+            added[a] = _outside_eyes(u_s, V, eyes, size)
         notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
     timings["shapes"] = time.perf_counter() - t0
     out: dict[str, dict[str, np.ndarray]] = {hm.name: {a: added[a].astype(np.float32) for a in todo}}
@@ -504,7 +520,7 @@ def _outside_eyes(u: np.ndarray, V: np.ndarray, eyes: list[Part], size: float) -
     return u
 
 
-def _mirror_map(V, lm, F, skin, size, tol: float = 0.005):
+def _mirror_map(V, lm, F, skin, size, tol: float = 0.02):
     """``(idx, mate)``: the face vertices and the vertex at each one's mirror position about the face's
     symmetry plane, when the face is symmetric (mean mirror distance within ``tol`` of ``size``)."""
     from scipy.spatial import cKDTree
@@ -515,13 +531,45 @@ def _mirror_map(V, lm, F, skin, size, tol: float = 0.005):
     Hm = H[near] * np.array([-1.0, 1.0, 1.0])
     Hm[:, 0] += 2 * x0
     dist, mate = cKDTree(H[near]).query(Hm)
-    if float(dist.mean()) > tol * size or float(np.percentile(dist, 95)) > 4 * tol * size:
+    if float(dist.mean()) > tol * size or float(np.percentile(dist, 95)) > 3 * tol * size:
         return None
-    return near, near[mate]
+    return near, near[mate], x0
+
+
+#: 68-point landmarks and their mirror images (eyes, lids, inner lips).
+_MIRROR_LM = ((36, 45), (37, 44), (38, 43), (39, 42), (40, 47), (41, 46), (60, 64), (61, 63), (65, 67))
+
+
+def _mirror_landmarks(ch: Character, V: np.ndarray, rt: np.ndarray, F: np.ndarray, x0: float) -> None:
+    """Make the eye and inner-lip landmarks of a symmetric face mirror images (each pair moved to the mean of
+    one and the other's mirror, then onto the skin), in place on ``ch.landmarks``."""
+    from ..character import SurfacePoints
+
+    lm = ch.landmarks
+    P = lm.positions(V)
+    S = F.T @ np.diag([-1.0, 1.0, 1.0]) @ F
+    off = F.T @ np.array([2 * x0, 0.0, 0.0])
+
+    def mirror(x):
+        return x @ S.T + off
+
+    idx, want = [], []
+    for a, b in _MIRROR_LM:
+        pa = 0.5 * (P[a] + mirror(P[b]))
+        idx += [a, b]
+        want += [pa, mirror(pa)]
+    for c in (62, 66):
+        m = mirror(P[c])
+        idx.append(c)
+        want.append(0.5 * (P[c] + m))
+    tri, bar, _ = closest_points(V, rt, np.asarray(want), k=16)
+    T2, B2 = lm.triangles.copy(), lm.bary.copy()
+    T2[idx], B2[idx] = rt[tri], bar
+    ch.landmarks = SurfacePoints(lm.mesh, T2, B2, lm.source + "; mirrored")
 
 
 def _symmetrise(added: dict, mirror, F) -> None:
-    idx, mate = mirror
+    idx, mate, _ = mirror
     S = F.T @ np.diag([-1.0, 1.0, 1.0]) @ F               # the mirror of a world vector
 
     def mirrored(d):
@@ -570,7 +618,8 @@ def _separate_lips(ch: Character, V: np.ndarray, ub: np.ndarray, size: float) ->
     moved = []
     for group, want_lower in ((_UPPER_INNER, False), (_LOWER_INNER, True)):
         for k in group:
-            if (lower_score(mot[k]) > 0) == want_lower:
+            sk = lower_score(mot[k])
+            if (sk > 0.1) if want_lower else (sk < -0.1):        # clearly on its lip already
                 continue
             d = np.linalg.norm(V - P[k], axis=1)
             sc = lower_score(ub)
@@ -602,3 +651,20 @@ def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float) -> np
     zone &= np.abs(H[:, 2] - L[60:68, 2].mean()) < size / 3
     out = np.where(H[:, 1] >= line, 1, -1)
     return np.where(zone, out, 0)
+
+
+def _onto_skin(ch: Character, V: np.ndarray, rt: np.ndarray, region: np.ndarray) -> list[int]:
+    """Move landmarks that lie on a piece of the head mesh other than the face's skin (a lid point found on
+    an eyeball of the same mesh) to the nearest point of the skin (in place on ``ch.landmarks``)."""
+    from ..character import SurfacePoints
+
+    lm = ch.landmarks
+    bad = np.flatnonzero(~region[lm.triangles].all(axis=1))
+    if not len(bad) or not len(rt):
+        return []
+    P = lm.positions(V)[bad]
+    tri, bar, _ = closest_points(V, rt, P, k=16)
+    T2, B2 = lm.triangles.copy(), lm.bary.copy()
+    T2[bad], B2[bad] = rt[tri], bar
+    ch.landmarks = SurfacePoints(lm.mesh, T2, B2, lm.source + "; snapped onto the skin")
+    return [int(b) for b in bad]
