@@ -321,7 +321,7 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
         if moved:
             notes.append(f"inner-lip landmarks {', '.join(map(str, moved))} moved onto the lip that opens with the jaw")
     mirror = _mirror_map(V, lm, F, skin, size) if symmetric else None
-    if mirror is not None:                  # a symmetric face: its lid and lip points made mirror images too
+    if mirror is not None:                  # a symmetric face: its lid points made mirror images too
         _mirror_landmarks(ch, V, rt, F, mirror[2])
         lm = ch.landmark_positions()
     # the system: gradients of the free vertices' motion on the triangles that touch them
@@ -536,13 +536,14 @@ def _mirror_map(V, lm, F, skin, size, tol: float = 0.02):
     return near, near[mate], x0
 
 
-#: 68-point landmarks and their mirror images (eyes, lids, inner lips).
-_MIRROR_LM = ((36, 45), (37, 44), (38, 43), (39, 42), (40, 47), (41, 46), (60, 64), (61, 63), (65, 67))
+#: Eye landmarks and their mirror images (the inner lips are left where the lips were told apart: snapped
+#: onto the surface again they could change lips).
+_MIRROR_LM = ((36, 45), (37, 44), (38, 43), (39, 42), (40, 47), (41, 46))
 
 
 def _mirror_landmarks(ch: Character, V: np.ndarray, rt: np.ndarray, F: np.ndarray, x0: float) -> None:
-    """Make the eye and inner-lip landmarks of a symmetric face mirror images (each pair moved to the mean of
-    one and the other's mirror, then onto the skin), in place on ``ch.landmarks``."""
+    """Make the eye landmarks of a symmetric face mirror images (each pair moved to the mean of one and the
+    other's mirror, then onto the skin), in place on ``ch.landmarks``."""
     from ..character import SurfacePoints
 
     lm = ch.landmarks
@@ -558,10 +559,6 @@ def _mirror_landmarks(ch: Character, V: np.ndarray, rt: np.ndarray, F: np.ndarra
         pa = 0.5 * (P[a] + mirror(P[b]))
         idx += [a, b]
         want += [pa, mirror(pa)]
-    for c in (62, 66):
-        m = mirror(P[c])
-        idx.append(c)
-        want.append(0.5 * (P[c] + m))
     tri, bar, _ = closest_points(V, rt, np.asarray(want), k=16)
     T2, B2 = lm.triangles.copy(), lm.bary.copy()
     T2[idx], B2[idx] = rt[tri], bar
