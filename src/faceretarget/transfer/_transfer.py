@@ -377,6 +377,10 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     pair_rows = {i: r for r, i in enumerate(pin_ids)}
     added: dict[str, np.ndarray] = {}
     shape_notes = {}
+    smooth_op = _neighbour_mean(len(V), ft)
+    keep = np.zeros(len(V), bool)                     # the pinned lid and lip points are not smoothed
+    keep[ch.landmarks.triangles[pin_ids].ravel()] = True
+    keep[w <= 1e-3] = True
     t0 = time.perf_counter()
     order = sorted(todo, key=lambda a: (a == "mouthClose", a))           # mouthClose after jawOpen
     for k, a in enumerate(order):
@@ -396,7 +400,7 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
             rhs = G.T @ (Aw @ target.reshape(-1, 3)) + lam * varea[free, None] * ub[free] + mu * (Cm.T @ pins)
             u = np.zeros((len(V), 3))
             u[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
-        u = _outside_eyes(u, V, eyes, size)
+        u = _untangle(_outside_eyes(u, V, eyes, size), V, ft, smooth_op, keep)
         added[a] = u
         say(f"shape {k + 1}/{len(order)} {a}")
     if mirror is not None:
@@ -410,8 +414,13 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
                 rhs = G.T @ (Aw @ (Gfull @ u_s)) + lam * varea[free, None] * u_s[free] + mu * (Cm.T @ pins)
                 u_s = u_s.copy()
                 u_s[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
-            added[a] = _outside_eyes(u_s, V, eyes, size)
+            added[a] = _untangle(_outside_eyes(u_s, V, eyes, size), V, ft, smooth_op, keep)
         notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
+    if "jawOpen" in added and method != "barycentric":  # a mouth shape played on the open jaw folds nothing either
+        jo = added["jawOpen"]
+        for a in added:
+            if a.startswith("mouth"):
+                added[a] = _untangle(jo + added[a], V, ft, smooth_op, keep) - jo
     timings["shapes"] = time.perf_counter() - t0
     out: dict[str, dict[str, np.ndarray]] = {hm.name: {a: added[a].astype(np.float32) for a in todo}}
     # the other parts: eyes turn, the lower teeth and tongue ride the jaw, the rest follows the skin
@@ -665,3 +674,35 @@ def _onto_skin(ch: Character, V: np.ndarray, rt: np.ndarray, region: np.ndarray)
     T2[bad], B2[bad] = rt[tri], bar
     ch.landmarks = SurfacePoints(lm.mesh, T2, B2, lm.source + "; snapped onto the skin")
     return [int(b) for b in bad]
+
+
+def _neighbour_mean(n: int, T: np.ndarray):
+    """Sparse ``(n, n)`` operator: the mean of each vertex's neighbours (through ``T``)."""
+    from scipy.sparse import coo_matrix, diags
+
+    e = np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]])
+    A = coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    A.data[:] = 1.0
+    deg = np.asarray(A.sum(axis=1)).ravel()
+    return diags(1.0 / np.maximum(deg, 1)) @ A
+
+
+def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.ndarray, iterations: int = 40):
+    """Unfold triangles a shape turns over (normal reversed at weight 1): the motion of their vertices and
+    their neighbours is relaxed towards the neighbours' mean until none is left (or ``iterations``)."""
+    n0 = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
+    for _ in range(iterations):
+        X = V + u
+        n1 = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
+        bad = (n0 * n1).sum(axis=1) < 0
+        if not bad.any():
+            break
+        sel = np.zeros(len(V), bool)
+        sel[T[bad].ravel()] = True
+        sel = (mean_op @ sel.astype(float) > 0) | sel            # one ring more
+        sel &= ~keep
+        if not sel.any():
+            break
+        u = u.copy()
+        u[sel] = 0.5 * u[sel] + 0.5 * (mean_op @ u)[sel]
+    return u
