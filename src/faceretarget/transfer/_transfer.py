@@ -400,9 +400,14 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
             rhs = G.T @ (Aw @ target.reshape(-1, 3)) + lam * varea[free, None] * ub[free] + mu * (Cm.T @ pins)
             u = np.zeros((len(V), 3))
             u[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
-        u = _untangle(_outside_eyes(u, V, eyes, size), V, ft, smooth_op, keep)
+        u = _outside_eyes(_untangle(u, V, ft, smooth_op, keep), V, eyes, size)
         added[a] = u
         say(f"shape {k + 1}/{len(order)} {a}")
+    if "jawOpen" in added and method != "barycentric":  # a mouth shape played on the open jaw folds nothing either
+        jo = added["jawOpen"]
+        for a in added:
+            if a.startswith("mouth"):
+                added[a] = _outside_eyes(_untangle(jo + added[a], V, ft, smooth_op, keep) - jo, V, eyes, size)
     if mirror is not None:
         _symmetrise(added, mirror, F)
         for a in order:                                   # the lids and lips closed again where averaging opened them
@@ -414,13 +419,8 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
                 rhs = G.T @ (Aw @ (Gfull @ u_s)) + lam * varea[free, None] * u_s[free] + mu * (Cm.T @ pins)
                 u_s = u_s.copy()
                 u_s[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
-            added[a] = _untangle(_outside_eyes(u_s, V, eyes, size), V, ft, smooth_op, keep)
+            added[a] = _outside_eyes(u_s, V, eyes, size)
         notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
-    if "jawOpen" in added and method != "barycentric":  # a mouth shape played on the open jaw folds nothing either
-        jo = added["jawOpen"]
-        for a in added:
-            if a.startswith("mouth"):
-                added[a] = _untangle(jo + added[a], V, ft, smooth_op, keep) - jo
     timings["shapes"] = time.perf_counter() - t0
     out: dict[str, dict[str, np.ndarray]] = {hm.name: {a: added[a].astype(np.float32) for a in todo}}
     # the other parts: eyes turn, the lower teeth and tongue ride the jaw, the rest follows the skin
@@ -689,12 +689,20 @@ def _neighbour_mean(n: int, T: np.ndarray):
 
 def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.ndarray, iterations: int = 40):
     """Unfold triangles a shape turns over (normal reversed at weight 1): the motion of their vertices and
-    their neighbours is relaxed towards the neighbours' mean until none is left (or ``iterations``)."""
+    their neighbours is relaxed towards the neighbours' mean until none is left (or ``iterations``); the
+    motion with the fewest turned over is kept."""
     n0 = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
-    for _ in range(iterations):
-        X = V + u
+
+    def flipped(x):
+        X = V + x
         n1 = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
-        bad = (n0 * n1).sum(axis=1) < 0
+        return (n0 * n1).sum(axis=1) < 0
+
+    best, best_n = u, int(flipped(u).sum())
+    for _ in range(iterations):
+        bad = flipped(u)
+        if bad.sum() < best_n:
+            best, best_n = u, int(bad.sum())
         if not bad.any():
             break
         sel = np.zeros(len(V), bool)
@@ -705,4 +713,6 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.nda
             break
         u = u.copy()
         u[sel] = 0.5 * u[sel] + 0.5 * (mean_op @ u)[sel]
-    return u
+    if int(flipped(u).sum()) < best_n:
+        best = u
+    return best
