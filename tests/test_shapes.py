@@ -62,6 +62,26 @@ def test_packaged_template_matches_ict(data_dir):
     assert any("tongueOut" in n for n in t.notes)
 
 
+@pytest.mark.parametrize("rel", ["characters/valid/AIAN_F_1_Busi.glb", "characters/rocketbox/Female_Adult_01_facial.fbx"])
+def test_neutral_character_head_and_landmarks(data_dir, rel):
+    """Shapes hidden: the head mesh is chosen and the 68 landmarks are found on it, around the face: the
+    eyes above the mouth, the outer eye corners 8-11 cm apart, every point within the head."""
+    pytest.importorskip("mediapipe")
+    full = read_character(data_dir / rel)
+    with pytest.raises(Exception, match="no face shapes"):
+        load_character(_hide(read_character(data_dir / rel)))
+    hidden = _hide(read_character(data_dir / rel))
+    hidden.path = None
+    ch = load_character(hidden, need_shapes=False)
+    assert ch.landmarks is not None and ch.landmarks.mesh == full.face_meshes()[0]
+    P = ch.landmark_positions()
+    eye = float(np.linalg.norm(P[36] - P[45]))
+    assert 0.08 < eye < 0.11
+    assert P[36:48, 1].mean() - P[48:68, 1].mean() > 0.03                  # +Y up in both files
+    d = np.linalg.norm(P - P[17:68].mean(axis=0), axis=1)
+    assert d[17:].max() < 1.0 * eye and d[:17].max() < 1.6 * eye          # none through a hole to the back
+
+
 def test_generated_lids_lips_surface_mirror(arkit_generated):
     ref, gen, ch, lines = arkit_generated
     assert len(gen.shape_names) == 51
