@@ -378,6 +378,9 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     added: dict[str, np.ndarray] = {}
     shape_notes = {}
     smooth_op = _neighbour_mean(len(V), ft)
+
+    def outside(x):
+        return _outside_eyes(x, V, eyes, size)
     keep = np.zeros(len(V), bool)                     # the pinned lid and lip points are not smoothed
     keep[ch.landmarks.triangles[pin_ids].ravel()] = True
     keep[w <= 1e-3] = True
@@ -400,14 +403,14 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
             rhs = G.T @ (Aw @ target.reshape(-1, 3)) + lam * varea[free, None] * ub[free] + mu * (Cm.T @ pins)
             u = np.zeros((len(V), 3))
             u[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
-        u = _outside_eyes(_untangle(u, V, ft, smooth_op, keep), V, eyes, size)
+        u = _untangle(_outside_eyes(u, V, eyes, size), V, ft, smooth_op, keep, project=outside)
         added[a] = u
         say(f"shape {k + 1}/{len(order)} {a}")
     if "jawOpen" in added and method != "barycentric":  # a mouth shape played on the open jaw folds nothing either
         jo = added["jawOpen"]
         for a in added:
             if a.startswith("mouth"):
-                added[a] = _outside_eyes(_untangle(jo + added[a], V, ft, smooth_op, keep) - jo, V, eyes, size)
+                added[a] = _untangle(jo + added[a], V, ft, smooth_op, keep, project=outside) - jo
     if mirror is not None:
         _symmetrise(added, mirror, F)
         for a in order:                                   # the lids and lips closed again where averaging opened them
@@ -419,7 +422,7 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
                 rhs = G.T @ (Aw @ (Gfull @ u_s)) + lam * varea[free, None] * u_s[free] + mu * (Cm.T @ pins)
                 u_s = u_s.copy()
                 u_s[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
-            added[a] = _outside_eyes(u_s, V, eyes, size)
+            added[a] = _untangle(_outside_eyes(u_s, V, eyes, size), V, ft, smooth_op, keep, project=outside)
         notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
     timings["shapes"] = time.perf_counter() - t0
     out: dict[str, dict[str, np.ndarray]] = {hm.name: {a: added[a].astype(np.float32) for a in todo}}
@@ -687,10 +690,11 @@ def _neighbour_mean(n: int, T: np.ndarray):
     return diags(1.0 / np.maximum(deg, 1)) @ A
 
 
-def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.ndarray, iterations: int = 40):
+def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.ndarray, iterations: int = 60,
+              project=None):
     """Unfold triangles a shape turns over (normal reversed at weight 1): the motion of their vertices and
-    their neighbours is relaxed towards the neighbours' mean until none is left (or ``iterations``); the
-    motion with the fewest turned over is kept."""
+    their neighbours is relaxed towards the neighbours' mean until none is left (or ``iterations``), each
+    step followed by ``project`` (the eyeball push); the motion with the fewest turned over is kept."""
     n0 = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
 
     def flipped(x):
@@ -713,6 +717,8 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.nda
             break
         u = u.copy()
         u[sel] = 0.5 * u[sel] + 0.5 * (mean_op @ u)[sel]
+        if project is not None:
+            u = project(u)
     if int(flipped(u).sum()) < best_n:
         best = u
     return best
