@@ -703,11 +703,14 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.nda
         return (n0 * n1).sum(axis=1) < 0
 
     best, best_n = u, int(flipped(u).sum())
+    since = 0
     for _ in range(iterations):
         bad = flipped(u)
         if bad.sum() < best_n:
-            best, best_n = u, int(bad.sum())
-        if not bad.any():
+            best, best_n, since = u, int(bad.sum()), 0
+        else:
+            since += 1
+        if not bad.any() or since > 8:                   # none left, or no better for 8 steps
             break
         sel = np.zeros(len(V), bool)
         sel[T[bad].ravel()] = True
