@@ -710,7 +710,7 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.nda
             best, best_n, since = u, int(bad.sum()), 0
         else:
             since += 1
-        if not bad.any() or since > 8:                   # none left, or no better for 8 steps
+        if not bad.any() or since > 15:                  # none left, or no better for 15 steps
             break
         sel = np.zeros(len(V), bool)
         sel[T[bad].ravel()] = True
