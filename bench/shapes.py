@@ -10,7 +10,8 @@ own landmark file kept):
 * ``shapes``: how many were generated, ``seconds`` the whole generation (landmarks, registration, solve);
 * ``blink_gap_pct`` (lid gap left at ``eyeBlink*`` = 1 over the open gap, worst lid landmark pair, %),
   ``lid_inside_eye`` (face vertices the blinks move into an eyeball), ``lip_gap_pct`` (inner-lip gap at
-  ``jawOpen + mouthClose`` over the gap at ``jawOpen``), ``inverted_triangles`` (over every shape and
+  ``jawOpen + mouthClose`` over the gap at ``jawOpen``), ``lips_in_teeth`` (face vertices near the mouth
+  that ``jawOpen + mouthClose`` puts inside the teeth's convex hull), ``inverted_triangles`` (over every shape and
   ``jawOpen`` + each mouth shape), ``mirror_err_pct`` (left/right pairs, on symmetric faces), and the same
   numbers of the artist's shapes where they are ARKit (``artist``);
 * ``mouth_corr``: the main job (:func:`faceretarget.pipelines.animate`) on both shared videos with the
@@ -121,7 +122,7 @@ def one(name: str, src, caps: dict, work: Path, log) -> dict:
     from faceretarget.transfer import generate_shapes, shape_metrics
 
     keys = ("ok", "error", "template", "shapes", "mouth_corr", "residual_ratio", "blink_gap_pct", "lid_inside_eye",
-            "lip_gap_pct", "inverted_triangles", "mirror_err_pct", "seconds", "direction_cos", "artist")
+            "lip_gap_pct", "lips_in_teeth", "inverted_triangles", "mirror_err_pct", "seconds", "direction_cos", "artist")
     res = {k: None for k in keys}
     res["ok"] = False
     try:
@@ -209,7 +210,8 @@ def main(argv=None) -> int:
             log(f"--- {name}")
             out[name] = r = one(name, src, caps, work, log)
             log(json.dumps({k: r[k] for k in ("ok", "error", "template", "shapes", "mouth_corr", "residual_ratio",
-                                              "blink_gap_pct", "lid_inside_eye", "lip_gap_pct", "inverted_triangles",
+                                              "blink_gap_pct", "lid_inside_eye", "lip_gap_pct", "lips_in_teeth",
+                                              "inverted_triangles",
                                               "mirror_err_pct", "direction_cos", "seconds")}))
     if args.json:
         print(json.dumps({"characters": out}, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))

@@ -13,6 +13,7 @@ from ._metrics import (
            eye_parts,
            inverted_triangles,
            lip_gap_pct,
+    lips_in_teeth,
            mirror_err_pct,
            shape_delta,
            shape_metrics,
@@ -25,4 +26,4 @@ from ._transfer import EYE_LOOK_DEGREES, LID_PAIRS, LIP_PAIRS, METHODS, Generate
 __all__ = ["generate_shapes", "GeneratedShapes", "load_template", "Template", "TEMPLATES", "ict_to_arkit",
            "packaged_template_path", "register_template", "find_parts", "fit_sphere", "Part", "LID_PAIRS",
            "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS", "blink_gap_pct", "lip_gap_pct", "inverted_triangles",
-           "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta"]
+           "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta", "lips_in_teeth"]

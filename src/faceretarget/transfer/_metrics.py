@@ -10,7 +10,7 @@ from ..character import Character, character_frame
 from ..names import normalize_name
 
 __all__ = ["blink_gap_pct", "lip_gap_pct", "inverted_triangles", "mirror_err_pct", "shape_metrics", "shape_delta",
-           "eye_parts"]
+           "eye_parts", "lips_in_teeth"]
 
 LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))
 LIP_PAIRS = ((61, 67), (62, 66), (63, 65))
@@ -177,11 +177,49 @@ def eye_parts(character: Character) -> list:
     return [p for p in find_parts(character, mi, skin, lm, character_frame(character), size) if p.role == "eye"]
 
 
+def lips_in_teeth(character: Character) -> int | None:
+    """Face vertices near the mouth that ``jawOpen + mouthClose`` = 1 puts inside the teeth (inside the convex
+    hull of the upper or of the lower teeth, each moved by its own mesh's shapes) and that were not inside at
+    rest; None when the character has no teeth or not both shapes."""
+    from scipy.spatial import Delaunay
+
+    from ._parts import components, find_parts
+
+    mi = character.landmarks.mesh
+    jo, mc = shape_delta(character, "jawOpen"), shape_delta(character, "mouthClose")
+    if jo is None or mc is None:
+        return None
+    m = character.meshes[mi]
+    V = m.mesh.vertices.astype(np.float64)
+    lab = components(len(V), m.mesh.triangles())
+    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    lm = _lm(character, None)
+    size = float(np.linalg.norm(lm[36] - lm[45]))
+    teeth = [p for p in find_parts(character, mi, skin, lm, character_frame(character), size)
+             if p.role in ("lower", "upper") and len(p.vertices) >= 8]
+    if not teeth:
+        return None
+    near = np.flatnonzero(skin & (np.linalg.norm(V - lm[60:68].mean(0), axis=1) < 0.4 * size))
+    X0, X1 = V[near], V[near] + (jo + mc)[near]
+    count = 0
+    for p in teeth:
+        P = character.meshes[p.mesh].mesh.vertices[p.vertices].astype(np.float64)
+        dj, dm = shape_delta(character, "jawOpen", p.mesh), shape_delta(character, "mouthClose", p.mesh)
+        P1 = P + (0 if dj is None else dj[p.vertices]) + (0 if dm is None else dm[p.vertices])
+        try:
+            h0, h1 = Delaunay(P), Delaunay(P1)
+        except Exception:  # a flat piece has no volume to be inside of
+            continue
+        count += int(((h1.find_simplex(X1) >= 0) & (h0.find_simplex(X0) < 0)).sum())
+    return count
+
+
 def shape_metrics(character: Character, eyes="auto") -> dict:
-    """``blink_gap_pct``, ``lid_inside_eye``, ``lip_gap_pct``, ``inverted_triangles``, ``mirror_err_pct``
-    (``eyes="auto"``: :func:`eye_parts`)."""
+    """``blink_gap_pct``, ``lid_inside_eye``, ``lip_gap_pct``, ``lips_in_teeth``, ``inverted_triangles``,
+    ``mirror_err_pct`` (``eyes="auto"``: :func:`eye_parts`)."""
     if isinstance(eyes, str):
         eyes = eye_parts(character)
     bg, inside = blink_gap_pct(character, eyes)
     return {"blink_gap_pct": bg, "lid_inside_eye": inside, "lip_gap_pct": lip_gap_pct(character),
+            "lips_in_teeth": lips_in_teeth(character),
             "inverted_triangles": inverted_triangles(character), "mirror_err_pct": mirror_err_pct(character)}
