@@ -4,7 +4,7 @@ functions alike).
 core (data model, errors, units, time, head pose, files, model protocol)
   -> numerics (shared solvers and signal tools) -> render (pictures) -> io (every file format)
   -> targets (what a character's keys are: meshes, controls, skeletons, drawings) -> methods (cloning, retarget, style, headmotion, capture; none imports another)
-  -> evaluation (metrics, datasets) -> applications (pipelines) -> cli
+  -> evaluation (metrics, datasets) -> applications (pipelines) -> generated shapes (transfer) -> cli
 
 A module may import only from its own layer or below; a private module (``pkg._mod``) only from
 inside its package; and no group of modules may import each other in a cycle.  See
@@ -25,7 +25,7 @@ CORE = {"__init__", "errors", "units", "timebase", "names", "mesh", "rig", "char
         "base", "optional"}
 LAYERS = {**{m: 0 for m in CORE}, "numerics": 1, "render": 2, "io": 3, "targets": 3.5,
           "cloning": 4, "retarget": 4, "style": 4, "headmotion": 4, "capture": 4,
-          "metrics": 5, "datasets": 5, "pipelines": 6, "cli": 7}
+          "metrics": 5, "datasets": 5, "pipelines": 6, "transfer": 6.5, "cli": 7}
 METHODS = {"cloning", "retarget", "style", "headmotion", "capture"}
 
 

@@ -325,6 +325,9 @@ class Character:
         Seconds spent reading and finding landmarks (set by ``pipelines.load_character``).
     search : object
         What the landmark search saw (:class:`~faceretarget.capture.LandmarkSearch`), when it ran.
+    neutral_head : int, optional
+        The head mesh of a character read without face shapes (``load_character(..., need_shapes=False)``,
+        :meth:`head_mesh`): where its landmarks are found and its shapes are generated.
     """
 
     path: Path | None
@@ -343,6 +346,7 @@ class Character:
     face_filter: list | None = None
     timings: dict = field(default_factory=dict)
     search: object = None
+    neutral_head: int | None = None
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -423,8 +427,38 @@ class Character:
         """The face mesh with the most face shapes (where the landmarks are found)."""
         face = self.face_meshes()
         if not face:
+            if self.neutral_head is not None:
+                return int(self.neutral_head)
             raise MissingShapeError(self.no_shapes_message())
         return face[0]
+
+    def head_mesh(self) -> int:
+        """The mesh that holds the face, with or without face shapes: the primary face mesh; else the
+        ``--mesh`` choice; else the mesh with most vertices in the head joint's region; else the mesh
+        with most vertices in the top eighth of the figure (its highest part along :attr:`up`)."""
+        face = self.face_meshes()
+        if face:
+            return face[0]
+        if self.face_filter:
+            return int(self.face_filter[0])
+        if self.neutral_head is not None:
+            return int(self.neutral_head)
+        drawn = [i for i, m in enumerate(self.meshes) if len(m.mesh.triangles())]
+        if not drawn:
+            raise InvalidDataError(f"{self.path or self.name}: no mesh with triangles")
+        near = self._head_region()
+        if near is not None:
+            c, r = near
+            n = [int((np.linalg.norm(self.meshes[i].mesh.vertices - c, axis=1) < r).sum()) for i in drawn]
+            if max(n) > 0:
+                return drawn[int(np.argmax(n))]
+        up = np.array([0.0, 1.0, 0.0]) if self.up is None else np.asarray(self.up, dtype=np.float64)
+        h = [self.meshes[i].mesh.vertices @ up for i in drawn]
+        top = max(float(x.max()) for x in h)
+        bottom = min(float(x.min()) for x in h)
+        cut = top - 0.125 * (top - bottom)
+        n = [int((x >= cut).sum()) for x in h]
+        return drawn[int(np.argmax(n))]
 
     def no_shapes_message(self) -> str:
         found = ", ".join(f"{m.name} ({m.mesh.n_vertices} vertices)" for m in self.meshes[:6]) or "no mesh"

@@ -82,7 +82,33 @@ def face_region(character: Character, mesh: int | None = None) -> np.ndarray:
         sel = mv > 0.05 * mv.max() if mv.max() > 0 else np.zeros(len(mv), bool)
         if sel.sum() >= 20:
             return m.mesh.vertices[sel]
-    return m.mesh.vertices
+    return head_part(character, m.mesh.vertices)
+
+
+def head_part(character: Character, V: np.ndarray) -> np.ndarray:
+    """The vertices of a mesh without face shapes that make its head: those near the head joint and
+    above the neck joint when the skeleton has them; else, for a tall mesh (a whole figure, taller than
+    twice its width), its top eighth along the up direction; else all of them."""
+    up = np.array([0.0, 1.0, 0.0]) if character.up is None else np.asarray(character.up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    head, neck = character.joint("head"), character.joint("neck")
+    if head is not None:
+        h = V @ up
+        ref = neck.position if neck is not None else head.position
+        r = 2.5 * float(np.linalg.norm(head.position - neck.position)) if neck is not None else 0.0
+        r = max(r, 0.15)
+        sel = (np.linalg.norm(V - head.position, axis=1) < r) & (h >= float(ref @ up))
+        if sel.sum() >= 20:
+            return V[sel]
+    h = V @ up
+    height = float(np.ptp(h))
+    flat = V - np.outer(h, up)
+    width = float(np.ptp(flat, axis=0).max())
+    if height > 2.0 * width:
+        sel = h >= h.max() - 0.125 * height
+        if sel.sum() >= 20:
+            return V[sel]
+    return V
 
 
 def _candidates(character: Character) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -183,6 +209,46 @@ def _separate_lips(character: Character, prim: int, alone, pts: np.ndarray, tris
             bary[k] = barycentric_2d(proj[tv, :2], np.array([xs[j], ys[j]], dtype=np.float64))
 
 
+def _front_surface(character: Character, prim: int, alone, pts: np.ndarray, tris: np.ndarray, bary: np.ndarray,
+                   front: np.ndarray, radius: int) -> None:
+    """Move a point that fell through a hole of the face (an eye socket or the mouth of a head whose eyes
+    and teeth are other meshes: the render of the face mesh alone shows the inside of the back of the head
+    there) to the nearest pixel of the face's front surface.  A point is through a hole when it lies
+    further behind the others' median depth than half the face's width.  Changes ``tris`` and ``bary``."""
+    ok = tris[:, 0] >= 0
+    if ok.sum() < 20:
+        return
+    V = character.meshes[prim].mesh.vertices
+    f = np.asarray(front, dtype=np.float64)
+    P = np.einsum("pk,pkd->pd", bary[ok], V[tris[ok]])
+    depth = np.full(len(tris), np.nan)
+    depth[ok] = P @ f
+    inner = np.arange(17, 68)
+    med = float(np.nanmedian(depth[inner]))
+    width = float(np.ptp(P, axis=0).max())
+    bad = np.flatnonzero(ok & (depth < med - 0.5 * width))
+    if not len(bad):
+        return
+    faces = character.meshes[prim].mesh.triangles()
+    ys, xs = np.nonzero(alone.mesh == prim)
+    tri_at = alone.triangle[ys, xs]
+    tdepth = V[faces[tri_at]].mean(axis=1) @ f
+    good_px = tdepth >= med - 0.5 * width
+    proj = alone.camera.project(V)
+    from ..render import barycentric_2d
+
+    for k in bad:
+        x, y = pts[k]
+        dd = (xs - x) ** 2 + (ys - y) ** 2
+        cand = np.flatnonzero(good_px & (dd <= radius ** 2))
+        if not len(cand):
+            continue
+        j = cand[np.argmin(dd[cand])]
+        tv = faces[tri_at[j]]
+        tris[k] = tv
+        bary[k] = barycentric_2d(proj[tv, :2], np.array([xs[j], ys[j]], dtype=np.float64))
+
+
 def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=None) -> LandmarkSearch:
     """Find the character's 68 landmarks on a render of its neutral face (module docstring).
 
@@ -256,6 +322,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         alone = render_scene(character.meshes, cam2, only=[prim], textures=False)
         tris, bary, dist = pick(alone, character.meshes, pts, prim, radius=max(6, size // 40))
         _separate_lips(character, prim, alone, pts, tris, bary, radius=max(4, size // 40))
+        _front_surface(character, prim, alone, pts, tris, bary, front, radius=max(8, size // 25))
         if (tris < 0).any():
             bad = np.flatnonzero((tris < 0).any(axis=1))
             raise FaceNotFoundError(

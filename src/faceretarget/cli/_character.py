@@ -1,8 +1,14 @@
-"""Command line: ``faceretarget character inspect FILE [--out check.png] [--sheet shapes.png]``.
+"""Command line: ``faceretarget character inspect FILE [--out check.png] [--sheet shapes.png]`` and
+``faceretarget character shapes CHAR --out OUT``.
 
 What the character reader and the landmark search make of a character file (:func:`faceretarget.pipelines.
 inspect_character`): the route and meshes, the face meshes and joints found, the shapes grouped by the face
 region they move, which of them will drive the face, and a picture of the render with the 68 landmarks.
+
+``character shapes`` generates the ARKit expression shapes of a character that has only a neutral face
+(:func:`faceretarget.transfer.generate_shapes`) and writes them: an OUT without a suffix (or an existing
+folder) is an OBJ rig folder of the head mesh (``neutral.obj``, one OBJ per shape, ``landmarks68.txt``);
+any other OUT is the character's own format with the new morph targets (``faceretarget.io.write_character_shapes``).
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ from pathlib import Path
 from ..errors import FaceNotFoundError, OutputError
 from ._support import check_inputs, warnings_to_log
 
-__all__ = ["register", "cmd_inspect"]
+__all__ = ["register", "cmd_inspect", "cmd_shapes", "write_shapes_obj"]
 
 
 def cmd_inspect(args, log) -> int:
@@ -69,6 +75,72 @@ def cmd_inspect(args, log) -> int:
     return 0
 
 
+def write_shapes_obj(out, gen) -> Path:
+    """Write generated shapes as an OBJ rig folder of the head mesh: ``neutral.obj`` (metres), one
+    ``<shape>.obj`` per generated shape (and per ARKit shape the character kept), ``landmarks68.txt`` (the
+    vertex nearest each landmark)."""
+    import numpy as np
+
+    from ..io import write_rig
+    from ..names import ARKIT_NAMES, normalize_name
+    from ..rig import Rig
+
+    ch = gen.character
+    mi = ch.landmarks.mesh
+    m = ch.meshes[mi]
+    shapes = dict(gen.added.get(m.name, {}))
+    for k, n in enumerate(m.shape_names):                 # the character's own ARKit shapes it kept
+        a = normalize_name(n)
+        if a in ARKIT_NAMES and a not in shapes:
+            shapes[a] = m.deltas[k]
+    if not shapes:
+        raise OutputError(f"{out}: no shape was generated on '{m.name}'")
+    names = [a for a in ARKIT_NAMES if a in shapes]
+    lm = ch.landmarks
+    idx = lm.triangles[np.arange(len(lm)), lm.bary.argmax(axis=1)]
+    rig = Rig(m.mesh, names, np.stack([shapes[a] for a in names]).astype(np.float64), unit="m", landmarks=idx,
+              source_names=names, name=ch.name, keep_names=True)
+    return write_rig(rig, out)
+
+
+def cmd_shapes(args, log) -> int:
+    from ..errors import InputFileError
+    from ..files import check_output_path
+    from ..transfer import generate_shapes
+
+    check_inputs(("CHAR", args.file), ("--landmarks", args.landmarks), folders=("CHAR",))
+    out = Path(args.out)
+    if out.resolve() == Path(args.file).resolve():
+        raise OutputError(f"{out}: is the character itself; write the shapes to a new file or folder")
+    obj = out.suffix == "" or out.is_dir()
+    writer = None
+    if not obj:
+        try:
+            from ..io import write_character_shapes as writer
+        except ImportError:
+            import sys
+
+            print(f"faceretarget: error: character shapes: {out}: writing shapes into a {out.suffix} character is "
+                  "not available in this version (faceretarget.io.write_character_shapes); give a folder (no "
+                  "suffix) for OBJ output", file=sys.stderr)
+            return 2
+    check_output_path(out)
+    if args.template not in ("ict-face", "arkit-face") and not Path(args.template).exists():
+        raise InputFileError(f"--template {args.template}: not ict-face, arkit-face nor an existing rig folder or "
+                             "character file")
+    with warnings_to_log(log):
+        gen = generate_shapes(args.file, template=args.template, shapes=args.shapes, replace=args.replace,
+                              mesh=args.mesh, landmarks=args.landmarks, progress=log)
+        for n in gen.notes:
+            log(f"note: {n}")
+        if obj:
+            write_shapes_obj(out, gen)
+        else:
+            writer(out, gen.character, gen.added, replace=args.replace, log=log)
+    log(f"wrote {len(gen.shape_names)} generated shape(s) to {out} in {gen.timings['total']:.1f} s")
+    return 0
+
+
 def register(subparsers) -> argparse.ArgumentParser:
     """Add ``character`` (``inspect``) to ``subparsers``."""
     c = subparsers.add_parser("character", help="a character file as faceretarget sees it",
@@ -87,4 +159,19 @@ def register(subparsers) -> argparse.ArgumentParser:
                    "chosen by --shapes (auto means all) rendered at weight 1, front view of the face")
     i.add_argument("--json", action="store_true", help="also print what was found as one JSON line")
     i.set_defaults(func=cmd_inspect)
+    g = sub.add_parser("shapes", help="generate the ARKit expression shapes of a character with a neutral face",
+                       description="Generate a character's expression shapes (the ARKit set) from a template's by "
+                       "non-rigid registration and deformation transfer, and write them: OUT without a suffix is an "
+                       "OBJ rig folder of the head mesh; OUT.glb/.vrm/.gltf/.blend/.fbx/.usd* the character with the "
+                       "new morph targets.")
+    g.add_argument("file", metavar="CHAR", help="the character file or rig folder")
+    g.add_argument("--template", default="ict-face",
+                   help="ict-face (packaged, default), arkit-face, or a rig folder / character file with ARKit shapes")
+    g.add_argument("--shapes", default="arkit", help="arkit (every ARKit shape the template has) or ARKit names, "
+                   "comma-separated")
+    g.add_argument("--replace", action="store_true", help="also generate the shapes the character already has")
+    g.add_argument("--landmarks", help="a landmark file to use instead of the automatic search")
+    g.add_argument("--mesh", help="the head mesh when the file holds several")
+    g.add_argument("--out", required=True, help="OBJ folder, or a character file of the input's format")
+    g.set_defaults(func=cmd_shapes)
     return c

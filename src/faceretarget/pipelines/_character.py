@@ -383,7 +383,7 @@ def _one_head(character: Character, mesh: str | None) -> None:
 
 def load_character(character, *, landmarks: str | os.PathLike | None = None, mesh: str | None = None,
                    find: bool = True, cache: bool = True, prefer: str | None = None, tracker=None,
-                   log: Callable[..., None] = _quiet) -> Character:
+                   need_shapes: bool = True, log: Callable[..., None] = _quiet) -> Character:
     """A character ready to drive (module docstring).
 
     Parameters
@@ -398,6 +398,11 @@ def load_character(character, *, landmarks: str | os.PathLike | None = None, mes
         Search the landmarks on a render when neither the file, ``landmarks`` nor the cache gives them.
     cache : bool
         Read and write the landmark cache and the read cache (module docstring).
+    need_shapes : bool
+        False: a character with a face but no face shapes is accepted (to generate them,
+        :mod:`faceretarget.transfer`): its head mesh is chosen (``mesh``, else
+        :meth:`~faceretarget.character.Character.head_mesh`), set as
+        :attr:`~faceretarget.character.Character.neutral_head`, and its landmarks found on it.
 
     Returns
     -------
@@ -431,8 +436,15 @@ def load_character(character, *, landmarks: str | os.PathLike | None = None, mes
             f"{time.perf_counter() - t0:.1f} s")
     timings = {"read": time.perf_counter() - t0}
     if not ch.face_meshes():
-        raise MissingShapeError(ch.no_shapes_message())
-    _one_head(ch, mesh)
+        if need_shapes:
+            raise MissingShapeError(ch.no_shapes_message())
+        if mesh is not None:
+            _one_head(ch, mesh)
+        ch.neutral_head = ch.head_mesh()
+        log(f"no face shapes: the head mesh is '{ch.meshes[ch.neutral_head].name}' "
+            f"({ch.meshes[ch.neutral_head].mesh.n_vertices} vertices)")
+    else:
+        _one_head(ch, mesh)
     t0 = time.perf_counter()
     if landmarks is not None:
         ch.landmarks = read_landmark_file(ch, landmarks)

@@ -1,0 +1,133 @@
+"""The parts of a head that are not its skin: eyeballs, teeth and tongue, lashes and the rest, found by
+shape and place (names only as hints), in the head mesh (disconnected pieces) or in other meshes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Part", "find_parts", "fit_sphere", "components"]
+
+
+@dataclass(eq=False)
+class Part:
+    """Vertices of one mesh that move together.
+
+    Attributes
+    ----------
+    mesh : int
+    vertices : (n,) int
+    role : str
+        ``"eye"`` (rotates about ``centre``), ``"lower"`` (rides the jaw), ``"upper"`` (stays),
+        ``"follow"`` (each vertex follows the nearest skin vertex, fading with distance).
+    side : str
+        ``"left"`` / ``"right"`` for an eye (the character's own sides).
+    centre : (3,) float, radius : float
+        An eye's sphere.
+    """
+
+    mesh: int
+    vertices: np.ndarray
+    role: str
+    side: str = ""
+    centre: np.ndarray | None = None
+    radius: float = 0.0
+
+
+def fit_sphere(P: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Least-squares sphere through ``P``: centre, radius and RMS residual over the radius."""
+    A = np.c_[2 * P, np.ones(len(P))]
+    b = (P * P).sum(1)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    c = sol[:3]
+    r = float(np.sqrt(max(sol[3] + c @ c, 1e-30)))
+    res = float(np.sqrt(np.mean((np.linalg.norm(P - c, axis=1) - r) ** 2)) / r)
+    return c, r, res
+
+
+def components(n: int, T: np.ndarray) -> np.ndarray:
+    """Connected component label of each of ``n`` vertices (through triangles)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.concatenate([T[:, [0, 1]], T[:, [1, 2]]])
+    g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    return connected_components(g, directed=False)[1]
+
+
+_EYE_WORDS = ("eye", "cornea", "iris", "pupil", "sclera")
+_NOT_EYE = ("lash", "brow", "lid", "gland", "shadow", "occlusion", "tear", "cartilage")
+_LOWER_WORDS = ("down", "lower", "bottom", "tongue", "bot", "jaw")
+_UPPER_WORDS = ("up", "upper", "top")
+
+
+def find_parts(character, head: int, skin: np.ndarray, lm: np.ndarray, frame: np.ndarray, size: float) -> list[Part]:
+    """The non-skin parts near the face.
+
+    Parameters
+    ----------
+    character : Character
+    head : int
+        The head mesh.
+    skin : (n,) bool
+        Which of the head mesh's vertices are the face's skin (the rest of its pieces near the face are parts).
+    lm : (68, 3) the landmarks; frame : (3, 3) world to head frame; size : outer eye corners' distance.
+    """
+    eyes = {"right": lm[36:42].mean(axis=0), "left": lm[42:48].mean(axis=0)}
+    if (eyes["left"] @ frame[0]) < (eyes["right"] @ frame[0]):
+        eyes = {"left": eyes["right"], "right": eyes["left"]}
+    mouth = lm[60:68].mean(axis=0)
+    up = frame[1]
+    centre = lm[17:68].mean(axis=0)
+    pieces = []
+    for mi, m in enumerate(character.meshes):
+        V = m.mesh.vertices
+        near = np.linalg.norm(V - centre, axis=1) < 1.6 * size
+        if not near.any():
+            continue
+        if mi == head:
+            lab = components(len(V), m.mesh.triangles())
+            for c in np.unique(lab[near & ~skin]):
+                idx = np.flatnonzero((lab == c) & ~skin)
+                if len(idx):
+                    pieces.append((mi, idx, m.name))
+        else:
+            pieces.append((mi, np.arange(len(V)), m.name))
+    parts = []
+    for mi, idx, name in pieces:
+        P = character.meshes[mi].mesh.vertices[idx]
+        low = name.lower()
+        c = P.mean(axis=0)
+        ext = float(np.ptp(P, axis=0).max())
+        if ext > 1.5 * size:                         # hair, body, clothes: only what touches the face follows
+            parts.append(Part(mi, idx, "follow"))
+            continue
+        side = min(eyes, key=lambda k: np.linalg.norm(c - eyes[k]))
+        sc, r, res = fit_sphere(P) if len(P) >= 10 else (c, 0.0, 1.0)
+        named_eye = any(w in low for w in _EYE_WORDS) and not any(w in low for w in _NOT_EYE)
+        round_eye = res < 0.08 and 0.06 * size < r < 0.3 * size and np.linalg.norm(sc - eyes[side]) < 0.3 * size
+        if round_eye or (named_eye and np.linalg.norm(c - eyes[side]) < 0.35 * size and len(P) >= 10):
+            parts.append(Part(mi, idx, "eye", side, sc, r))
+            continue
+        if "lash" in low or "brow" in low:
+            parts.append(Part(mi, idx, "follow"))
+            continue
+        if np.linalg.norm(c - mouth) < 0.6 * size and ("teeth" in low or "tooth" in low or "tongue" in low
+                                                       or "mouth" in low or "jaw" in low or mi == head
+                                                       or (c - mouth) @ character_front(frame) < 0):
+            if any(w in low for w in _LOWER_WORDS):
+                parts.append(Part(mi, idx, "lower"))
+            elif any(w in low for w in _UPPER_WORDS):
+                parts.append(Part(mi, idx, "upper"))
+            else:                                    # one piece for both: split at the lips' line
+                h = (P - mouth) @ up
+                parts.append(Part(mi, idx[h < 0], "lower"))
+                parts.append(Part(mi, idx[h >= 0], "upper"))
+            continue
+        parts.append(Part(mi, idx, "follow"))
+    return parts
+
+
+def character_front(frame: np.ndarray) -> np.ndarray:
+    return frame[2]

@@ -1,0 +1,727 @@
+"""Generate a neutral character's expression shapes by deformation transfer (:func:`generate_shapes`)."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..character import Character, character_frame
+from ..errors import InvalidDataError, MissingShapeError
+from ..names import ARKIT_NAMES, normalize_name
+from ._geometry import closest_points, gradient_operator, triangle_areas, vertex_normals
+from ._parts import Part, find_parts
+from ._register import register_template
+from ._template import Template, load_template
+
+__all__ = ["generate_shapes", "GeneratedShapes", "LID_PAIRS", "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS"]
+
+#: Upper and lower eyelid landmarks facing each other (68-point numbering).
+LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))
+#: Upper and lower inner-lip landmarks facing each other.
+LIP_PAIRS = ((61, 67), (62, 66), (63, 65))
+#: How far the eyeballs turn for ``eyeLook*`` at weight 1, degrees (ARKit's range as measured on iPhone takes).
+EYE_LOOK_DEGREES = {"Up": 25.0, "Down": 25.0, "In": 30.0, "Out": 30.0}
+#: ``deformation``: Sumner & Popovic's deformation transfer; ``barycentric``: the template's displacement
+#: at each vertex's corresponding point, rotated and scaled by the landmark similarity.
+METHODS = ("deformation", "barycentric")
+#: Weight of the positional anchor (the barycentric transfer) relative to the gradient term, per unit of
+#: (outer-eye-corner distance)^-2, and of the lid / lip landmark constraints.
+_ANCHOR, _PIN = 0.05, 20000.0
+
+
+@dataclass(eq=False)
+class GeneratedShapes:
+    """What :func:`generate_shapes` made.
+
+    Attributes
+    ----------
+    character : Character
+        The character the shapes were generated for (unchanged).
+    added : dict
+        ``{SceneMesh.name: {shape name: (V, 3) float32}}`` world-space deltas in metres.
+    skipped : list of str
+        Shapes the character already has (kept; ``replace=True`` replaces them).
+    notes : list of str
+    shape_notes : dict
+        ``{shape: note}`` for shapes that needed a correction (lids closed onto the eyeballs, lips met).
+    timings : dict
+        Seconds: ``landmarks``, ``register``, ``factor``, ``shapes``, ``total``.
+    template : str
+    info : dict
+        Registration numbers (``landmark_error``, ``size``), the coverage, the parts found.
+    """
+
+    character: Character
+    added: dict
+    skipped: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+    shape_notes: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    template: str = ""
+    info: dict = field(default_factory=dict)
+    replace: bool = False
+
+    @property
+    def shape_names(self) -> list[str]:
+        seen: list[str] = []
+        for d in self.added.values():
+            seen += [n for n in d if n not in seen]
+        return seen
+
+    def apply(self) -> Character:
+        """A copy of the character with the generated shapes appended to its meshes (same-named shapes
+        replaced when generated with ``replace=True``); ``shape_refs`` of new shapes are -1 (not in the file)."""
+        ch = copy.copy(self.character)
+        meshes = []
+        for m in ch.meshes:
+            new = self.added.get(m.name)
+            if not new:
+                meshes.append(m)
+                continue
+            names, deltas, refs = list(m.shape_names), list(m.deltas), list(m.shape_refs)
+            for n, d in new.items():
+                hit = [k for k, x in enumerate(names) if normalize_name(x) == n]
+                if hit and self.replace:
+                    deltas[hit[0]] = d
+                    continue
+                names.append(n)
+                deltas.append(d)
+                refs.append(-1)
+            D = np.stack(deltas).astype(np.float32) if deltas else np.zeros((0, m.mesh.n_vertices, 3), np.float32)
+            meshes.append(dataclasses.replace(m, shape_names=names, deltas=D, shape_refs=refs))
+        ch.meshes = meshes
+        ch.neutral_head = None
+        ch.notes = list(ch.notes) + [f"{len(self.shape_names)} face shapes generated from {self.template}"]
+        for attr in ("_face_cache",):
+            if attr in ch.__dict__:
+                del ch.__dict__[attr]
+        return ch
+
+
+def _wanted(spec, tmpl: Template) -> list[str]:
+    if spec is None or spec == "arkit":
+        return [a for a in ARKIT_NAMES if a in tmpl.shapes]
+    names = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec) if s.strip()]
+    out = []
+    for n in names:
+        a = normalize_name(n)
+        if a not in ARKIT_NAMES:
+            raise MissingShapeError(f"--shapes: '{n}' is not an ARKit shape name (e.g. eyeBlinkLeft, jawOpen)")
+        if a not in tmpl.shapes:
+            raise MissingShapeError(f"--shapes: the template {tmpl.name} has no '{a}'"
+                                    + (" (ICT-FaceKit has no tongue)" if a == "tongueOut" else ""))
+        if a not in out:
+            out.append(a)
+    return out
+
+
+def _rotation(axis: int, deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    if axis == 0:
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def _eye_turn(name: str, side: str) -> np.ndarray | None:
+    """Head-frame rotation of an eyeball of ``side`` for an ``eyeLook*`` shape, or None."""
+    if not name.startswith("eyeLook"):
+        return None
+    rest = name[len("eyeLook"):]
+    d = next((k for k in EYE_LOOK_DEGREES if rest.startswith(k)), None)
+    if d is None or not rest.endswith(side.capitalize()):
+        return None
+    a = EYE_LOOK_DEGREES[d]
+    if d == "Up":
+        return _rotation(0, -a)
+    if d == "Down":
+        return _rotation(0, a)
+    inward = (d == "In") == (side == "left")           # the left eye looks in toward -X
+    return _rotation(1, -a if inward else a)
+
+
+def _kabsch(X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    cx, cy = X.mean(0), Y.mean(0)
+    U, _, Vt = np.linalg.svd((Y - cy).T @ (X - cx))
+    D = np.eye(3)
+    D[2, 2] = np.sign(np.linalg.det(U @ Vt))
+    R = U @ D @ Vt
+    return R, cy - R @ cx
+
+
+def _deformation_gradients(V: np.ndarray, T: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """``(F, 3, 3)`` Sumner & Popovic deformation gradient of each triangle (a fourth vertex off the normal)."""
+    def frame(P):
+        e1, e2 = P[T[:, 1]] - P[T[:, 0]], P[T[:, 2]] - P[T[:, 0]]
+        n = np.cross(e1, e2)
+        n = n / np.sqrt(np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30))
+        return np.stack([e1, e2, n], axis=2)
+    A, B = frame(V), frame(V + D)
+    det = np.abs(np.linalg.det(A))
+    ok = det > 1e-24 * np.median(det + 1e-300)
+    Q = np.tile(np.eye(3), (len(T), 1, 1))
+    Q[ok] = B[ok] @ np.linalg.inv(A[ok])
+    # a template triangle that folds over (its own sculpt's flaw at the lips' inner edge) would fold the
+    # character's too: keep its rotation and stretch, with every stretch at least a quarter
+    U, S, Vt = np.linalg.svd(Q)
+    flip = np.linalg.det(U @ Vt) < 0
+    bad = flip | (S.min(axis=1) < 0.25)
+    if bad.any():
+        Ub, Sb, Vb = U[bad], np.maximum(S[bad], 0.25), Vt[bad]
+        f = flip[bad]
+        Ub[f, :, 2] *= -1
+        Q[bad] = Ub @ (Sb[:, :, None] * Vb)
+    return Q
+
+
+def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: bool = False, progress=None,
+                    mesh: str | None = None, landmarks=None, method: str = "deformation",
+                    symmetric: bool = True, log=None) -> GeneratedShapes:
+    """Generate a character's expression shapes from a template's by deformation transfer.
+
+    Parameters
+    ----------
+    character : path-like or Character
+        A character file / rig folder or one already read; face shapes it has are hidden from nothing:
+        those it already has are kept (listed in ``skipped``) unless ``replace``.
+    template : str, path-like or Template
+        ``"ict-face"`` (packaged), ``"arkit-face"`` or a rig folder / character file with ARKit shapes
+        (:func:`~faceretarget.transfer.load_template`).
+    shapes : str or list of str
+        ``"arkit"`` (every ARKit shape the template has) or ARKit names.
+    replace : bool
+        Generate shapes the character already has too (they replace the artist's in :meth:`GeneratedShapes.apply`).
+    progress : callable, optional
+        Called with one line per step and per shape.
+    mesh, landmarks : ``--mesh`` and ``--landmarks`` of :func:`~faceretarget.pipelines.load_character`.
+    method : str
+        ``"deformation"`` (default) or ``"barycentric"`` (:data:`METHODS`).
+    symmetric : bool
+        On a face that is its own mirror image (each vertex's mirror within 2 % of the outer-eye-corner
+        distance of a vertex, mean over the face), make ``xxxLeft`` and ``xxxRight`` exact mirror images (the
+        mean of the two) and the other shapes symmetric.
+
+    Returns
+    -------
+    GeneratedShapes
+    """
+    from scipy.sparse import csr_matrix, diags
+    from scipy.spatial import cKDTree
+
+    from ..pipelines import load_character
+
+    say = progress or log or (lambda *_: None)
+    if method not in METHODS:
+        raise InvalidDataError(f"method must be one of {', '.join(METHODS)}, not '{method}'")
+    t_all = time.perf_counter()
+    timings = {}
+    t0 = time.perf_counter()
+    ch = load_character(character, landmarks=landmarks, mesh=mesh, need_shapes=False, log=say)
+    if ch.landmarks is None:
+        raise InvalidDataError(f"{ch.name}: no landmarks")
+    timings["landmarks"] = time.perf_counter() - t0
+    tmpl = load_template(template, log=say)
+    wanted = _wanted(shapes, tmpl)
+    have = {normalize_name(n) for m in ch.meshes for n in m.shape_names}
+    skipped = [a for a in wanted if a in have and not replace]
+    todo = [a for a in wanted if a not in skipped]
+    notes = list(tmpl.notes)
+    if skipped:
+        notes.append(f"kept the character's own {', '.join(skipped)} (replace=True to generate them)")
+    head = ch.landmarks.mesh
+    hm = ch.meshes[head]
+    V = hm.mesh.vertices.astype(np.float64)
+    T = hm.mesh.triangles().astype(np.int64)
+    lm = ch.landmark_positions()
+    F = character_frame(ch)
+    size = float(np.linalg.norm(lm[36] - lm[45]))
+    centre = lm[17:68].mean(axis=0)
+    # the face's skin: the head mesh's piece that holds the landmarks, near the face
+    from ._parts import components
+
+    lab = components(len(V), T)
+    skin_label = np.bincount(lab[ch.landmarks.triangles.ravel()]).argmax()
+    near = np.linalg.norm(V - centre, axis=1) < 1.8 * size
+    skin = (lab == skin_label)
+    region = skin & near
+    rt = T[region[T].all(axis=1)]
+    snapped = _onto_skin(ch, V, rt, region)
+    if snapped:
+        notes.append(f"landmarks {', '.join(map(str, snapped))} were on another piece of '{hm.name}' (an eyeball, "
+                     "teeth): put on the nearest point of the face's skin")
+        lm = ch.landmark_positions()
+    t0 = time.perf_counter()
+    say(f"registering the template {tmpl.name} ({len(tmpl.vertices)} vertices) onto '{hm.name}' "
+        f"({int(region.sum())} face vertices)")
+    reg, info = register_template(tmpl.vertices, tmpl.triangles, (tmpl.lm_triangles, tmpl.lm_bary), V, rt, lm,
+                                  log=say)
+    timings["register"] = time.perf_counter() - t0
+    s, R = info["s"], info["R"]
+    # correspondence: each face vertex's closest compatible point on the registered template
+    tt = tmpl.triangles
+    tn = np.cross(reg[tt[:, 1]] - reg[tt[:, 0]], reg[tt[:, 2]] - reg[tt[:, 0]])
+    tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-30)
+    vn = vertex_normals(V, T)
+    ridx = np.flatnonzero(region)
+    t_lm_reg = np.einsum("pk,pkd->pd", tmpl.lm_bary, reg[tmpl.lm_triangles])
+    t_side = _mouth_side(reg, t_lm_reg, F, size)
+    t_tri_side = np.sign(t_side[tt].sum(axis=1))
+    c_side = _mouth_side(V, lm, F, size)
+
+    def corr(P, normals, side):
+        """Closest compatible template point: a point of the character's upper lip only on the template's
+        upper lip, of the lower only on the lower (closed lips touch: nearness alone mixes them)."""
+        tri = np.zeros(len(P), np.int64)
+        bar = np.zeros((len(P), 3))
+        dist = np.zeros(len(P))
+        for sd in (-1, 0, 1):
+            sel = np.flatnonzero(side == sd)
+            if not len(sel):
+                continue
+            allowed = np.flatnonzero(t_tri_side != -sd) if sd else np.arange(len(tt))
+            sub = tt[allowed]
+            t_, b_, d_ = closest_points(reg, sub, P[sel], k=8, normals=tn[allowed], point_normals=normals[sel],
+                                        min_cos=0.3)
+            tri[sel], bar[sel], dist[sel] = allowed[t_], b_, d_
+        return tri, bar, dist
+
+    ctri, cbar, cdist = corr(V[ridx], vn[ridx], c_side[ridx])
+    # coverage: 1 on the template, fading to 0 within a fifth of the eye-corner distance off it, and
+    # towards the template's own outer border
+    te = np.concatenate([tt[:, [0, 1]], tt[:, [1, 2]], tt[:, [2, 0]]])
+    te.sort(axis=1)
+    ue, cnt = np.unique(te, axis=0, return_counts=True)
+    bverts = np.unique(ue[cnt == 1].ravel())
+    blab = components(len(reg), np.c_[ue[cnt == 1], ue[cnt == 1][:, :1]]) if len(bverts) else None
+    if blab is not None:
+        sizes = np.bincount(blab[bverts])
+        outer = bverts[blab[bverts] == sizes.argmax()]
+        dborder = cKDTree(reg[outer]).query(reg)[0] / size
+    else:
+        dborder = np.full(len(reg), np.inf)
+    inner_w = np.clip(dborder / 0.25, 0.0, 1.0)
+    inner_w = inner_w * inner_w * (3 - 2 * inner_w)
+    w_t = np.einsum("nk,nk->n", cbar, inner_w[tt[ctri]])
+    f = np.clip(1.0 - (cdist / size - 0.03) / 0.17, 0.0, 1.0)
+    w = np.zeros(len(V))
+    w[ridx] = w_t * f * f * (3 - 2 * f)
+    info["coverage_vertices"] = int((w > 0.5).sum())
+    free = np.flatnonzero(w > 1e-3)
+    if len(free) < 20:
+        raise InvalidDataError(f"{ch.name}: the template covers no part of '{hm.name}' (registration failed)")
+    if "jawOpen" in tmpl.shapes:
+        d_jaw = tmpl.shapes["jawOpen"] @ (s * R).T
+        ub_jaw = np.zeros((len(V), 3))
+        ub_jaw[ridx] = np.einsum("nk,nkd->nd", cbar, d_jaw[tt[ctri]]) * w[ridx, None]
+        moved = _separate_lips(ch, V, ub_jaw, size)
+        if moved:
+            notes.append(f"inner-lip landmarks {', '.join(map(str, moved))} moved onto the lip that opens with the jaw")
+    mirror = _mirror_map(V, lm, F, skin, size) if symmetric else None
+    if mirror is not None:                  # a symmetric face: its lid points made mirror images too
+        _mirror_landmarks(ch, V, rt, F, mirror[2])
+        lm = ch.landmark_positions()
+    # the system: gradients of the free vertices' motion on the triangles that touch them
+    ft = T[(w[T] > 1e-3).any(axis=1)]
+    Gfull = gradient_operator(V, ft)
+    col = np.full(len(V), -1)
+    col[free] = np.arange(len(free))
+    keep_cols = free
+    G = Gfull[:, keep_cols]
+    area = triangle_areas(V, ft)
+    Aw = diags(np.repeat(area, 3))
+    varea = np.zeros(len(V))
+    for k in range(3):
+        np.add.at(varea, ft[:, k], area / 3.0)
+    lam = _ANCHOR / size ** 2
+    # lid and lip landmark rows (points on triangles; fixed vertices dropped)
+    pin_ids = sorted({i for p in LID_PAIRS + LIP_PAIRS for i in p})
+    ltri, lbar = ch.landmarks.triangles[pin_ids], ch.landmarks.bary[pin_ids]
+    rows, cols, vals = [], [], []
+    for r, (tv, bv) in enumerate(zip(ltri, lbar, strict=True)):
+        for v, b in zip(tv, bv, strict=True):
+            if col[v] >= 0 and b != 0:
+                rows.append(r)
+                cols.append(col[v])
+                vals.append(b)
+    Cm = csr_matrix((vals, (rows, cols)), shape=(len(pin_ids), len(free)))
+    mu = _PIN * float(varea[free].mean()) / size ** 2
+    t0 = time.perf_counter()
+    K = (G.T @ Aw @ G + lam * diags(varea[free]) + mu * (Cm.T @ Cm)).tocsc()
+    try:
+        from sksparse.cholmod import cholesky  # optional: faster when installed
+
+        solve = cholesky(K)
+    except ImportError:
+        from scipy.sparse.linalg import factorized
+
+        solve = factorized(K)
+    timings["factor"] = time.perf_counter() - t0
+    say(f"factorised the {len(free)}-vertex system in {timings['factor']:.2f} s")
+    # per character triangle: the template triangle under its centroid; per vertex: coverage
+    fnrm = np.cross(V[ft[:, 1]] - V[ft[:, 0]], V[ft[:, 2]] - V[ft[:, 0]])
+    fnrm /= np.maximum(np.linalg.norm(fnrm, axis=1, keepdims=True), 1e-30)
+    ttri_c, _, _ = corr(V[ft].mean(axis=1), fnrm, np.sign(c_side[ft].sum(axis=1)))
+    wt = w[ft].mean(axis=1)
+    grad0 = (Gfull @ V).reshape(-1, 3, 3)                # per triangle: rows d/dk of x_c -> J[k, c]
+    parts = find_parts(ch, head, skin, lm, F, size)
+    info["parts"] = [(ch.meshes[p.mesh].name, p.role, p.side, len(p.vertices)) for p in parts]
+    eyes = [p for p in parts if p.role == "eye"]
+    skin_idx = np.flatnonzero(skin)
+    skin_tree = cKDTree(V[skin_idx])
+    chin = skin_idx[np.min(np.linalg.norm(V[skin_idx][:, None] - lm[None, 5:12], axis=2), axis=1) < 0.12 * size]
+    lm_pos = lambda D: ch.landmarks.positions(V + D)[pin_ids]            # noqa: E731
+    pair_rows = {i: r for r, i in enumerate(pin_ids)}
+    added: dict[str, np.ndarray] = {}
+    shape_notes = {}
+    smooth_op = _neighbour_mean(len(V), ft)
+
+    def outside(x):
+        return _outside_eyes(x, V, eyes, size)
+    keep = np.zeros(len(V), bool)                     # the pinned lid and lip points are not smoothed
+    keep[ch.landmarks.triangles[pin_ids].ravel()] = True
+    keep[w <= 1e-3] = True
+    t0 = time.perf_counter()
+    order = sorted(todo, key=lambda a: (a == "mouthClose", a))           # mouthClose after jawOpen
+    for k, a in enumerate(order):
+        d_t = tmpl.shapes[a] @ (s * R).T                                 # the template's motion, character frame
+        ub = np.zeros((len(V), 3))
+        ub[ridx] = np.einsum("nk,nkd->nd", cbar, d_t[tt[ctri]]) * w[ridx, None]
+        if method == "barycentric":
+            u = ub
+        else:
+            Q = _deformation_gradients(reg, tt, d_t)[ttri_c]
+            Q = np.eye(3) + wt[:, None, None] * (Q - np.eye(3))
+            target = np.einsum("fkc,fdc->fkd", grad0, Q) - grad0        # J Q^T - J: the gradient of the motion
+            pins = ch.landmarks.positions(ub)[pin_ids]
+            note = _pin_targets(a, pins, lm_pos, pair_rows, ch, V, added, eyes, tmpl, d_t, size)
+            if note:
+                shape_notes[a] = note
+            rhs = G.T @ (Aw @ target.reshape(-1, 3)) + lam * varea[free, None] * ub[free] + mu * (Cm.T @ pins)
+            u = np.zeros((len(V), 3))
+            u[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
+        u = _untangle(_outside_eyes(u, V, eyes, size), V, ft, smooth_op, keep, project=outside)
+        added[a] = u
+        say(f"shape {k + 1}/{len(order)} {a}")
+    if "jawOpen" in added and method != "barycentric":  # a mouth shape played on the open jaw folds nothing either
+        jo = added["jawOpen"]
+        for a in added:
+            if a.startswith("mouth"):
+                added[a] = _untangle(jo + added[a], V, ft, smooth_op, keep, project=outside) - jo
+    if mirror is not None:
+        _symmetrise(added, mirror, F)
+        for a in order:                                   # the lids and lips closed again where averaging opened them
+            u_s = added[a]
+            if method != "barycentric":
+                pins = Cm @ u_s[free]
+                _pin_targets(a, pins, lm_pos, pair_rows, ch, V, added, eyes, tmpl,
+                             tmpl.shapes[a] @ (s * R).T, size)
+                rhs = G.T @ (Aw @ (Gfull @ u_s)) + lam * varea[free, None] * u_s[free] + mu * (Cm.T @ pins)
+                u_s = u_s.copy()
+                u_s[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
+            added[a] = _untangle(_outside_eyes(u_s, V, eyes, size), V, ft, smooth_op, keep, project=outside)
+        notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
+    timings["shapes"] = time.perf_counter() - t0
+    out: dict[str, dict[str, np.ndarray]] = {hm.name: {a: added[a].astype(np.float32) for a in todo}}
+    # the other parts: eyes turn, the lower teeth and tongue ride the jaw, the rest follows the skin
+    for p in parts:
+        m = ch.meshes[p.mesh]
+        P = m.mesh.vertices[p.vertices].astype(np.float64)
+        if p.role == "follow":
+            dist, nn = skin_tree.query(P)
+            fade = np.clip(1.0 - (dist / size - 0.03) / 0.07, 0.0, 1.0)
+            if not (fade > 0).any():
+                continue
+        dst = out.setdefault(m.name, {})
+        for a in todo:
+            d = dst.get(a)
+            if d is None:
+                d = np.zeros((m.mesh.n_vertices, 3), np.float32)
+            if p.role == "eye":
+                Rh = _eye_turn(a, p.side)
+                if Rh is None:
+                    continue
+                Rw = F.T @ Rh @ F
+                d[p.vertices] = (P - p.centre) @ Rw.T + p.centre - P
+            elif p.role == "lower":
+                if len(chin) < 3:
+                    continue
+                Rj, tj = _kabsch(V[chin], V[chin] + added[a][chin])
+                d[p.vertices] = P @ Rj.T + tj - P
+            elif p.role == "follow":
+                d[p.vertices] = added[a][skin_idx[nn]] * fade[:, None]
+            else:
+                continue
+            dst[a] = d
+    out = {mn: {a: d for a, d in sd.items() if np.abs(d).max() > 0} for mn, sd in out.items()}
+    out = {mn: sd for mn, sd in out.items() if sd}
+    timings["total"] = time.perf_counter() - t_all
+    info["coverage"] = w
+    say(f"generated {len(todo)} shapes on {len(out)} mesh(es) in {timings['total']:.1f} s")
+    return GeneratedShapes(ch, out, skipped, notes, shape_notes, timings, tmpl.name, info, replace)
+
+
+def _pin_targets(a, pins, lm_pos, rows, ch, V, added, eyes, tmpl, d_t, size) -> str:
+    """Set the lid / lip landmark targets (``pins``, in place) where the shape closes them: a blink puts
+    each upper lid point and the lower one facing it on one point (where the template's lids meet,
+    outside the eyeball), ``mouthClose`` puts the inner lips of the open jaw together."""
+    rest = lm_pos(np.zeros_like(V))
+    if a.startswith("eyeBlink"):
+        t_l = tmpl.landmarks()
+        t_d = np.einsum("pk,pkd->pd", tmpl.lm_bary, d_t[tmpl.lm_triangles])
+        n = 0
+        for up, lo in LID_PAIRS:
+            g = t_l[up] - t_l[lo]
+            gl = float(np.linalg.norm(g))
+            closing = -((t_d[up] - t_d[lo]) @ g) / max(gl * gl, 1e-30)
+            if closing < 0.5:
+                continue
+            gh = g / max(gl, 1e-30)
+            mu, ml = float(-(t_d[up] @ gh)), float(t_d[lo] @ gh)
+            r = np.clip(ml / max(mu + ml, 1e-30), 0.0, 1.0)
+            U0, L0 = rest[rows[up]], rest[rows[lo]]
+            M = L0 + r * (U0 - L0)
+            eye = min(eyes, key=lambda e: np.linalg.norm(e.centre - M)) if eyes else None
+            if eye is not None and np.linalg.norm(eye.centre - M) < 2 * eye.radius:
+                rad = eye.radius + _margin(size)
+                dvec = M - eye.centre
+                if np.linalg.norm(dvec) < rad:
+                    M = eye.centre + dvec / max(np.linalg.norm(dvec), 1e-30) * rad
+            pins[rows[up]] = M - U0
+            pins[rows[lo]] = M - L0
+            n += 1
+        return f"lids closed at {n} landmark pairs" if n else ""
+    if a == "mouthClose" and "jawOpen" in added:
+        op = lm_pos(added["jawOpen"])
+        t_d = np.einsum("pk,pkd->pd", tmpl.lm_bary, d_t[tmpl.lm_triangles])
+        for up, lo in LIP_PAIRS:
+            U1, L1 = op[rows[up]], op[rows[lo]]
+            a_u, a_l = float(np.linalg.norm(t_d[up])), float(np.linalg.norm(t_d[lo]))
+            r = a_u / (a_u + a_l) if a_u + a_l > 0 else 0.5      # how much of the closing the upper lip does
+            M = U1 + r * (L1 - U1)
+            pins[rows[up]] = M - U1
+            pins[rows[lo]] = M - L1
+        return "inner lips of jawOpen met"
+    return ""
+
+
+def _margin(size: float) -> float:
+    return max(0.0003, 0.008 * size)
+
+
+def _outside_eyes(u: np.ndarray, V: np.ndarray, eyes: list[Part], size: float) -> np.ndarray:
+    """Push face vertices that a shape moves into an eyeball back onto its sphere plus a margin (never
+    deeper than they sit at rest)."""
+    if not eyes:
+        return u
+    for e in eyes:
+        near = np.flatnonzero(np.linalg.norm(V - e.centre, axis=1) < 1.6 * e.radius)
+        if not len(near):
+            continue
+        X = V[near] + u[near]
+        d = np.linalg.norm(X - e.centre, axis=1)
+        d0 = np.linalg.norm(V[near] - e.centre, axis=1)
+        want = np.minimum(d0, e.radius + _margin(size))
+        bad = d < want
+        if bad.any():
+            dirs = (X[bad] - e.centre) / np.maximum(d[bad, None], 1e-30)
+            u[near[bad]] = e.centre + dirs * want[bad, None] - V[near[bad]]
+    return u
+
+
+def _mirror_map(V, lm, F, skin, size, tol: float = 0.02):
+    """``(idx, mate)``: the face vertices and the vertex at each one's mirror position about the face's
+    symmetry plane, when the face is symmetric (mean mirror distance within ``tol`` of ``size``)."""
+    from scipy.spatial import cKDTree
+
+    near = np.flatnonzero(skin & (np.linalg.norm(V - lm[17:68].mean(0), axis=1) < 1.8 * size))
+    H = V @ F.T
+    x0 = float(np.median(H[near, 0]))
+    Hm = H[near] * np.array([-1.0, 1.0, 1.0])
+    Hm[:, 0] += 2 * x0
+    dist, mate = cKDTree(H[near]).query(Hm)
+    if float(dist.mean()) > tol * size or float(np.percentile(dist, 95)) > 3 * tol * size:
+        return None
+    return near, near[mate], x0
+
+
+#: Eye landmarks and their mirror images (the inner lips are left where the lips were told apart: snapped
+#: onto the surface again they could change lips).
+_MIRROR_LM = ((36, 45), (37, 44), (38, 43), (39, 42), (40, 47), (41, 46))
+
+
+def _mirror_landmarks(ch: Character, V: np.ndarray, rt: np.ndarray, F: np.ndarray, x0: float) -> None:
+    """Make the eye landmarks of a symmetric face mirror images (each pair moved to the mean of one and the
+    other's mirror, then onto the skin), in place on ``ch.landmarks``."""
+    from ..character import SurfacePoints
+
+    lm = ch.landmarks
+    P = lm.positions(V)
+    S = F.T @ np.diag([-1.0, 1.0, 1.0]) @ F
+    off = F.T @ np.array([2 * x0, 0.0, 0.0])
+
+    def mirror(x):
+        return x @ S.T + off
+
+    idx, want = [], []
+    for a, b in _MIRROR_LM:
+        pa = 0.5 * (P[a] + mirror(P[b]))
+        idx += [a, b]
+        want += [pa, mirror(pa)]
+    tri, bar, _ = closest_points(V, rt, np.asarray(want), k=16)
+    T2, B2 = lm.triangles.copy(), lm.bary.copy()
+    T2[idx], B2[idx] = rt[tri], bar
+    ch.landmarks = SurfacePoints(lm.mesh, T2, B2, lm.source + "; mirrored")
+
+
+def _symmetrise(added: dict, mirror, F) -> None:
+    idx, mate, _ = mirror
+    S = F.T @ np.diag([-1.0, 1.0, 1.0]) @ F               # the mirror of a world vector
+
+    def mirrored(d):
+        return d[mate] @ S.T
+
+    for a in list(added):
+        d = added[a]
+        if a.endswith("Left") and a[:-4] + "Right" in added:
+            r = added[a[:-4] + "Right"]
+            left = d.copy()
+            left[idx] = 0.5 * (d[idx] + mirrored(r))
+            right = r.copy()
+            right[idx] = mirrored(left)
+            added[a], added[a[:-4] + "Right"] = left, right
+        elif not a.endswith("Right"):
+            out = d.copy()
+            out[idx] = 0.5 * (d[idx] + mirrored(d))
+            added[a] = out
+
+
+_UPPER_INNER, _LOWER_INNER = (61, 62, 63), (65, 66, 67)
+
+
+def _separate_lips(ch: Character, V: np.ndarray, ub: np.ndarray, size: float) -> list[int]:
+    """Put each inner-lip landmark of a closed mouth on its own lip (in place on ``ch.landmarks``): at rest
+    the upper and the lower inner-lip points lie on one line, and a point on the wrong lip would keep the
+    lips from opening or meeting.  A surface point is on the lower lip when its motion under the template's
+    ``jawOpen`` (``ub``) is nearer that of the outer lower-lip middle (point 57) than the upper's (51), along
+    the line between the two; a point on the wrong lip moves to the nearest vertex clearly on the right one
+    within a tenth of ``size``."""
+    from ..character import SurfacePoints
+
+    lm = ch.landmarks
+    P = lm.positions(V)
+    mot = lm.positions(ub)
+    up, lo = mot[51], mot[57]
+    if np.linalg.norm(lo - up) < 1e-3 * size:
+        return []
+
+    span = lo - up
+
+    def lower_score(M):                    # > 0: moves more like the lower lip than like the upper
+        return (M - up) @ span / float(span @ span) - 0.5
+
+    tri, bar = lm.triangles.copy(), lm.bary.copy()
+    moved = []
+    for group, want_lower in ((_UPPER_INNER, False), (_LOWER_INNER, True)):
+        for k in group:
+            sk = lower_score(mot[k])
+            if (sk > 0.1) if want_lower else (sk < -0.1):        # clearly on its lip already
+                continue
+            d = np.linalg.norm(V - P[k], axis=1)
+            sc = lower_score(ub)
+            ok = (d < 0.1 * size) & ((sc > 0.1) if want_lower else (sc < -0.1))
+            if not ok.any():
+                continue
+            v = int(np.flatnonzero(ok)[np.argmin(d[ok])])
+            tri[k] = v
+            bar[k] = (1.0, 0.0, 0.0)
+            moved.append(k)
+    if moved:
+        ch.landmarks = SurfacePoints(lm.mesh, tri, bar, lm.source + "; inner lips separated by the template's jawOpen")
+    return moved
+
+
+def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float) -> np.ndarray:
+    """+1 for points of the upper lip, -1 of the lower, 0 elsewhere: in the mouth's zone (between the
+    corners, within a third of ``size`` of the lips' line), above or below the inner-lip line (the
+    middles of the facing inner-lip landmarks and the corners, interpolated across)."""
+    H = P @ F.T
+    L = lm @ F.T
+    xs = [L[60, 0], L[61:64, 0].mean() * 0 + 0.5 * (L[61, 0] + L[67, 0]), 0.5 * (L[62, 0] + L[66, 0]),
+          0.5 * (L[63, 0] + L[65, 0]), L[64, 0]]
+    ys = [L[60, 1], 0.5 * (L[61, 1] + L[67, 1]), 0.5 * (L[62, 1] + L[66, 1]), 0.5 * (L[63, 1] + L[65, 1]), L[64, 1]]
+    order = np.argsort(xs)
+    xs, ys = np.asarray(xs)[order], np.asarray(ys)[order]
+    line = np.interp(H[:, 0], xs, ys)
+    zone = (H[:, 0] > xs[0] + 0.05 * size) & (H[:, 0] < xs[-1] - 0.05 * size) & (np.abs(H[:, 1] - line) < size / 3)
+    zone &= np.abs(H[:, 2] - L[60:68, 2].mean()) < size / 3
+    out = np.where(H[:, 1] >= line, 1, -1)
+    return np.where(zone, out, 0)
+
+
+def _onto_skin(ch: Character, V: np.ndarray, rt: np.ndarray, region: np.ndarray) -> list[int]:
+    """Move landmarks that lie on a piece of the head mesh other than the face's skin (a lid point found on
+    an eyeball of the same mesh) to the nearest point of the skin (in place on ``ch.landmarks``)."""
+    from ..character import SurfacePoints
+
+    lm = ch.landmarks
+    bad = np.flatnonzero(~region[lm.triangles].all(axis=1))
+    if not len(bad) or not len(rt):
+        return []
+    P = lm.positions(V)[bad]
+    tri, bar, _ = closest_points(V, rt, P, k=16)
+    T2, B2 = lm.triangles.copy(), lm.bary.copy()
+    T2[bad], B2[bad] = rt[tri], bar
+    ch.landmarks = SurfacePoints(lm.mesh, T2, B2, lm.source + "; snapped onto the skin")
+    return [int(b) for b in bad]
+
+
+def _neighbour_mean(n: int, T: np.ndarray):
+    """Sparse ``(n, n)`` operator: the mean of each vertex's neighbours (through ``T``)."""
+    from scipy.sparse import coo_matrix, diags
+
+    e = np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]])
+    A = coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    A.data[:] = 1.0
+    deg = np.asarray(A.sum(axis=1)).ravel()
+    return diags(1.0 / np.maximum(deg, 1)) @ A
+
+
+def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.ndarray, iterations: int = 60,
+              project=None):
+    """Unfold triangles a shape turns over (normal reversed at weight 1): the motion of their vertices and
+    their neighbours is relaxed towards the neighbours' mean until none is left (or ``iterations``), each
+    step followed by ``project`` (the eyeball push); the motion with the fewest turned over is kept."""
+    n0 = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
+
+    def flipped(x):
+        X = V + x
+        n1 = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
+        return (n0 * n1).sum(axis=1) < 0
+
+    best, best_n = u, int(flipped(u).sum())
+    since = 0
+    for _ in range(iterations):
+        bad = flipped(u)
+        if bad.sum() < best_n:
+            best, best_n, since = u, int(bad.sum()), 0
+        else:
+            since += 1
+        if not bad.any() or since > 15:                  # none left, or no better for 15 steps
+            break
+        sel = np.zeros(len(V), bool)
+        sel[T[bad].ravel()] = True
+        sel = (mean_op @ sel.astype(float) > 0) | sel            # one ring more
+        sel &= ~keep
+        if not sel.any():
+            break
+        u = u.copy()
+        u[sel] = 0.5 * u[sel] + 0.5 * (mean_op @ u)[sel]
+        if project is not None:
+            u = project(u)
+    if int(flipped(u).sum()) < best_n:
+        best = u
+    return best
