@@ -11,7 +11,9 @@ own landmark file kept):
 * ``blink_gap_pct`` (lid gap left at ``eyeBlink*`` = 1 over the open gap, worst lid landmark pair, %),
   ``lid_inside_eye`` (face vertices the blinks move into an eyeball), ``lip_gap_pct`` (inner-lip gap at
   ``jawOpen + mouthClose`` over the gap at ``jawOpen``), ``lips_in_teeth`` (face vertices near the mouth
-  that ``jawOpen + mouthClose`` puts inside the teeth's convex hull), ``inverted_triangles`` (over every shape and
+  that ``jawOpen + mouthClose`` puts inside the teeth's convex hull), ``teeth_showing_px`` (pixels of teeth and
+  tongue seen outside the mouth opening on a 400-pixel front view of the mouth at ``jawOpen``, ``mouthFunnel``,
+  ``mouthLowerDown*``: teeth through the lips or chin), ``inverted_triangles`` (over every shape and
   ``jawOpen`` + each mouth shape), ``mirror_err_pct`` (left/right pairs, on symmetric faces), and the same
   numbers of the artist's shapes where they are ARKit (``artist``);
 * ``mouth_corr``: the main job (:func:`faceretarget.pipelines.animate`) on both shared videos with the
@@ -122,7 +124,8 @@ def one(name: str, src, caps: dict, work: Path, log) -> dict:
     from faceretarget.transfer import generate_shapes, shape_metrics
 
     keys = ("ok", "error", "template", "shapes", "mouth_corr", "residual_ratio", "blink_gap_pct", "lid_inside_eye",
-            "lip_gap_pct", "lips_in_teeth", "inverted_triangles", "mirror_err_pct", "seconds", "direction_cos", "artist")
+            "lip_gap_pct", "lips_in_teeth", "teeth_showing_px", "inverted_triangles", "mirror_err_pct", "seconds",
+            "direction_cos", "artist")
     res = {k: None for k in keys}
     res["ok"] = False
     try:
@@ -211,7 +214,7 @@ def main(argv=None) -> int:
             out[name] = r = one(name, src, caps, work, log)
             log(json.dumps({k: r[k] for k in ("ok", "error", "template", "shapes", "mouth_corr", "residual_ratio",
                                               "blink_gap_pct", "lid_inside_eye", "lip_gap_pct", "lips_in_teeth",
-                                              "inverted_triangles",
+                                              "teeth_showing_px", "inverted_triangles",
                                               "mirror_err_pct", "direction_cos", "seconds")}))
     if args.json:
         print(json.dumps({"characters": out}, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))

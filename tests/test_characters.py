@@ -474,7 +474,7 @@ def test_usd_layer_over_the_asset(tmp_path, chars, take):
              for c, ch in enumerate(res.drive.channels) for mi, k in ch.binds}
     u = checks.usd_checks(out, names, res.times)
     assert u["ok"] and u["weights_compared"] > 1000 and u["joint_world_change"] > 1e-4, u
-    from pxr import Usd, UsdGeom                              # the layer shows the asset at its size and upright
+    from pxr import Usd, UsdGeom  # the layer shows the asset at its size and upright
 
     a, b = Usd.Stage.Open(str(asset)), Usd.Stage.Open(str(out))
     assert UsdGeom.GetStageUpAxis(a) == UsdGeom.Tokens.z      # Blender's export: Z up, so the fallback (Y) would differ

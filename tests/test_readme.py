@@ -49,7 +49,8 @@ def test_every_readme_block_runs_as_written(data_dir, tmp_path):
                                                 f"{r.silence_after!r}"
     # what the main job promised is there
     for name in ("katie.glb", "katie.wav", "katie_preview.mp4", "check.png", "s07_on_arkit.csv", "s07_on_arkit.blend",
-                 "jaw_keys/contact_sheet.png", "cheeks_through_jaw_keys.glb", "head_db.npz", "head.bvh"):
+                 "jaw_keys/contact_sheet.png", "cheeks_through_jaw_keys.glb", "head_db.npz", "head.bvh",
+                 "aian_arkit.glb", "aian_arkit_sheet.png", "katie_arkit.glb"):
         assert (tmp_path / name).is_file() and (tmp_path / name).stat().st_size > 0, name
 
 

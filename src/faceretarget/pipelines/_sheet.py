@@ -20,6 +20,7 @@ import numpy as np
 from ..character import Character, channels, character_frame, choose_shapes
 from ..errors import InvalidDataError, MissingShapeError, OutputError
 from ..files import atomic_path, check_output_path
+from ..names import normalize_name
 
 __all__ = ["shape_sheet"]
 
@@ -103,16 +104,22 @@ def shape_sheet(character: Character, out: str | os.PathLike, *, shapes: str = "
     tiles, labels = [], []
     rest = [m.mesh.vertices for m in meshes]
     order = [None] + list(choice.drive)
+    # ARKit's mouthClose closes the lips of an open jaw: alone it pushes one lip through the other, so it is
+    # shown on jawOpen, as it plays
+    by_name = {normalize_name(ch.name): i for i, ch in enumerate(chans)}
+    jaw = by_name.get("jawOpen")
     for k in order:
         verts: list = [None] * len(meshes)
-        if k is not None:
-            for mi, s, wgt in chans[k].weighted():
+        with_jaw = k is not None and jaw is not None and normalize_name(chans[k].name) == "mouthClose"
+        for kk in ([] if k is None else [k] + ([jaw] if with_jaw else [])):
+            for mi, s, wgt in chans[kk].weighted():
                 if verts[mi] is None:
                     verts[mi] = rest[mi].astype(np.float64, copy=True)
                 verts[mi] += wgt * meshes[mi].deltas[s]
         img = render_scene(meshes, cam, vertices=verts, only=only).image
         tiles.append(img)
-        labels.append("neutral" if k is None else chans[k].name)
+        labels.append("neutral" if k is None else f"{chans[jaw].name} + {chans[k].name}" if with_jaw
+                      else chans[k].name)
     n = len(tiles)
     cols = max(1, min(int(cols), n))
     rows = -(-n // cols)

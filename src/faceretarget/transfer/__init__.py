@@ -9,14 +9,15 @@ eyeballs, the inner lips meet for ``jawOpen + mouthClose``.  See docs/shapes.md.
 """
 
 from ._metrics import (
-           blink_gap_pct,
-           eye_parts,
-           inverted_triangles,
-           lip_gap_pct,
+    blink_gap_pct,
+    eye_parts,
+    inverted_triangles,
+    lip_gap_pct,
     lips_in_teeth,
-           mirror_err_pct,
-           shape_delta,
-           shape_metrics,
+    mirror_err_pct,
+    shape_delta,
+    shape_metrics,
+    teeth_showing_px,
 )
 from ._parts import Part, find_parts, fit_sphere
 from ._register import register_template
@@ -26,4 +27,5 @@ from ._transfer import EYE_LOOK_DEGREES, LID_PAIRS, LIP_PAIRS, METHODS, Generate
 __all__ = ["generate_shapes", "GeneratedShapes", "load_template", "Template", "TEMPLATES", "ict_to_arkit",
            "packaged_template_path", "register_template", "find_parts", "fit_sphere", "Part", "LID_PAIRS",
            "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS", "blink_gap_pct", "lip_gap_pct", "inverted_triangles",
-           "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta", "lips_in_teeth"]
+           "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta", "lips_in_teeth",
+           "teeth_showing_px"]

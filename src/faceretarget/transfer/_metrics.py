@@ -10,7 +10,7 @@ from ..character import Character, character_frame
 from ..names import normalize_name
 
 __all__ = ["blink_gap_pct", "lip_gap_pct", "inverted_triangles", "mirror_err_pct", "shape_metrics", "shape_delta",
-           "eye_parts", "lips_in_teeth"]
+           "eye_parts", "lips_in_teeth", "teeth_showing_px"]
 
 LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))
 LIP_PAIRS = ((61, 67), (62, 66), (63, 65))
@@ -214,12 +214,61 @@ def lips_in_teeth(character: Character) -> int | None:
     return count
 
 
+def teeth_showing_px(character: Character, names=("jawOpen", "mouthFunnel", "mouthLowerDownLeft",
+                                                    "mouthLowerDownRight"), size_px: int = 400) -> int | None:
+    """What a viewer sees of teeth and tongue where lips or skin should hide them: pixels of the teeth's and
+    tongue's own pieces seen outside the mouth opening (the inner-lip landmarks' polygon at the shape, with 15 %
+    and 2 px of slack) in a front view of the mouth ``size_px`` wide (1.2 outer-eye-corner distances), summed
+    over ``names``; None without teeth pieces or without any of the shapes."""
+    from matplotlib.path import Path as MPath
+
+    from ..render import look_at, render_scene
+    from ._parts import components, find_parts
+
+    mi = character.landmarks.mesh
+    m = character.meshes[mi]
+    V = m.mesh.vertices.astype(np.float64)
+    lab = components(len(V), m.mesh.triangles())
+    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    lm = _lm(character, None)
+    size = float(np.linalg.norm(lm[36] - lm[45]))
+    F = character_frame(character)
+    parts = [p for p in find_parts(character, mi, skin, lm, F, size) if p.role in ("lower", "upper")]
+    names = [n for n in names if shape_delta(character, n) is not None]
+    if not parts or not names:
+        return None
+    cam = look_at(lm[48:68].mean(axis=0), F[2], F[1], 1.2 * size, (size_px, size_px))
+    in_part = {}
+    for p in parts:
+        tris = character.meshes[p.mesh].mesh.triangles()
+        prev = in_part.get(p.mesh, np.zeros(len(tris), bool))
+        in_part[p.mesh] = prev | np.isin(tris, p.vertices).all(axis=1)
+    total = 0
+    for name in names:
+        verts = []
+        for i, sm in enumerate(character.meshes):
+            d = shape_delta(character, name, i)
+            verts.append(sm.mesh.vertices + (0 if d is None else d))
+        r = render_scene(character.meshes, cam, vertices=verts, textures=False)
+        tooth = np.zeros(r.mesh.shape, bool)
+        for mesh, inside_tri in in_part.items():
+            sel = r.mesh == mesh
+            tooth[sel] = inside_tri[r.triangle[sel]]
+        poly = cam.project(character.landmarks.positions(verts[mi])[60:68])[:, :2]
+        c = poly.mean(axis=0)
+        poly = c + (poly - c) * 1.15 + np.sign(poly - c) * 2.0
+        yy, xx = np.nonzero(tooth)
+        if len(xx):
+            total += int((~MPath(poly).contains_points(np.c_[xx + 0.5, yy + 0.5])).sum())
+    return total
+
+
 def shape_metrics(character: Character, eyes="auto") -> dict:
-    """``blink_gap_pct``, ``lid_inside_eye``, ``lip_gap_pct``, ``lips_in_teeth``, ``inverted_triangles``,
-    ``mirror_err_pct`` (``eyes="auto"``: :func:`eye_parts`)."""
+    """``blink_gap_pct``, ``lid_inside_eye``, ``lip_gap_pct``, ``lips_in_teeth``, ``teeth_showing_px``,
+    ``inverted_triangles``, ``mirror_err_pct`` (``eyes="auto"``: :func:`eye_parts`)."""
     if isinstance(eyes, str):
         eyes = eye_parts(character)
     bg, inside = blink_gap_pct(character, eyes)
     return {"blink_gap_pct": bg, "lid_inside_eye": inside, "lip_gap_pct": lip_gap_pct(character),
-            "lips_in_teeth": lips_in_teeth(character),
+            "lips_in_teeth": lips_in_teeth(character), "teeth_showing_px": teeth_showing_px(character),
             "inverted_triangles": inverted_triangles(character), "mirror_err_pct": mirror_err_pct(character)}

@@ -372,7 +372,11 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     eyes = [p for p in parts if p.role == "eye"]
     skin_idx = np.flatnonzero(skin)
     skin_tree = cKDTree(V[skin_idx])
-    chin = skin_idx[np.min(np.linalg.norm(V[skin_idx][:, None] - lm[None, 5:12], axis=2), axis=1) < 0.12 * size]
+    # the skin the lower teeth keep their place behind: the lower lip (outer and inner landmarks) and the chin's
+    # middle.  Fitted to the chin alone, the teeth went down with the skin's stretch and came out through the
+    # lower lip on jawOpen (1,829 pixels of teeth showing outside the mouth on a VALID avatar, 0 now)
+    jaw_ids = [7, 8, 9, 55, 56, 57, 58, 59, 65, 66, 67]
+    chin = skin_idx[np.min(np.linalg.norm(V[skin_idx][:, None] - lm[None, jaw_ids], axis=2), axis=1) < 0.08 * size]
     lm_pos = lambda D: ch.landmarks.positions(V + D)[pin_ids]            # noqa: E731
     pair_rows = {i: r for r, i in enumerate(pin_ids)}
     added: dict[str, np.ndarray] = {}
