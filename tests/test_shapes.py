@@ -18,6 +18,7 @@ from faceretarget.transfer import (
     packaged_template_path,
     shape_delta,
     shape_metrics,
+    teeth_showing_px,
 )
 
 
@@ -148,6 +149,16 @@ def test_neutral_avatar_gets_driven(data_dir):
     r = animate(take, drive, shapes="arkit")
     assert r.mouth_corr >= 0.9
     assert "jawOpen" in r.names
+
+
+def test_lower_teeth_stay_behind_the_lower_lip(data_dir):
+    """jawOpen on a VALID avatar: the lower teeth and tongue ride the jaw behind the lip.  Fitted to the chin's
+    skin alone they came out through the lower lip and chin: 1,829 pixels of a 400-pixel view of the mouth."""
+    path = data_dir / "characters" / "valid" / "AIAN_F_1_Busi.glb"
+    gen = generate_shapes(path, shapes="jawOpen")
+    assert "jawOpen" in gen.added["h_TeethDown"]
+    px = teeth_showing_px(gen.apply(), names=("jawOpen",))
+    assert px is not None and px <= 40, px
 
 
 def test_cli_obj_folder_round_trip(data_dir, tmp_path):

@@ -177,26 +177,34 @@ def eye_parts(character: Character) -> list:
     return [p for p in find_parts(character, mi, skin, lm, character_frame(character), size) if p.role == "eye"]
 
 
-def lips_in_teeth(character: Character) -> int | None:
-    """Face vertices near the mouth that ``jawOpen + mouthClose`` = 1 puts inside the teeth (inside the convex
-    hull of the upper or of the lower teeth, each moved by its own mesh's shapes) and that were not inside at
-    rest; None when the character has no teeth or not both shapes."""
-    from scipy.spatial import Delaunay
-
+def _mouth_parts(character: Character) -> tuple:
+    """The face mesh's index, rest vertices and skin (its piece holding the landmarks), the landmarks, the
+    outer-eye-corner distance, and the teeth / tongue pieces (:func:`~faceretarget.transfer.find_parts`)."""
     from ._parts import components, find_parts
 
     mi = character.landmarks.mesh
-    jo, mc = shape_delta(character, "jawOpen"), shape_delta(character, "mouthClose")
-    if jo is None or mc is None:
-        return None
     m = character.meshes[mi]
     V = m.mesh.vertices.astype(np.float64)
     lab = components(len(V), m.mesh.triangles())
     skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
     lm = _lm(character, None)
     size = float(np.linalg.norm(lm[36] - lm[45]))
-    teeth = [p for p in find_parts(character, mi, skin, lm, character_frame(character), size)
-             if p.role in ("lower", "upper") and len(p.vertices) >= 8]
+    parts = [p for p in find_parts(character, mi, skin, lm, character_frame(character), size)
+             if p.role in ("lower", "upper")]
+    return mi, V, skin, lm, size, parts
+
+
+def lips_in_teeth(character: Character) -> int | None:
+    """Face vertices near the mouth that ``jawOpen + mouthClose`` = 1 puts inside the teeth (inside the convex
+    hull of the upper or of the lower teeth, each moved by its own mesh's shapes) and that were not inside at
+    rest; None when the character has no teeth or not both shapes."""
+    from scipy.spatial import Delaunay
+
+    jo, mc = shape_delta(character, "jawOpen"), shape_delta(character, "mouthClose")
+    if jo is None or mc is None:
+        return None
+    mi, V, skin, lm, size, teeth = _mouth_parts(character)
+    teeth = [p for p in teeth if len(p.vertices) >= 8]
     if not teeth:
         return None
     near = np.flatnonzero(skin & (np.linalg.norm(V - lm[60:68].mean(0), axis=1) < 0.4 * size))
@@ -223,17 +231,9 @@ def teeth_showing_px(character: Character, names=("jawOpen", "mouthFunnel", "mou
     from matplotlib.path import Path as MPath
 
     from ..render import look_at, render_scene
-    from ._parts import components, find_parts
 
-    mi = character.landmarks.mesh
-    m = character.meshes[mi]
-    V = m.mesh.vertices.astype(np.float64)
-    lab = components(len(V), m.mesh.triangles())
-    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
-    lm = _lm(character, None)
-    size = float(np.linalg.norm(lm[36] - lm[45]))
+    mi, V, skin, lm, size, parts = _mouth_parts(character)
     F = character_frame(character)
-    parts = [p for p in find_parts(character, mi, skin, lm, F, size) if p.role in ("lower", "upper")]
     names = [n for n in names if shape_delta(character, n) is not None]
     if not parts or not names:
         return None
