@@ -108,7 +108,11 @@ def shape_sheet(character: Character, out: str | os.PathLike, *, shapes: str = "
     # shown on jawOpen, as it plays
     by_name = {normalize_name(ch.name): i for i, ch in enumerate(chans)}
     jaw = by_name.get("jawOpen")
+    said = time.perf_counter()
     for k in order:
+        if time.perf_counter() - said > 1.0:            # a few seconds of rendering: say how far it is
+            log(f"contact sheet: {len(tiles)}/{len(order)} rendered")
+            said = time.perf_counter()
         verts: list = [None] * len(meshes)
         with_jaw = k is not None and jaw is not None and normalize_name(chans[k].name) == "mouthClose"
         for kk in ([] if k is None else [k] + ([jaw] if with_jaw else [])):
