@@ -19,13 +19,14 @@ from ._metrics import (
     shape_metrics,
     teeth_showing_px,
 )
-from ._parts import Part, find_parts, fit_sphere
+from ._parts import LidMargin, Part, find_parts, fit_sphere, lid_margins
 from ._register import register_template
 from ._template import TEMPLATES, Template, ict_to_arkit, load_template, packaged_template_path
 from ._transfer import EYE_LOOK_DEGREES, LID_PAIRS, LIP_PAIRS, METHODS, GeneratedShapes, generate_shapes
 
 __all__ = ["generate_shapes", "GeneratedShapes", "load_template", "Template", "TEMPLATES", "ict_to_arkit",
-           "packaged_template_path", "register_template", "find_parts", "fit_sphere", "Part", "LID_PAIRS",
+           "packaged_template_path", "register_template", "find_parts", "fit_sphere", "Part", "LidMargin",
+           "lid_margins", "LID_PAIRS",
            "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS", "blink_gap_pct", "lip_gap_pct", "inverted_triangles",
            "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta", "lips_in_teeth",
            "teeth_showing_px"]

@@ -45,10 +45,37 @@ def _side_pairs(character: Character, side: str) -> list[tuple[int, int]]:
     return list(left if side == "Left" else right)
 
 
+def _rim_gap_pct(character: Character, side: str, d: np.ndarray) -> float | None:
+    """Worst remaining gap between the lid rims of one eye's opening at weight 1 over the open gap, over the
+    rim points whose open gap is at least a third of the widest (near the corners the gap vanishes); None when
+    the face mesh has no opening around that eye (:func:`~faceretarget.transfer.lid_margins`)."""
+    from ._parts import components, lid_margins
+
+    m = character.meshes[character.landmarks.mesh]
+    V = m.mesh.vertices.astype(np.float64)
+    T = m.mesh.triangles()
+    lab = components(len(V), T)
+    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    lm = _lm(character, None)
+    eye = _side_pairs(character, side)[0][0]
+    for rim in lid_margins(V, T[skin[T].all(axis=1)], lm, character_frame(character)):
+        if eye not in rim.eye:
+            continue
+        P0, P1 = V[rim.vertices], V[rim.vertices] + d[rim.vertices]
+        Q0 = np.einsum("nk,nkd->nd", rim.weight, V[rim.partner])
+        Q1 = np.einsum("nk,nkd->nd", rim.weight, (V + d)[rim.partner])
+        g0, g1 = np.linalg.norm(P0 - Q0, axis=1), np.linalg.norm(P1 - Q1, axis=1)
+        ok = g0 >= g0.max() / 3.0
+        return 100.0 * float((g1[ok] / g0[ok]).max()) if ok.any() and g0.max() > 1e-9 else None
+    return None
+
+
 def blink_gap_pct(character: Character, eyes=None) -> tuple[float | None, int | None]:
-    """Remaining lid gap at ``eyeBlinkLeft`` / ``eyeBlinkRight`` = 1 over the open gap, worst lid landmark pair
-    of both eyes, %; and the number of face vertices inside an eyeball at weight 1 that were not at rest
-    (``eyes``: parts with ``centre`` and ``radius``; None when none is given)."""
+    """Remaining lid gap at ``eyeBlinkLeft`` / ``eyeBlinkRight`` = 1 over the open gap, worst of both eyes, %:
+    along the whole rim of the eye's opening where the face mesh has one (:func:`_rim_gap_pct`), else at the
+    lid landmark pairs (landmarks that sit badly close while the lids stay open: the rim says so); and the
+    number of face vertices inside an eyeball at weight 1 that were not at rest (``eyes``: parts with
+    ``centre`` and ``radius``; None when none is given)."""
     worst, inside = None, None
     V = character.meshes[character.landmarks.mesh].mesh.vertices
     rest = _lm(character, None)
@@ -56,8 +83,11 @@ def blink_gap_pct(character: Character, eyes=None) -> tuple[float | None, int | 
         d = shape_delta(character, f"eyeBlink{side}")
         if d is None:
             continue
+        rim = _rim_gap_pct(character, side, d.astype(np.float64))
+        if rim is not None:
+            worst = rim if worst is None else max(worst, rim)
         at1 = _lm(character, d)
-        for up, lo in _side_pairs(character, side):
+        for up, lo in _side_pairs(character, side) if rim is None else []:
             g0 = np.linalg.norm(rest[up] - rest[lo])
             if g0 < 1e-9:
                 continue

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Part", "find_parts", "fit_sphere", "components"]
+__all__ = ["Part", "find_parts", "fit_sphere", "components", "LidMargin", "lid_margins"]
 
 
 @dataclass(eq=False)
@@ -131,3 +131,66 @@ def find_parts(character, head: int, skin: np.ndarray, lm: np.ndarray, frame: np
 
 def character_front(frame: np.ndarray) -> np.ndarray:
     return frame[2]
+
+
+@dataclass
+class LidMargin:
+    """The rim of one eye's opening in the face mesh (its hole's boundary loop), split at the corners into the
+    upper and the lower lid; each rim vertex's partner on the other lid is the point of it at the same
+    position along the eye (``partner``: two vertices and weights)."""
+
+    eye: tuple[int, ...]                      # its six landmarks (36-41 or 42-47)
+    vertices: np.ndarray                      # (n,) rim vertices but the two corners
+    upper: np.ndarray                         # (n,) bool
+    partner: np.ndarray                       # (n, 2) int: two vertices of the other lid
+    weight: np.ndarray                        # (n, 2) float
+
+
+def lid_margins(V: np.ndarray, T: np.ndarray, lm: np.ndarray, F: np.ndarray) -> list[LidMargin]:
+    """The lid rims of a face mesh with eye openings (boundary loops of ``T`` around each eye's landmarks, no
+    wider than the eye); none for a face whose eyes are not holes.  A blink that pins only the landmark pairs
+    closes those points: where the landmarks sit badly (a low-poly face, eyes without eyeballs) the lids stay
+    open between them, so the whole rim is pinned."""
+    e = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
+    ue, cnt = np.unique(e, axis=0, return_counts=True)
+    b = ue[cnt == 1]
+    if not len(b):
+        return []
+    lab = components(len(V), np.c_[b, b[:, :1]])
+    bv = np.unique(b.ravel())
+    out = []
+    for eye in (tuple(range(36, 42)), tuple(range(42, 48))):
+        E = lm[list(eye)]
+        c = E.mean(axis=0)
+        width = float(np.linalg.norm(lm[eye[0]] - lm[eye[3]]))
+        near = bv[np.linalg.norm(V[bv] - c, axis=1) < 0.6 * width]
+        if len(near) < 6:
+            continue
+        loop = bv[lab[bv] == np.bincount(lab[near]).argmax()]
+        r = np.linalg.norm(V[loop] - c, axis=1)
+        if len(loop) < 6 or r.max() > 1.0 * width or r.max() < 0.25 * width:
+            continue                                            # not this eye's opening
+        x = (V[loop] - c) @ F[0]
+        y = (V[loop] - c) @ F[1]
+        a, z = int(np.argmin(x)), int(np.argmax(x))
+        t = (x - x[a]) / max(x[z] - x[a], 1e-30)
+        line = y[a] + t * (y[z] - y[a])
+        up = y > line
+        keep = np.ones(len(loop), bool)
+        keep[[a, z]] = False                                    # the corners stay
+        if up[keep].sum() < 2 or (~up[keep]).sum() < 2:
+            continue
+        partner = np.zeros((len(loop), 2), np.int64)
+        weight = np.zeros((len(loop), 2))
+        for side in (True, False):
+            other = np.flatnonzero((up != side) | ~keep)       # the other lid, corners included
+            order = other[np.argsort(x[other])]
+            xs = x[order]
+            for i in np.flatnonzero((up == side) & keep):
+                j = int(np.clip(np.searchsorted(xs, x[i]), 1, len(xs) - 1))
+                w = float(np.clip((x[i] - xs[j - 1]) / max(xs[j] - xs[j - 1], 1e-30), 0.0, 1.0))
+                partner[i] = loop[order[j - 1]], loop[order[j]]
+                weight[i] = 1.0 - w, w
+        out.append(LidMargin(eye, loop[keep], up[keep], partner[keep], weight[keep]))
+    return out
+

@@ -13,7 +13,7 @@ from ..character import Character, character_frame
 from ..errors import InvalidDataError, MissingShapeError
 from ..names import ARKIT_NAMES, normalize_name
 from ._geometry import closest_points, gradient_operator, triangle_areas, vertex_normals
-from ._parts import Part, find_parts
+from ._parts import LidMargin, Part, find_parts, lid_margins
 from ._register import register_template
 from ._template import Template, load_template
 
@@ -359,8 +359,44 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
         from scipy.sparse.linalg import factorized
 
         solve = factorized(K)
+    # the lid rims (eye openings of the face mesh): a blink pins all of each rim shut, solved with its own
+    # factorisation (the rims' rows added), made when a blink needs it
+    margins = [m for m in lid_margins(V, rt, lm, F) if (col[m.vertices] >= 0).all()] \
+        if method != "barycentric" else []
+    margin_solvers: dict = {}
+
+    def margin_solve(sel: tuple[int, ...]):
+        if sel not in margin_solvers:
+            idx = np.concatenate([col[margins[i].vertices] for i in sel])
+            Cb = csr_matrix((np.ones(len(idx)), (np.arange(len(idx)), idx)), shape=(len(idx), len(free)))
+            Kb = (K + mu * (Cb.T @ Cb)).tocsc()
+            try:
+                from sksparse.cholmod import cholesky
+
+                margin_solvers[sel] = (Cb, cholesky(Kb))
+            except ImportError:
+                from scipy.sparse.linalg import factorized
+
+                margin_solvers[sel] = (Cb, factorized(Kb))
+        return margin_solvers[sel]
+
+    def solve_shape(a: str, rhs: np.ndarray, d_t: np.ndarray) -> np.ndarray:
+        """The free vertices' motion: with the closing lids' rims pinned for a blink."""
+        solver = solve
+        if margins and a.startswith("eyeBlink"):
+            mt = _margin_targets(a, margins, V, eyes, tmpl, d_t, size)
+            if mt is not None:
+                starts = np.cumsum([0] + [len(m.vertices) for m in margins])
+                sel = tuple(i for i in range(len(margins)) if not np.isnan(mt[starts[i]:starts[i + 1]]).any())
+                if sel:
+                    Cb, solver = margin_solve(sel)
+                    rows = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in sel])
+                    rhs = rhs + mu * (Cb.T @ mt[rows])
+        return np.column_stack([solver(rhs[:, c]) for c in range(3)])
+
     timings["factor"] = time.perf_counter() - t0
-    say(f"factorised the {len(free)}-vertex system in {timings['factor']:.2f} s")
+    say(f"factorised the {len(free)}-vertex system in {timings['factor']:.2f} s"
+        + (f"; the lid rims of {len(margins)} eye opening(s) found" if margins else ""))
     # per character triangle: the template triangle under its centroid; per vertex: coverage
     fnrm = np.cross(V[ft[:, 1]] - V[ft[:, 0]], V[ft[:, 2]] - V[ft[:, 0]])
     fnrm /= np.maximum(np.linalg.norm(fnrm, axis=1, keepdims=True), 1e-30)
@@ -388,6 +424,12 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     keep = np.zeros(len(V), bool)                     # the pinned lid and lip points are not smoothed
     keep[ch.landmarks.triangles[pin_ids].ravel()] = True
     keep[w <= 1e-3] = True
+    keep_rims = keep.copy()                           # a blink's pinned rims are not smoothed open again
+    for m in margins:
+        keep_rims[m.vertices] = True
+
+    def kept(a: str) -> np.ndarray:
+        return keep_rims if a.startswith("eyeBlink") else keep
     t0 = time.perf_counter()
     order = sorted(todo, key=lambda a: (a == "mouthClose", a))           # mouthClose after jawOpen
     for k, a in enumerate(order):
@@ -406,8 +448,8 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
                 shape_notes[a] = note
             rhs = G.T @ (Aw @ target.reshape(-1, 3)) + lam * varea[free, None] * ub[free] + mu * (Cm.T @ pins)
             u = np.zeros((len(V), 3))
-            u[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
-        u = _untangle(_outside_eyes(u, V, eyes, size), V, ft, smooth_op, keep, project=outside)
+            u[free] = solve_shape(a, rhs, d_t)
+        u = _untangle(_outside_eyes(u, V, eyes, size), V, ft, smooth_op, kept(a), project=outside)
         added[a] = u
         say(f"shape {k + 1}/{len(order)} {a}")
     if "jawOpen" in added and method != "barycentric":  # a mouth shape played on the open jaw folds nothing either
@@ -425,8 +467,8 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
                              tmpl.shapes[a] @ (s * R).T, size)
                 rhs = G.T @ (Aw @ (Gfull @ u_s)) + lam * varea[free, None] * u_s[free] + mu * (Cm.T @ pins)
                 u_s = u_s.copy()
-                u_s[free] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
-            added[a] = _untangle(_outside_eyes(u_s, V, eyes, size), V, ft, smooth_op, keep, project=outside)
+                u_s[free] = solve_shape(a, rhs, tmpl.shapes[a] @ (s * R).T)
+            added[a] = _untangle(_outside_eyes(u_s, V, eyes, size), V, ft, smooth_op, kept(a), project=outside)
         notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
     timings["shapes"] = time.perf_counter() - t0
     out: dict[str, dict[str, np.ndarray]] = {hm.name: {a: added[a].astype(np.float32) for a in todo}}
@@ -729,3 +771,45 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, mean_op, keep: np.nda
     if int(flipped(u).sum()) < best_n:
         best = u
     return best
+
+
+def _margin_targets(a: str, margins: list[LidMargin], V: np.ndarray, eyes, tmpl, d_t, size) -> np.ndarray | None:
+    """Per rim vertex (all margins, in order): its motion closing the lids for ``eyeBlink*`` (each rim point
+    and the point facing it on the other lid meet where the template's lids meet, outside the eyeball);
+    None when the shape closes no eye."""
+    t_l = tmpl.landmarks()
+    t_d = np.einsum("pk,pkd->pd", tmpl.lm_bary, d_t[tmpl.lm_triangles])
+    parts, closes = [], False
+    for m in margins:
+        ratios = []
+        for up, lo in LID_PAIRS:
+            if up not in m.eye:
+                continue
+            g = t_l[up] - t_l[lo]
+            gl = float(np.linalg.norm(g))
+            if -((t_d[up] - t_d[lo]) @ g) / max(gl * gl, 1e-30) < 0.5:
+                continue
+            gh = g / max(gl, 1e-30)
+            mu, ml = float(-(t_d[up] @ gh)), float(t_d[lo] @ gh)
+            ratios.append(float(np.clip(ml / max(mu + ml, 1e-30), 0.0, 1.0)))
+        if not ratios:
+            parts.append(None)
+            continue
+        closes = True
+        r = float(np.mean(ratios))                            # how far up from the lower lid they meet
+        P0 = V[m.vertices]
+        Q0 = np.einsum("nk,nkd->nd", m.weight, V[m.partner])
+        U0 = np.where(m.upper[:, None], P0, Q0)
+        L0 = np.where(m.upper[:, None], Q0, P0)
+        M = L0 + r * (U0 - L0)
+        eye = min(eyes, key=lambda e: np.linalg.norm(e.centre - M.mean(axis=0))) if eyes else None
+        if eye is not None and np.linalg.norm(eye.centre - M.mean(axis=0)) < 2 * eye.radius:
+            rad = eye.radius + _margin(size)
+            dv = M - eye.centre
+            dn = np.linalg.norm(dv, axis=1, keepdims=True)
+            M = np.where(dn < rad, eye.centre + dv / np.maximum(dn, 1e-30) * rad, M)
+        parts.append(M - P0)
+    if not closes:
+        return None
+    return np.concatenate([p if p is not None else np.full((len(m.vertices), 3), np.nan)
+                           for p, m in zip(parts, margins, strict=True)])
