@@ -2,7 +2,7 @@
 
 Reads the shared ICT-FaceKit folder (``../shared/data/ict-face``: neutral + 57 shapes, centimetres, MIT
 licence) and writes a compact file: the neutral in metres (float32), its triangles, the 68 landmark vertices,
-and for each shape only the vertices it moves (indices + float16 deltas in metres; the float16 rounding error
+and for each shape only the vertices it moves (gaps between their indices, uint16, + float16 deltas in metres; the float16 rounding error
 is printed: it must stay far below a tenth of a millimetre).
 
 Usage::
@@ -32,7 +32,9 @@ def main(argv=None) -> int:
     rig = read_rig(a.ict)
     k = rig.mm_per_unit / 1000.0                                   # file units -> metres
     V = (rig.neutral.vertices * k).astype(np.float32)
-    T = rig.neutral.triangles().astype(np.int32)
+    T = rig.neutral.triangles()
+    assert len(V) < 65536
+    T = T.astype(np.uint16)                                        # small: the wheel carries it
     D = np.asarray(rig.deltas, np.float64) * k
     out = {"neutral": V, "triangles": T, "landmarks": np.asarray(rig.landmarks, np.int32),
            "names": np.array(list(rig.source_names or rig.names))}
@@ -41,7 +43,7 @@ def main(argv=None) -> int:
         mv = np.flatnonzero(np.abs(D[i]).max(axis=1) > 1e-7)
         d16 = D[i, mv].astype(np.float16)
         worst = max(worst, float(np.abs(d16.astype(np.float64) - D[i, mv]).max(initial=0.0)))
-        out[f"idx_{i}"] = mv.astype(np.int32)
+        out[f"gap_{i}"] = np.diff(mv, prepend=0).astype(np.uint16)   # moving vertices as gaps: compress well
         out[f"delta_{i}"] = d16
     dst = Path(a.out) / "ict-face.npz"
     dst.parent.mkdir(parents=True, exist_ok=True)

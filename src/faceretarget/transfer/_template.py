@@ -85,7 +85,7 @@ def _packaged_ict() -> Template:
     deltas = []
     for i in range(len(names)):
         d = np.zeros_like(V)
-        d[z[f"idx_{i}"]] = z[f"delta_{i}"].astype(np.float64)
+        d[np.cumsum(z[f"gap_{i}"].astype(np.int64))] = z[f"delta_{i}"].astype(np.float64)
         deltas.append(d)
     shapes, notes = ict_to_arkit(names, deltas)
     lm = z["landmarks"].astype(np.int64)
