@@ -34,6 +34,18 @@ RUN_THREE = REPO / "tests" / "browser" / "run_three.mjs"
 VALIDATE = REPO / "tests" / "tools" / "validate_gltf.mjs"
 
 
+def hide_shapes(ch):
+    """The character with every mesh's shapes (and its VRM expressions) removed, in place: what a character
+    with only a neutral face looks like to the library."""
+    for m in ch.meshes:
+        m.shape_names, m.shape_refs = [], []
+        m.deltas = np.zeros((0, m.mesh.n_vertices, 3), np.float32)
+        m._motion = m._vm2 = None
+    ch.__dict__.pop("_face_cache", None)
+    ch.expressions = {}
+    return ch
+
+
 def _glb_json(path: Path) -> tuple[dict, bytes]:
     data = path.read_bytes()
     n = struct.unpack_from("<I", data, 12)[0]

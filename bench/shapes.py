@@ -48,22 +48,14 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _character_checks import hide_shapes  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"
 EXTS = (".glb", ".gltf", ".vrm", ".fbx", ".blend", ".usd", ".usda", ".usdc", ".usdz")
 SKIP_DIRS = ("robot", "conformance", "video", "speech", "livelinkface", "facial-mocap", "headmotion",
              "emotion-video")
-
-
-def hide_shapes(ch):
-    """The character with every mesh's shapes removed (in place)."""
-    for m in ch.meshes:
-        m.shape_names, m.shape_refs = [], []
-        m.deltas = np.zeros((0, m.mesh.n_vertices, 3), np.float32)
-        m._motion = m._vm2 = None
-    ch.__dict__.pop("_face_cache", None)
-    ch.expressions = {}
-    return ch
 
 
 def find_characters(root: Path) -> dict:

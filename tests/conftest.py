@@ -45,6 +45,12 @@ def data_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
+def chars(data_dir) -> Path:
+    """``../shared/data/characters``: the real avatars (VALID, Rocketbox, RobotExpressive)."""
+    return data_dir / "characters"
+
+
+@pytest.fixture(scope="session")
 def ict_rig(data_dir):
     from faceretarget.io import read_rig
 

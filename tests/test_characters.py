@@ -35,17 +35,6 @@ from _vrm import make_vrm  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    """Landmarks are cached in a folder of the test session, never beside the shared files."""
-    monkeypatch.setenv("FACERETARGET_CACHE", str(tmp_path_factory.getbasetemp() / "landmark-cache"))
-
-
-@pytest.fixture(scope="module")
-def chars(data_dir) -> Path:
-    return data_dir / "characters"
-
-
 @pytest.fixture(scope="module")
 def take(data_dir):
     """60 frames of a shared video, captured once."""

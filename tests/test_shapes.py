@@ -5,6 +5,9 @@ OBJ folder."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -21,26 +24,15 @@ from faceretarget.transfer import (
     teeth_showing_px,
 )
 
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("FACERETARGET_CACHE", str(tmp_path_factory.getbasetemp() / "shapes-cache"))
-
-
-def _hide(ch):
-    for m in ch.meshes:
-        m.shape_names, m.shape_refs = [], []
-        m.deltas = np.zeros((0, m.mesh.n_vertices, 3), np.float32)
-        m._motion = m._vm2 = None
-    ch.__dict__.pop("_face_cache", None)
-    return ch
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from _character_checks import hide_shapes  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def arkit_generated(data_dir):
     """arkit-face with its shapes hidden, generated from the packaged ICT-FaceKit template."""
     ref = load_character(data_dir / "arkit-face")
-    hidden = _hide(read_character(data_dir / "arkit-face"))
+    hidden = hide_shapes(read_character(data_dir / "arkit-face"))
     hidden.landmarks = ref.landmarks
     lines = []
     gen = generate_shapes(hidden, progress=lines.append)
@@ -70,8 +62,8 @@ def test_neutral_character_head_and_landmarks(data_dir, rel):
     pytest.importorskip("mediapipe")
     full = read_character(data_dir / rel)
     with pytest.raises(Exception, match="no face shapes"):
-        load_character(_hide(read_character(data_dir / rel)))
-    hidden = _hide(read_character(data_dir / rel))
+        load_character(hide_shapes(read_character(data_dir / rel)))
+    hidden = hide_shapes(read_character(data_dir / rel))
     hidden.path = None
     ch = load_character(hidden, need_shapes=False)
     assert ch.landmarks is not None and ch.landmarks.mesh == full.face_meshes()[0]
@@ -133,7 +125,7 @@ def test_neutral_avatar_gets_driven(data_dir):
     head, teeth and eyes; blinks close over its own eyeballs; the main job drives the shapes."""
     pytest.importorskip("mediapipe")
     path = data_dir / "characters" / "valid" / "Black_M_2_Busi.glb"
-    hidden = _hide(read_character(path))
+    hidden = hide_shapes(read_character(path))
     hidden.path = None
     ch = load_character(hidden, need_shapes=False)
     assert ch.meshes[ch.landmarks.mesh].name == "H_DDS_HighRes" and ch.neutral_head == ch.landmarks.mesh
@@ -174,7 +166,7 @@ def test_blink_closes_the_whole_rim_of_the_eye(data_dir, tmp_path):
 
     rig = read_rig(data_dir / "arkit-face")
     asset = write_usd(tmp_path / "arkit.usda", rig, np.zeros((1, rig.n_shapes)), np.zeros(1))
-    ch = _hide(read_character(asset))
+    ch = hide_shapes(read_character(asset))
     ch.path = None
     gen = generate_shapes(ch, shapes="eyeBlinkLeft,eyeBlinkRight")
     new = gen.apply()

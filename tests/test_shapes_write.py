@@ -28,16 +28,6 @@ ARKIT = ["jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthSmileLeft", "mouthSmi
          "mouthFunnel", "mouthPucker", "cheekPuff", "mouthClose", "browDownLeft", "browDownRight"]
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("FACERETARGET_CACHE", str(tmp_path_factory.getbasetemp() / "landmark-cache"))
-
-
-@pytest.fixture(scope="module")
-def chars(data_dir) -> Path:
-    return data_dir / "characters"
-
-
 def _field(V: np.ndarray, seed: int, amp: float = 0.004) -> np.ndarray:
     """A smooth random displacement field on the vertices (metres)."""
     r = np.random.default_rng(seed)

@@ -26,7 +26,7 @@ import os
 import shutil
 import tempfile
 import time
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from pathlib import Path
 from typing import TypeVar
 
@@ -467,32 +467,25 @@ def _image(bpy, image, images, notes) -> EncodedImage | None:
 
 
 # ------------------------------------------------------------------------------------------ writing
-def write_blender_animation(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
-                            *, head: HeadPose | None = None, audio=None, audio_rate=None, neck_share: float = 0.0,
-                            gaze: dict | None = None, name: str = "faceretarget", log=None) -> Path:
-    """Open the character's own file in Blender, add the action, save ``out`` (.blend or .fbx)."""
-    log = log or (lambda *_: None)
+def write_scene_copy(character: Character, out: Path, edit: Callable, *, fbx_options: dict | None = None) -> tuple:
+    """Blender opens the character's own file, ``edit(bpy, scratch_folder, msgs)`` changes the scene, and the
+    scene is saved as ``out`` (``.blend``; else Blender's FBX exporter with ``fbx_options``), whole or not at
+    all; what ``edit`` returned and the lines it left in ``msgs``."""
     with _blender_output():
         bpy = _bpy()
-    kind = out.suffix.lower()
-    sound = checked_audio(out, audio, audio_rate) if kind == ".blend" else None
     scratch = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".part", dir=out.parent))
     msgs: list[str] = []
     try:
         with _blender_output():
             _open(bpy, Path(character.path))
-            _animate_scene(bpy, out, character, chans, W, t, head, neck_share, gaze, name, sound, scratch,
-                           start=1.0 if kind == ".blend" else 0.0, msgs=msgs)
+            value = edit(bpy, scratch, msgs)
             tmp_out = scratch / out.name
-            if kind == ".blend":
+            if out.suffix.lower() == ".blend":
                 res = bpy.ops.wm.save_as_mainfile(filepath=str(tmp_out), check_existing=False, compress=True,
                                                   relative_remap=True, copy=True)
             else:
-                res = bpy.ops.export_scene.fbx(
-                    filepath=str(tmp_out), check_existing=False, use_selection=False, add_leaf_bones=False,
-                    bake_anim=True, bake_anim_use_all_bones=True, bake_anim_use_nla_strips=False,
-                    bake_anim_use_all_actions=False, bake_anim_force_startend_keying=True, bake_anim_step=1.0,
-                    bake_anim_simplify_factor=0.0, path_mode="AUTO")
+                res = bpy.ops.export_scene.fbx(filepath=str(tmp_out), check_existing=False, use_selection=False,
+                                               add_leaf_bones=False, path_mode="AUTO", **(fbx_options or {}))
             if "FINISHED" not in res or not tmp_out.is_file():
                 raise OutputError(f"{out}: Blender did not write the file ({', '.join(sorted(res))})")
         with atomic_path(out) as tmp:
@@ -503,6 +496,26 @@ def write_blender_animation(out: Path, character: Character, chans: list[Channel
         shutil.rmtree(scratch, ignore_errors=True)
         with contextlib.suppress(Exception):
             bpy.ops.wm.read_factory_settings(use_empty=True)
+    return value, msgs
+
+
+def write_blender_animation(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
+                            *, head: HeadPose | None = None, audio=None, audio_rate=None, neck_share: float = 0.0,
+                            gaze: dict | None = None, name: str = "faceretarget", log=None) -> Path:
+    """Open the character's own file in Blender, add the action, save ``out`` (.blend or .fbx)."""
+    log = log or (lambda *_: None)
+    with _blender_output():
+        _bpy()                                   # a missing Blender is said before the sound is read
+    kind = out.suffix.lower()
+    sound = checked_audio(out, audio, audio_rate) if kind == ".blend" else None
+
+    def edit(bpy, scratch: Path, msgs: list) -> None:
+        _animate_scene(bpy, out, character, chans, W, t, head, neck_share, gaze, name, sound, scratch,
+                       start=1.0 if kind == ".blend" else 0.0, msgs=msgs)
+
+    _, msgs = write_scene_copy(character, out, edit, fbx_options=dict(
+        bake_anim=True, bake_anim_use_all_bones=True, bake_anim_use_nla_strips=False, bake_anim_use_all_actions=False,
+        bake_anim_force_startend_keying=True, bake_anim_step=1.0, bake_anim_simplify_factor=0.0))
     for m in msgs:
         log(m)
     log(f"wrote {out} ({len(t)} frames; the character's own scene from {Path(character.path).name}, with action "

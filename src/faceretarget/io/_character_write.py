@@ -209,6 +209,25 @@ def write_vrma(path: Path, character: Character, chans: list[Channel], W: np.nda
 
 
 # ----------------------------------------------------------------------------------------- glTF
+def float_accessor(js: dict, new: bytearray, arr: np.ndarray, type_: str, minmax: bool = False) -> int:
+    """Append ``arr`` as float32 to ``new`` (bytes that go after the file's own binary data: buffer -1 until
+    :func:`_attach_glb_buffer` / :func:`_write_gltf_json` places them) with a buffer view and an accessor of
+    ``js`` (``type_`` SCALAR, VEC3 or VEC4; ``min``/``max`` when asked); the accessor's index."""
+    views, accessors = js.setdefault("bufferViews", []), js.setdefault("accessors", [])
+    data = np.ascontiguousarray(arr, dtype=np.float32)
+    new.extend(b"\0" * ((-len(new)) % 4))
+    views.append({"buffer": -1, "byteOffset": len(new), "byteLength": data.nbytes})
+    new.extend(data.tobytes())
+    n = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[type_]
+    acc = {"bufferView": len(views) - 1, "componentType": _FLOAT, "count": int(data.size // n), "type": type_}
+    if minmax:
+        flat = data.reshape(-1, n)
+        acc["min"] = [float(x) for x in flat.min(axis=0)]
+        acc["max"] = [float(x) for x in flat.max(axis=0)]
+    accessors.append(acc)
+    return len(accessors) - 1
+
+
 def _write_gltf(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
                 head: HeadPose | None, neck_share: float, gaze: dict | None, name: str, log) -> Path:
     from ._gltf_scene import GltfDocument
@@ -217,22 +236,9 @@ def _write_gltf(out: Path, character: Character, chans: list[Channel], W: np.nda
     js = copy.deepcopy(doc.json)
     to_glb = out.suffix.lower() in (".glb", ".vrm")
     new = bytearray()
-    views, accessors = js.setdefault("bufferViews", []), js.setdefault("accessors", [])
 
     def add(arr: np.ndarray, type_: str, minmax: bool = False) -> int:
-        data = np.ascontiguousarray(arr, dtype=np.float32)
-        pad = (-len(new)) % 4
-        new.extend(b"\0" * pad)
-        views.append({"buffer": -1, "byteOffset": len(new), "byteLength": data.nbytes})
-        new.extend(data.tobytes())
-        n = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[type_]
-        acc = {"bufferView": len(views) - 1, "componentType": _FLOAT, "count": int(data.size // n), "type": type_}
-        if minmax:
-            flat = data.reshape(-1, n)
-            acc["min"] = [float(x) for x in flat.min(axis=0)]
-            acc["max"] = [float(x) for x in flat.max(axis=0)]
-        accessors.append(acc)
-        return len(accessors) - 1
+        return float_accessor(js, new, arr, type_, minmax)
 
     t32 = (t - t[0]).astype(np.float32)
     if len(t32) > 1 and not (np.diff(t32) > 0).all():

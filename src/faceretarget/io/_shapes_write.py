@@ -34,12 +34,9 @@ A shape whose name the mesh already has is left as it is (and said so) unless ``
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import os
 import re
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -222,7 +219,7 @@ def _gltf_rest_maps(doc, js: dict, node_i: int, gmi: int, world: list) -> tuple[
 
 
 def _write_gltf(out: Path, character: Character, shapes: dict, replace: bool, log) -> Path:
-    from ._character_write import _attach_glb_buffer, _write_glb, _write_gltf_json
+    from ._character_write import _attach_glb_buffer, _write_glb, _write_gltf_json, float_accessor
     from ._gltf_scene import GltfDocument, _scene_nodes, _target_names, _world_matrices
 
     doc = GltfDocument(character.path)
@@ -231,21 +228,10 @@ def _write_gltf(out: Path, character: Character, shapes: dict, replace: bool, lo
     nodes = js.get("nodes", [])
     in_scene = _scene_nodes(doc, parent)
     new = bytearray()
-    views, accessors = js.setdefault("bufferViews", []), js.setdefault("accessors", [])
+    accessors = js.setdefault("accessors", [])
 
     def add(arr: np.ndarray, type_: str = "VEC3", minmax: bool = True) -> int:
-        data = np.ascontiguousarray(arr, dtype=np.float32)
-        new.extend(b"\0" * ((-len(new)) % 4))
-        views.append({"buffer": -1, "byteOffset": len(new), "byteLength": data.nbytes})
-        new.extend(data.tobytes())
-        n = {"SCALAR": 1, "VEC3": 3}[type_]
-        acc = {"bufferView": len(views) - 1, "componentType": _FLOAT, "count": int(data.size // n), "type": type_}
-        if minmax:
-            flat = data.reshape(-1, n)
-            acc["min"] = [float(x) for x in flat.min(axis=0)]
-            acc["max"] = [float(x) for x in flat.max(axis=0)]
-        accessors.append(acc)
-        return len(accessors) - 1
+        return float_accessor(js, new, arr, type_, minmax)
 
     def zeros(count: int) -> int:
         accessors.append({"componentType": _FLOAT, "count": int(count), "type": "VEC3", "min": [0.0] * 3,
@@ -413,34 +399,10 @@ def _write_obj_folder(out: Path, character: Character, shapes: dict, replace: bo
 
 # ------------------------------------------------------------------------------------------ Blender
 def _write_blender(out: Path, character: Character, shapes: dict, replace: bool, log) -> Path:
-    from ._blender import _blender_output
-    from ._blender_scene import _bpy, _open
+    from ._blender_scene import write_scene_copy
 
-    with _blender_output():
-        bpy = _bpy()
-    scratch = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".part", dir=out.parent))
-    msgs: list[str] = []
-    try:
-        with _blender_output():
-            _open(bpy, Path(character.path))
-            n = _add_shape_keys(bpy, out, character, shapes, replace, msgs)
-            tmp_out = scratch / out.name
-            if out.suffix.lower() == ".blend":
-                res = bpy.ops.wm.save_as_mainfile(filepath=str(tmp_out), check_existing=False, compress=True,
-                                                  relative_remap=True, copy=True)
-            else:
-                res = bpy.ops.export_scene.fbx(filepath=str(tmp_out), check_existing=False, use_selection=False,
-                                               add_leaf_bones=False, path_mode="AUTO")
-            if "FINISHED" not in res or not tmp_out.is_file():
-                raise OutputError(f"{out}: Blender did not write the file ({', '.join(sorted(res))})")
-        with atomic_path(out) as tmp:
-            os.replace(tmp_out, tmp)
-    except RuntimeError as e:
-        raise OutputError(f"{out}: Blender could not write the file ({str(e).strip()[:200]})") from e
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-        with contextlib.suppress(Exception):
-            bpy.ops.wm.read_factory_settings(use_empty=True)
+    n, msgs = write_scene_copy(character, out, lambda bpy, _scratch, msgs: _add_shape_keys(
+        bpy, out, character, shapes, replace, msgs))
     for m in msgs:
         log(m)
     log(f"wrote {out} ({n} shape key(s); the character's own scene from {Path(character.path).name})")
@@ -514,7 +476,7 @@ def _add_shape_keys(bpy, out: Path, character: Character, shapes: dict, replace:
 def _write_usd(out: Path, character: Character, shapes: dict, replace: bool, log) -> Path:
     """A layer over the USD asset (its sublayer, by a relative path) adding a ``BlendShape`` prim per new
     shape under its mesh, bound through the mesh's ``skel:blendShapes`` / ``skel:blendShapeTargets``."""
-    from ._usd_scene import _pxr, _skins, copy_stage_metrics, point_maps
+    from ._usd_scene import _pxr, _skins, copy_stage_metrics, export_layer, point_maps
 
     Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt = _pxr()
     from pxr import Tf
@@ -565,15 +527,6 @@ def _write_usd(out: Path, character: Character, shapes: dict, replace: bool, log
             bapi.CreateBlendShapesAttr().Set(Vt.TokenArray(names))
             bapi.CreateBlendShapeTargetsRel().SetTargets(targets)
         del stage
-        layer.subLayerPaths[0] = os.path.relpath(asset, out.resolve().parent).replace(os.sep, "/")
-        dst = tmp.with_name(tmp.name + (".usda" if out.suffix.lower() == ".usda" else ".usdc"))
-        try:
-            if not layer.Export(str(dst)):
-                raise OutputError(f"{out}: USD could not write the layer")
-            os.replace(dst, tmp)
-        except Tf.ErrorException as e:
-            raise OutputError(f"{out}: USD could not write the layer ({str(e).strip()[:160]})") from e
-        finally:
-            dst.unlink(missing_ok=True)
+        export_layer(layer, asset, out, tmp)
     log(f"wrote {out} (a layer over {asset.name} adding {total} blend shape(s))")
     return out

@@ -249,6 +249,23 @@ def _material(prim, path, notes, images, UsdShade) -> Material:
 
 
 # ------------------------------------------------------------------------------------------ writing
+def export_layer(layer, asset: Path, out: Path, tmp: Path) -> None:
+    """Save a layer over ``asset`` as ``out`` (written to ``tmp``, the atomic stand-in): the asset referenced
+    relative to ``out``'s folder, text for ``.usda`` and crate otherwise."""
+    from pxr import Tf
+
+    layer.subLayerPaths[0] = os.path.relpath(asset, out.resolve().parent).replace(os.sep, "/")
+    dst = tmp.with_name(tmp.name + (".usda" if out.suffix.lower() == ".usda" else ".usdc"))
+    try:
+        if not layer.Export(str(dst)):
+            raise OutputError(f"{out}: USD could not write the layer")
+        os.replace(dst, tmp)
+    except Tf.ErrorException as e:
+        raise OutputError(f"{out}: USD could not write the layer ({str(e).strip()[:160]})") from e
+    finally:
+        dst.unlink(missing_ok=True)
+
+
 def copy_stage_metrics(stage, asset: Path) -> None:
     """Give a layer over ``asset`` the asset's ``metersPerUnit`` and ``upAxis``: a stage reads them from its root
     layer only, so without them a centimetre or Z-up asset is shown at the wrong size or on its back."""
@@ -289,7 +306,6 @@ def write_usd_animation(out: Path, character: Character, chans: list[Channel], W
     for mi, cols in mesh_columns(chans, W).items():
         m = character.meshes[mi]
         per_mesh.setdefault(m.ref, {}).update({m.shape_names[k]: col for k, col in cols.items()})
-    from pxr import Tf
 
     with atomic_path(out) as tmp:
         layer = Sdf.Layer.CreateAnonymous("faceretarget.usda")
@@ -347,16 +363,7 @@ def write_usd_animation(out: Path, character: Character, chans: list[Channel], W
             dp = stage.GetDefaultPrim() or next(iter(stage.GetPseudoRoot().GetChildren()), None)
             _write_audio(stage, dp.GetPath(), wav.name, len(sound[0]) / sound[1], fps, Sdf)
         del stage
-        layer.subLayerPaths[0] = os.path.relpath(asset, out.resolve().parent).replace(os.sep, "/")
-        dst = tmp.with_name(tmp.name + (".usda" if out.suffix.lower() == ".usda" else ".usdc"))
-        try:
-            if not layer.Export(str(dst)):
-                raise OutputError(f"{out}: USD could not write the layer")
-            os.replace(dst, tmp)
-        except Tf.ErrorException as e:
-            raise OutputError(f"{out}: USD could not write the layer ({str(e).strip()[:160]})") from e
-        finally:
-            dst.unlink(missing_ok=True)
+        export_layer(layer, asset, out, tmp)
     if sound is not None:
         with atomic_path(wav) as wtmp:
             write_wav(wtmp, *sound)
