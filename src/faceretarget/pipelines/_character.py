@@ -300,11 +300,56 @@ def read_landmark_file(character: Character, path: str | os.PathLike) -> Surface
 
 
 def _nearest_surface(V: np.ndarray, T: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle (its three vertex indices) and barycentrics of the nearest surface point to each of ``X``."""
-    from ..cloning import closest_points_on_mesh
+    """Triangle and barycentrics of the nearest surface point to each of ``X`` (n, 3)."""
+    from scipy.spatial import cKDTree
 
-    t, bary, _ = closest_points_on_mesh(X, V, T)
-    return np.asarray(T)[t], bary
+    cent = V[T].mean(axis=1)
+    tree = cKDTree(cent)
+    _, cand = tree.query(X, k=min(16, len(T)))
+    cand = np.atleast_2d(cand)
+    tri_out, bary_out = [], []
+    for x, cs in zip(X, cand, strict=True):
+        best = (np.inf, None, None)
+        for t in cs:
+            a, b, c = V[T[t]]
+            lam = _closest_bary(x, a, b, c)
+            d = np.linalg.norm(lam @ np.stack([a, b, c]) - x)
+            if d < best[0]:
+                best = (d, T[t], lam)
+        tri_out.append(best[1])
+        bary_out.append(best[2])
+    return np.array(tri_out), np.array(bary_out)
+
+
+def _closest_bary(p, a, b, c) -> np.ndarray:
+    """Barycentric coordinates of the point of triangle abc nearest ``p`` (Ericson, Real-Time Collision)."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = ab @ ap, ac @ ap
+    if d1 <= 0 and d2 <= 0:
+        return np.array([1.0, 0.0, 0.0])
+    bp = p - b
+    d3, d4 = ab @ bp, ac @ bp
+    if d3 >= 0 and d4 <= d3:
+        return np.array([0.0, 1.0, 0.0])
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0 and d1 >= 0 and d3 <= 0:
+        v = d1 / (d1 - d3)
+        return np.array([1 - v, v, 0.0])
+    cp = p - c
+    d5, d6 = ab @ cp, ac @ cp
+    if d6 >= 0 and d5 <= d6:
+        return np.array([0.0, 0.0, 1.0])
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0 and d2 >= 0 and d6 <= 0:
+        w = d2 / (d2 - d6)
+        return np.array([1 - w, 0.0, w])
+    va = d3 * d6 - d5 * d4
+    if va <= 0 and (d4 - d3) >= 0 and (d5 - d6) >= 0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return np.array([0.0, 1 - w, w])
+    den = 1.0 / (va + vb + vc)
+    v, w = vb * den, vc * den
+    return np.array([1 - v - w, v, w])
 
 
 def _one_head(character: Character, mesh: str | None) -> None:

@@ -35,11 +35,48 @@ def vertex_normals(V: np.ndarray, T: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
 
 
-def closest_points(V: np.ndarray, T: np.ndarray, P: np.ndarray, *, point_normals: np.ndarray | None = None,
-                   min_cos: float = 0.3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Closest point of the surface ``(V, T)`` to each of ``P`` (:func:`faceretarget.cloning.closest_points_on_mesh`,
-    exact); with ``point_normals``, only triangles facing the same way (cosine at least ``min_cos``) unless none
-    near faces that way.
+def _closest_on_triangles(P: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates ``(n, 3)`` of the point of each triangle ``A B C`` nearest ``P`` (vectorised
+    Ericson, Real-Time Collision Detection 5.1.5)."""
+    ab, ac, ap = B - A, C - A, P - A
+    d1, d2 = (ab * ap).sum(1), (ac * ap).sum(1)
+    bp = P - B
+    d3, d4 = (ab * bp).sum(1), (ac * bp).sum(1)
+    cp = P - C
+    d5, d6 = (ab * cp).sum(1), (ac * cp).sum(1)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    den = va + vb + vc
+    den = np.where(np.abs(den) < 1e-30, 1e-30, den)
+    v, w = vb / den, vc / den
+    out = np.stack([1 - v - w, v, w], axis=1)
+    eps = 1e-30
+
+    def put(mask, val):
+        out[mask] = val[mask] if val.ndim == 2 else val
+
+    e_bc = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
+    t = (d4 - d3) / np.maximum((d4 - d3) + (d5 - d6), eps)
+    put(e_bc, np.stack([0 * t, 1 - t, t], 1))
+    e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    t = d2 / np.where(np.abs(d2 - d6) < eps, eps, d2 - d6)
+    put(e_ac, np.stack([1 - t, 0 * t, t], 1))
+    e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    t = d1 / np.where(np.abs(d1 - d3) < eps, eps, d1 - d3)
+    put(e_ab, np.stack([1 - t, t, 0 * t], 1))
+    put((d6 >= 0) & (d5 <= d6), np.array([0.0, 0.0, 1.0]))
+    put((d3 >= 0) & (d4 <= d3), np.array([0.0, 1.0, 0.0]))
+    put((d1 <= 0) & (d2 <= 0), np.array([1.0, 0.0, 0.0]))
+    return out
+
+
+def closest_points(V: np.ndarray, T: np.ndarray, P: np.ndarray, *, k: int = 8, normals: np.ndarray | None = None,
+                   point_normals: np.ndarray | None = None, min_cos: float = 0.3,
+                   tree=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest point of the surface ``(V, T)`` to each of ``P``: among the ``k`` triangles whose centroids
+    are nearest, the nearest point; with ``normals`` (per triangle of ``T``) and ``point_normals``, a
+    triangle facing away (cosine below ``min_cos``) is taken only when no candidate faces the same way.
 
     Returns
     -------
@@ -48,9 +85,29 @@ def closest_points(V: np.ndarray, T: np.ndarray, P: np.ndarray, *, point_normals
     bary : (n, 3) float
     dist : (n,) float
     """
-    from ..cloning import closest_points_on_mesh
+    from scipy.spatial import cKDTree
 
-    return closest_points_on_mesh(P, V, T, point_normals=point_normals, min_cos=min_cos)
+    if tree is None:
+        tree = cKDTree(V[T].mean(axis=1))
+    k = min(k, len(T))
+    _, cand = tree.query(P, k=k)
+    cand = cand.reshape(len(P), k)
+    best_d = np.full(len(P), np.inf)
+    best_t = np.zeros(len(P), np.int64)
+    best_b = np.zeros((len(P), 3))
+    for j in range(k):
+        t = cand[:, j]
+        tv = T[t]
+        b = _closest_on_triangles(P, V[tv[:, 0]], V[tv[:, 1]], V[tv[:, 2]])
+        q = np.einsum("nk,nkd->nd", b, V[tv])
+        d = np.linalg.norm(q - P, axis=1)
+        if normals is not None and point_normals is not None:
+            bad = (normals[t] * point_normals).sum(1) < min_cos
+            d = d + bad * 1e3 * (1.0 + d)
+        better = d < best_d
+        best_d[better], best_t[better], best_b[better] = d[better], t[better], b[better]
+    q = np.einsum("nk,nkd->nd", best_b, V[T[best_t]])
+    return best_t, best_b, np.linalg.norm(q - P, axis=1)
 
 
 def gradient_operator(V: np.ndarray, T: np.ndarray):

@@ -54,6 +54,7 @@ def register_template(tv: np.ndarray, tt: np.ndarray, t_lm: tuple[np.ndarray, np
     from scipy.interpolate import RBFInterpolator
     from scipy.sparse import coo_matrix, csr_matrix, diags, kron, vstack
     from scipy.sparse.linalg import spsolve
+    from scipy.spatial import cKDTree
 
     log = log or (lambda *_: None)
     ltri, lbar = t_lm
@@ -89,6 +90,7 @@ def register_template(tv: np.ndarray, tt: np.ndarray, t_lm: tuple[np.ndarray, np
 
     lw = np.ones(68)
     lw[:17] = 0.3                                         # the jaw line: a weaker pull (different convention)
+    tree = cKDTree(C[ct].mean(axis=1))
     cn_tri = np.cross(C[ct[:, 1]] - C[ct[:, 0]], C[ct[:, 2]] - C[ct[:, 0]])
     cn_tri /= np.maximum(np.linalg.norm(cn_tri, axis=1, keepdims=True), 1e-30)
     # the character surface's open boundary: a template vertex whose closest point lies on it is not pulled
@@ -106,7 +108,7 @@ def register_template(tv: np.ndarray, tt: np.ndarray, t_lm: tuple[np.ndarray, np
         for _ in range(iterations):
             P = D0 @ Xs
             nrm = vertex_normals(P, tt)
-            tri, bar, dist = closest_points(C, ct, P, point_normals=nrm, min_cos=0.5)
+            tri, bar, dist = closest_points(C, ct, P, k=6, normals=cn_tri, point_normals=nrm, min_cos=0.5, tree=tree)
             U = np.einsum("nk,nkd->nd", bar, C[ct[tri]])
             w = (dist < 0.15) & ((cn_tri[tri] * nrm).sum(1) > 0.5)
             w &= ~(on_border[ct[tri]].any(axis=1) & (bar.min(axis=1) < 1e-6))

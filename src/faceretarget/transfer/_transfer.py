@@ -263,6 +263,8 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     s, R = info["s"], info["R"]
     # correspondence: each face vertex's closest compatible point on the registered template
     tt = tmpl.triangles
+    tn = np.cross(reg[tt[:, 1]] - reg[tt[:, 0]], reg[tt[:, 2]] - reg[tt[:, 0]])
+    tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-30)
     vn = vertex_normals(V, T)
     ridx = np.flatnonzero(region)
     t_lm_reg = np.einsum("pk,pkd->pd", tmpl.lm_bary, reg[tmpl.lm_triangles])
@@ -282,7 +284,8 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
                 continue
             allowed = np.flatnonzero(t_tri_side != -sd) if sd else np.arange(len(tt))
             sub = tt[allowed]
-            t_, b_, d_ = closest_points(reg, sub, P[sel], point_normals=normals[sel], min_cos=0.3)
+            t_, b_, d_ = closest_points(reg, sub, P[sel], k=8, normals=tn[allowed], point_normals=normals[sel],
+                                        min_cos=0.3)
             tri[sel], bar[sel], dist[sel] = allowed[t_], b_, d_
         return tri, bar, dist
 
@@ -614,7 +617,7 @@ def _mirror_landmarks(ch: Character, V: np.ndarray, rt: np.ndarray, F: np.ndarra
         pa = 0.5 * (P[a] + mirror(P[b]))
         idx += [a, b]
         want += [pa, mirror(pa)]
-    tri, bar, _ = closest_points(V, rt, np.asarray(want))
+    tri, bar, _ = closest_points(V, rt, np.asarray(want), k=16)
     T2, B2 = lm.triangles.copy(), lm.bary.copy()
     T2[idx], B2[idx] = rt[tri], bar
     ch.landmarks = SurfacePoints(lm.mesh, T2, B2, lm.source + "; mirrored")
@@ -715,7 +718,7 @@ def _onto_skin(ch: Character, V: np.ndarray, rt: np.ndarray, region: np.ndarray)
     if not len(bad) or not len(rt):
         return []
     P = lm.positions(V)[bad]
-    tri, bar, _ = closest_points(V, rt, P)
+    tri, bar, _ = closest_points(V, rt, P, k=16)
     T2, B2 = lm.triangles.copy(), lm.bary.copy()
     T2[bad], B2[bad] = rt[tri], bar
     ch.landmarks = SurfacePoints(lm.mesh, T2, B2, lm.source + "; snapped onto the skin")
