@@ -117,9 +117,19 @@ $(VENV)/.docs: $(VENV)/.installed
 docs: $(VENV)/.docs
 	$(VENV)/bin/mkdocs build --strict --quiet --site-dir build/site
 
-test: install extras tools browser gl blender blender-extension docs
+# The tests run on every core (pytest-xdist, a test file per worker so its fixtures are built once; at most 4
+# workers: each holds its own models, about 1.5 GB), then print the 20 slowest.  SLOW=1 (what CI runs) also builds
+# the Blender extension and runs the tests marked slow (the extension installed into a headless Blender, ~2.5 min),
+# alone afterwards: they measure how long Blender's main thread is held, which two workers sharing the cores
+# would add to.
+TEST_JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -gt 4 ] && n=4; echo $$n)
+SLOW ?=
+PYTEST := $(PY) -m pytest -q -p no:cacheprovider --durations=20
+
+test: install extras tools browser gl blender docs $(if $(SLOW),blender-extension)
 	$(VENV)/bin/ruff check src tests bench blender
-	$(PY) -m pytest -q
+	$(PYTEST) -n $(TEST_JOBS) --dist loadfile -m "not slow"
+	$(if $(SLOW),$(PYTEST) -m slow)
 
 bench: install
 	$(PY) bench/cloning.py

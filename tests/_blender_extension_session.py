@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
 import sys
 import threading
 import time
@@ -523,11 +524,19 @@ class Session:
                 "arkit": self.data / "arkit-face"}
 
     def run(self) -> dict:
+        print("installing the extension", flush=True)          # progress lines for the test's heartbeat
         self.install()
+        if self.a.after_install:                              # a check that needs the extension installed
+            job = json.loads(Path(self.a.after_install).read_text())
+            print("the library beside the installed extension", flush=True)
+            res = subprocess.run(job["cmd"], env=job["env"], capture_output=True, text=True, timeout=600)
+            self.report["after_install"] = {"returncode": res.returncode, "stdout": res.stdout[-20000:],
+                                            "stderr": res.stderr[-3000:]}
         inp = self.inputs()
         chars = self.characters()
         first = True
-        for name, (kind, path) in chars.items():
+        for i, (name, (kind, path)) in enumerate(chars.items()):
+            print(f"character {i + 1}/{len(chars)}: {name}", flush=True)
             rep = self.report["characters"][name] = {}
             try:
                 t0 = time.perf_counter()
@@ -611,6 +620,8 @@ def main() -> int:
     ap.add_argument("--work", required=True)
     ap.add_argument("--out", required=True)
     ap.add_argument("--only", default="", help="comma-separated character names")
+    ap.add_argument("--after-install", default="", help="a JSON file {cmd, env}: a command run once the extension "
+                    "is installed, its output kept in the report")
     a = ap.parse_args()
     s = Session(a)
     try:

@@ -280,24 +280,44 @@ def test_slow_reads_are_cached_by_content(tmp_path, chars, monkeypatch):
     assert len(list((tmp_path / "cache" / "characters").glob("*.pickle"))) == 2
 
 
-def test_landmark_cache_never_goes_into_a_read_only_folder(tmp_path, monkeypatch):
-    """Beside the file when its folder is writable; a folder marked read-only (shared data, even for root)
-    sends the cache to the user's cache folder."""
+def test_landmark_cache_is_the_users_keyed_by_content(tmp_path, chars, monkeypatch):
+    """Issue 31: found landmarks go to the user's cache folder ($XDG_CACHE_HOME/faceretarget when
+    FACERETARGET_CACHE is unset), named by the file's SHA-256: a read-only character folder is left as it was,
+    the second load reads them back, a copy elsewhere finds them too, and --no-cache neither reads nor writes."""
+    pytest.importorskip("mediapipe")
+    from faceretarget.files import cache_dir
     from faceretarget.pipelines import landmark_cache_path
 
     monkeypatch.delenv("FACERETARGET_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    folder = tmp_path / "data"
+    assert cache_dir() == tmp_path / "xdg" / "faceretarget"
+    folder = tmp_path / "assets"
     folder.mkdir()
-    f = folder / "a.glb"
-    f.write_bytes(b"glTF")
-    assert landmark_cache_path(f, "abc", for_writing=True) == folder / "a.glb.landmarks.json"
+    f = folder / "busi.glb"
+    shutil.copyfile(chars / "valid" / "Black_M_2_Busi.glb", f)
     folder.chmod(0o555)
     try:
-        assert landmark_cache_path(f, "abc", for_writing=True) == tmp_path / "xdg" / "faceretarget" / "landmarks" / \
-            "abc.json"
+        a = load_character(f)
+        assert sorted(x.name for x in folder.iterdir()) == ["busi.glb"]
+        entry = landmark_cache_path(f)
+        assert entry.parent == tmp_path / "xdg" / "faceretarget" / "landmarks" and entry.is_file()
+        lines = []
+        b = load_character(f, log=lines.append)
+        assert any("read from the cache" in ln for ln in lines), lines
+        np.testing.assert_array_equal(a.landmarks.triangles, b.landmarks.triangles)
     finally:
         folder.chmod(0o755)
+    moved = tmp_path / "elsewhere.glb"                     # same content, another path: the same entry
+    shutil.copyfile(f, moved)
+    lines = []
+    load_character(moved, log=lines.append)
+    assert any(str(entry) in ln for ln in lines), lines
+    entry.unlink()
+    monkeypatch.setenv("FACERETARGET_NO_CACHE", "1")
+    lines = []
+    c = load_character(moved, log=lines.append)
+    assert not entry.exists() and not any("cache" in ln and "looking" not in ln for ln in lines), lines
+    np.testing.assert_array_equal(a.landmarks.triangles, c.landmarks.triangles)
 
 
 # ------------------------------------------------------------------------------------------ shapes

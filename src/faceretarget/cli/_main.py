@@ -16,6 +16,7 @@ from .. import __version__
 from ..errors import InvalidDataError
 from ._support import (
     FPS,
+    NO_CACHE_HELP,
     NON_NEGATIVE,
     Parser,
     Range,
@@ -466,6 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="faceretarget", description="Facial performance retargeting and expression cloning.")
     p.add_argument("--version", action="version", version=f"faceretarget {__version__}")
     p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
+    p.add_argument("--no-cache", action="store_true", help=NO_CACHE_HELP)
     sub = p.add_subparsers(dest="command", required=True)
 
     _register_clone(sub)

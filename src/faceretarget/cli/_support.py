@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 import warnings
@@ -282,6 +283,10 @@ def run_command(args) -> int:
     """Run ``args.func(args, log)``: errors a user can act on (a ``FaceRetargetError``, or an ``OSError`` the system
     raised for a file) as one line and exit code 2."""
     log = Log(getattr(args, "quiet", False))
+    if getattr(args, "no_cache", False):       # also for the child processes a command starts
+        from ..files import NO_CACHE_ENV
+
+        os.environ[NO_CACHE_ENV] = "1"
     try:
         with warnings_to_log(log):          # every command prints warnings the same way: one line each
             return int(args.func(args, log) or 0)
@@ -309,10 +314,16 @@ def parse_and_run(parser: argparse.ArgumentParser, argv=None) -> int:
     return run_command(args)
 
 
+NO_CACHE_HELP = ("read and write no cache (found landmarks, characters read through Blender or ufbx, video "
+                 "captures); the cache folder is $FACERETARGET_CACHE, by default the user's cache folder "
+                 "(~/.cache/faceretarget on Linux), never beside an input")
+
+
 def run_alone(register, argv=None, description: str | None = None) -> int:
     """Run one module's sub-commands on their own (``python -m faceretarget.cli._capture ...``), with
     ``faceretarget``'s options and error conventions: ``register(subparsers)`` adds them."""
     p = Parser(prog="faceretarget", description=description)
     p.add_argument("--quiet", "-q", action="store_true", help="print errors only")
+    p.add_argument("--no-cache", action="store_true", help=NO_CACHE_HELP)
     register(p.add_subparsers(dest="command", required=True))
     return parse_and_run(p, argv)

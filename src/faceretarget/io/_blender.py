@@ -41,6 +41,7 @@ moved into place when complete.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import math
 import os
 import re
@@ -61,7 +62,8 @@ from ..timebase import check_times, infer_fps
 from ._audio import checked_audio, write_wav
 from ._gltf import _checked_weights
 
-__all__ = ["write_blend", "write_fbx", "blender_timebase", "import_bpy", "BLENDER_AXES", "SLIDER_LIMIT"]
+__all__ = ["write_blend", "write_fbx", "blender_timebase", "import_bpy", "BLENDER_AXES", "SLIDER_LIMIT",
+           "BLENDER_USER_ENV"]
 
 #: Our axes (glTF's: +Y up, +Z forward) to Blender's (+Z up, -Y forward): ``v_blender = BLENDER_AXES @ v``,
 #: the conversion of Blender's glTF importer.
@@ -100,16 +102,71 @@ def _only_bpy_noise(text: str) -> bool:
     return all(any(p.match(line) for p in _BPY_NOISE) for line in text.splitlines())
 
 
-def import_bpy():
-    """Blender's Python module, imported as ``import bpy`` but without the noise bpy 4.5 makes beside NumPy 2.
+#: Blender's environment variables naming the user's own folders (preferences, scripts, add-ons, extensions and
+#: their wheels, data files), and the system-wide script and extension folders a studio may set.
+BLENDER_USER_ENV = ("BLENDER_USER_RESOURCES", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS",
+                    "BLENDER_USER_EXTENSIONS", "BLENDER_USER_DATAFILES")
+BLENDER_SYSTEM_ENV = ("BLENDER_SYSTEM_SCRIPTS", "BLENDER_SYSTEM_EXTENSIONS")
 
-    bpy 4.5 declares ``numpy<2`` because its audio binding (``aud``) is compiled against NumPy 1.x;
+
+def _isolated_blender_env() -> dict[str, str | None]:
+    """Point Blender's user folders at a private, empty one in the cache folder and hide the system-wide
+    script and extension folders; the variables' previous values."""
+    from ..files import cache_dir
+
+    root = cache_dir("blender-user")
+    root.mkdir(parents=True, exist_ok=True)
+    old = {k: os.environ.get(k) for k in BLENDER_USER_ENV + BLENDER_SYSTEM_ENV}
+    for k in BLENDER_USER_ENV:
+        os.environ[k] = str(root / k.rsplit("_", 1)[1].lower())
+    for k in BLENDER_SYSTEM_ENV:
+        os.environ.pop(k, None)
+    return old
+
+
+def _restore_env(values: dict[str, str | None]) -> None:
+    for k, v in values.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+
+
+def _foreign_paths(added: list[str]) -> list[str]:
+    """The ``sys.path`` entries bpy added that are not its own: a user's or system's extension wheels
+    (``extensions/.local/lib/pythonX.Y/site-packages``) or script folders outside the bpy package."""
+    here = str(Path(importlib.util.find_spec("bpy").origin).parent) if importlib.util.find_spec("bpy") else None
+    return [p for p in added if here is None or not os.path.abspath(p).startswith(here)]
+
+
+def import_bpy(purpose: str = _PURPOSE):
+    """Blender's Python module, imported as ``import bpy``, isolated from the user's Blender set-up and
+    without the noise bpy 4.5 makes beside NumPy 2.
+
+    Isolated: on its import bpy reads the user's Blender configuration (``~/.config/blender/4.5`` on Linux),
+    and puts the wheels of every installed extension (``extensions/.local/lib/python3.11/site-packages``)
+    *before* this environment's site-packages on ``sys.path``; a user who installed an extension (ours
+    bundles Pillow, SciPy and OpenCV built for Blender's NumPy 1.26) would then import those instead of
+    their own (``from PIL import ImageDraw`` failed).  So Blender's user folders
+    (:data:`BLENDER_USER_ENV`) are pointed at a private, empty folder in the cache
+    (:func:`faceretarget.files.cache_dir` ``/ "blender-user"``) before the import and stay so for the
+    process (Blender reads them again when it resets to factory settings); the system-wide script and
+    extension folders are hidden; any ``sys.path`` entry bpy still added outside its own package is
+    removed, and the modules imported from there are forgotten.  Nothing faceretarget does with bpy
+    uses the user's preferences or add-ons: every scene starts from factory settings.  Blender takes the
+    user's script folder (whose ``addons`` it appends to ``sys.path`` at every factory reset) from
+    ``$XDG_CONFIG_HOME`` once, at import: that variable names the private folder during the import only.
+
+    Quiet: bpy 4.5 declares ``numpy<2`` because its audio binding (``aud``) is compiled against NumPy 1.x;
     installed beside NumPy 2 (``make blender``), its first import prints NumPy's "A module that was
     compiled using NumPy 1.x cannot be run in NumPy 2" traceback and "Unable to initialise audio",
     although scenes, shape keys, actions, importers, exporters and packed sound strips all work
     (``tests/test_blender.py``).  This function captures what the import prints on the process's
     standard output and error, drops it when it is exactly that message, and passes anything else
-    on to standard error.  Later calls return the module already imported.
+    on to standard error.
+
+    Later calls return the module already imported (inside Blender, Blender's own).  ``purpose`` is what
+    needs it, for the message when it is not installed.
 
     Raises
     ------
@@ -118,11 +175,34 @@ def import_bpy():
     """
     if "bpy" in sys.modules and sys.modules["bpy"] is not None:
         return sys.modules["bpy"]
-    with _captured_output() as cap:
-        bpy = optional_import("bpy", _PURPOSE)
+    from ..optional import install_line
+
+    before = list(sys.path)
+    old_env = _isolated_blender_env()
+    # Blender takes the user's script folder (whose addons/ it appends to sys.path at every factory reset)
+    # from the XDG configuration folder once, at import, whatever BLENDER_USER_SCRIPTS says: the private
+    # folder during the import only (the process's other libraries keep the user's)
+    xdg = os.environ.get("XDG_CONFIG_HOME")
+    os.environ["XDG_CONFIG_HOME"] = os.environ["BLENDER_USER_CONFIG"]
+    try:
+        with _captured_output() as cap:
+            bpy = optional_import("bpy", purpose, install_line("bpy"))
+    except BaseException:
+        _restore_env(old_env)                     # no bpy: the environment as it was
+        raise
+    finally:
+        _restore_env({"XDG_CONFIG_HOME": xdg})
     text = cap()
     if not _only_bpy_noise(text):
         sys.stderr.write(text)
+    foreign = _foreign_paths([p for p in sys.path if p not in before])
+    if foreign:
+        sys.path[:] = [p for p in sys.path if p not in foreign]
+        roots = tuple(os.path.abspath(p) + os.sep for p in foreign)
+        for name, mod in list(sys.modules.items()):
+            f = getattr(mod, "__file__", None)
+            if f and os.path.abspath(f).startswith(roots):
+                del sys.modules[name]
     return bpy
 
 

@@ -37,9 +37,8 @@ from ..errors import InputFileError, MissingShapeError, OutputError
 from ..files import atomic_path
 from ..headpose import HeadPose, continuous_quaternions
 from ..mesh import Mesh
-from ..optional import optional_import
 from ._audio import checked_audio
-from ._blender import _blender_output, _fcurve, _sound_strip, blender_timebase
+from ._blender import _blender_output, _fcurve, _sound_strip, blender_timebase, import_bpy
 
 __all__ = ["read_blender_character", "write_blender_animation", "read_blender_scene_character", "scene_character_steps",
            "character_objects", "run_steps", "scene_action_steps", "head_bones", "HeadBone"]
@@ -50,9 +49,8 @@ _PURPOSE = "reading and writing Blender characters (.blend; .fbx without ufbx)"
 
 
 def _bpy():
-    from ..optional import install_line
-
-    return optional_import("bpy", _PURPOSE, install_line("bpy"))
+    """bpy through :func:`~faceretarget.io.import_bpy`: isolated from the user's Blender set-up, quiet."""
+    return import_bpy(_PURPOSE)
 
 
 def _open(bpy, path: Path) -> None:

@@ -9,11 +9,12 @@ and check it can be driven (face shapes, one head).  :func:`drive_rig` chooses t
 
 The landmark cache
 ------------------
-Found landmarks are written to ``<file>.landmarks.json`` beside the character when that folder is
-writable, else to ``$FACERETARGET_CACHE`` (default ``~/.cache/faceretarget``) as ``<sha256>.json``;
-``FACERETARGET_CACHE`` set means the cache folder is always used.  The file records the character's
-SHA-256, so an edited character is searched again.  Its layout (also what ``--landmarks FILE.json``
-takes)::
+Found landmarks are kept in the user's cache folder (:func:`faceretarget.files.cache_dir`:
+``$FACERETARGET_CACHE``, by default ``~/.cache/faceretarget`` on Linux) as ``landmarks/<sha256>.json``,
+named by the SHA-256 of the character file's content, never beside the file (a user's asset folder may be
+read-only, under version control or on a network share).  An edited character is searched again; a copy
+or a moved file is found in the cache.  ``faceretarget --no-cache`` (``$FACERETARGET_NO_CACHE=1``) or
+``cache=False`` neither reads nor writes it.  Its layout (also what ``--landmarks FILE.json`` takes)::
 
     {"format": "faceretarget.landmarks/1", "sha256": "...", "mesh": "H_DDS_HighRes", "vertices": 22249,
      "triangles": [[a, b, c], ...68], "bary": [[u, v, w], ...68], "up": [0, 1, 0], "front": [0, 0, 1],
@@ -23,9 +24,9 @@ The read cache
 --------------
 The readers that run outside this process (``.fbx`` through ufbx in a child process, ``.fbx`` / ``.blend``
 through Blender) take about a second before any work; what they read is kept in
-``$FACERETARGET_CACHE/characters/<sha256>-<route>.pickle`` (never beside the file: it holds every shape)
-and read back when the file's SHA-256 and the reader's own code are unchanged.  ``cache=False`` (or
-deleting the folder) reads the file again.
+``characters/<sha256>-<route>.pickle`` in the same cache folder and read back when the file's SHA-256 and
+the reader's own code are unchanged.  ``cache=False``, ``--no-cache`` (or deleting the folder) reads the
+file again.
 
 ``--landmarks FILE.txt`` takes 68 vertex indices of the face mesh (``landmarks68.txt``'s layout) or 68
 lines of ``x y z`` (metres, the file's world frame), each put on the nearest point of the face mesh.
@@ -53,7 +54,7 @@ from ..character import (
     face_rig,
 )
 from ..errors import FaceNotFoundError, InputFileError, InvalidDataError, MissingShapeError
-from ..files import atomic_path
+from ..files import atomic_path, cache_dir, cache_enabled
 from ..rig import Rig
 
 __all__ = ["load_character", "drive_rig", "DriveRig", "inspect_character", "CharacterReport", "landmark_cache_path",
@@ -74,7 +75,7 @@ def _quiet(*_a) -> None:
 def _sha256(path: Path) -> str:
     h = hashlib.sha256()
     if path.is_dir():
-        for f in sorted(p for p in path.rglob("*") if p.is_file() and not p.name.endswith(".landmarks.json")):
+        for f in sorted(p for p in path.rglob("*") if p.is_file()):
             h.update(f.name.encode())
             h.update(f.read_bytes())
     else:
@@ -84,37 +85,11 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _cache_dir() -> Path:
-    env = os.environ.get("FACERETARGET_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "faceretarget"
-
-
-def _writable(folder: Path) -> bool:
-    """A folder we may write into: allowed, and not marked read-only (root may write anywhere, but a folder
-    whose mode has no write bit is someone's read-only data)."""
-    import stat
-
-    try:
-        mode = folder.stat().st_mode
-    except OSError:
-        return False
-    return os.access(folder, os.W_OK) and bool(mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
-
-
 def landmark_cache_path(path: str | os.PathLike, sha: str | None = None, *, for_writing: bool = False) -> Path:
-    """Where the landmarks of the character ``path`` are cached (module docstring)."""
-    p = Path(path)
-    beside = p.parent / f"{p.name}.landmarks.json" if p.is_file() else p / "landmarks.json"
-    if not os.environ.get("FACERETARGET_CACHE"):
-        if not for_writing and beside.is_file():
-            return beside
-        if for_writing and _writable(beside.parent):
-            return beside
-    sha = sha or _sha256(p)
-    return _cache_dir() / "landmarks" / f"{sha}.json"
+    """Where the landmarks of the character ``path`` are cached: ``landmarks/<sha256>.json`` in the cache
+    folder (module docstring), whatever folder the character is in.  ``for_writing`` is accepted for
+    callers of earlier releases and changes nothing."""
+    return cache_dir("landmarks") / f"{sha or _sha256(Path(path))}.json"
 
 
 #: Formats whose reader runs out of process: what they read is cached (module docstring).
@@ -134,7 +109,7 @@ def _reader_code_hash() -> str:
 
 
 def _read_cache_path(sha: str, prefer: str | None) -> Path:
-    return _cache_dir() / "characters" / f"{sha}-{prefer or 'auto'}-{_reader_code_hash()}.pickle"
+    return cache_dir("characters") / f"{sha}-{prefer or 'auto'}-{_reader_code_hash()}.pickle"
 
 
 def _read_character_cached(path: Path, prefer: str | None, cache: bool, log) -> tuple[Character, str | None]:
@@ -144,7 +119,7 @@ def _read_character_cached(path: Path, prefer: str | None, cache: bool, log) -> 
 
     from ..io import read_character
 
-    if not (cache and path.is_file() and path.suffix.lower() in SLOW_READ):
+    if not (cache and cache_enabled() and path.is_file() and path.suffix.lower() in SLOW_READ):
         return read_character(path, prefer=prefer), None
     sha = _sha256(path)
     cand = _read_cache_path(sha, prefer)
@@ -168,22 +143,21 @@ def _read_character_cached(path: Path, prefer: str | None, cache: bool, log) -> 
 
 
 def _read_cache(character: Character, path: Path, sha: str, log) -> bool:
-    for cand in {landmark_cache_path(path, sha), _cache_dir() / "landmarks" / f"{sha}.json"}:
-        if not cand.is_file():
-            continue
-        try:
-            d = json.loads(cand.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            continue
-        if d.get("format") != LANDMARKS_FORMAT or d.get("sha256") != sha:
-            continue
-        try:
-            _apply(character, d, str(cand))
-        except (InvalidDataError, InputFileError, KeyError, ValueError, TypeError):
-            continue
-        log(f"landmarks: read from the cache {cand}")
-        return True
-    return False
+    if not cache_enabled():
+        return False
+    cand = landmark_cache_path(path, sha)
+    try:
+        d = json.loads(cand.read_text(encoding="utf-8"))
+    except (OSError, ValueError):                          # not cached, or damaged: searched again
+        return False
+    if d.get("format") != LANDMARKS_FORMAT or d.get("sha256") != sha:
+        return False
+    try:
+        _apply(character, d, str(cand))
+    except (InvalidDataError, InputFileError, KeyError, ValueError, TypeError):
+        return False
+    log(f"landmarks: read from the cache {cand}")
+    return True
 
 
 def _apply(character: Character, d: dict, where: str) -> None:
@@ -250,18 +224,20 @@ def mesh_sha256(mesh) -> str:
 
 
 def _write_cache(character: Character, path: Path, sha: str, log) -> Path | None:
+    if not cache_enabled():
+        return None
     d = landmark_record(character, sha)
-    for cand in (landmark_cache_path(path, sha, for_writing=True), _cache_dir() / "landmarks" / f"{sha}.json"):
-        try:
-            cand.parent.mkdir(parents=True, exist_ok=True)
-            with atomic_path(cand) as tmp:
-                Path(tmp).write_text(json.dumps(d), encoding="utf-8")
-            log(f"landmarks: cached in {cand}")
-            return cand
-        except OSError:
-            continue
-    log("landmarks: no writable cache folder; they will be searched again next time")
-    return None
+    cand = landmark_cache_path(path, sha)
+    try:
+        cand.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(cand) as tmp:
+            Path(tmp).write_text(json.dumps(d), encoding="utf-8")
+    except OSError as e:
+        log(f"landmarks: the cache folder {cand.parent} is not writable ({e.strerror or e}); they will be searched "
+            "again next time (set FACERETARGET_CACHE to a writable folder)")
+        return None
+    log(f"landmarks: cached in {cand}")
+    return cand
 
 
 def read_landmark_file(character: Character, path: str | os.PathLike) -> SurfacePoints:

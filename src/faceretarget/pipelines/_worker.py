@@ -59,6 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FaceRetargetError, FaceRetargetWarning, InvalidDataError
+from ..files import cache_dir, cache_enabled
 
 __all__ = ["serve_jobs", "JOB_KINDS", "capture_cache_path", "cached_capture", "WorkerChannel"]
 
@@ -91,12 +92,6 @@ def _jsonable(x):
 
 
 # ------------------------------------------------------------------------------------- caches
-def _cache_root() -> Path:
-    env = os.environ.get("FACERETARGET_CACHE")
-    base = Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "faceretarget"
-    return base
-
-
 def _file_sha256(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -112,7 +107,7 @@ def capture_cache_path(video: str | os.PathLike) -> Path:
     p = Path(video)
     if not p.is_file():
         raise InputFileError(f"{p}: video not found")
-    return _cache_root() / "captures" / f"{_file_sha256(p)}-animate.pkl"
+    return cache_dir("captures") / f"{_file_sha256(p)}-animate.pkl"
 
 
 def cached_capture(video: str | os.PathLike, *, progress=None, log: Callable[..., None] = print):
@@ -123,6 +118,8 @@ def cached_capture(video: str | os.PathLike, *, progress=None, log: Callable[...
     from ._capture import capture_take
 
     path = capture_cache_path(video)
+    if not cache_enabled():
+        return capture_take(video, neutral_percentile=5.0, progress=progress or False, log=log)
     if path.is_file():
         try:
             with open(path, "rb") as f:
