@@ -39,11 +39,11 @@ def main(out: Path, fbx: Path | None) -> dict:
     for p in [out / "take.blend"] + ([fbx] if fbx else []):
         ch = read_character(p, prefer="blender")
         rep["read"][p.name] = {"meshes": len(ch.meshes), "shapes": sum(m.n_shapes for m in ch.meshes)}
-    home = os.path.realpath(os.path.expanduser("~"))
-    site = Path(home, ".config/blender/4.5/extensions/.local/lib/python3.11/site-packages")
+    config = os.path.realpath(os.path.expanduser("~/.config/blender"))     # the user's Blender configuration
+    site = Path(config, "4.5/extensions/.local/lib/python3.11/site-packages")
     rep["user_extension_site"] = sorted(p.name for p in site.iterdir()) if site.is_dir() else []
     rep["added_paths"] = [p for p in sys.path if p not in before]
-    rep["paths_in_home"] = [p for p in sys.path if os.path.realpath(p).startswith(home + os.sep)]
+    rep["paths_in_config"] = [p for p in sys.path if os.path.realpath(p).startswith(config + os.sep)]
     rep["imports"] = {}
     for name in SUITE_IMPORTS:
         try:
@@ -51,9 +51,9 @@ def main(out: Path, fbx: Path | None) -> dict:
             rep["imports"][name] = os.path.realpath(getattr(m, "__file__", "") or "")
         except Exception as e:                     # noqa: BLE001 - the failure is what the test reports
             rep["imports"][name] = f"FAILED {type(e).__name__}: {e}"
-    rep["modules_from_home"] = sorted(
+    rep["modules_from_config"] = sorted(
         n for n, m in list(sys.modules.items())
-        if getattr(m, "__file__", None) and os.path.realpath(m.__file__).startswith(home + os.sep))
+        if getattr(m, "__file__", None) and os.path.realpath(m.__file__).startswith(config + os.sep))
     rep["blender_user_env"] = {k: v for k, v in os.environ.items() if k.startswith("BLENDER_USER")}
     return rep
 
