@@ -83,8 +83,7 @@ def test_import_bpy_restores_the_environment_when_bpy_is_missing(monkeypatch):
     from faceretarget.errors import MissingDependencyError
     from faceretarget.io import _blender
 
-    if "bpy" in sys.modules:
-        pytest.skip("bpy already imported in this process")
+    monkeypatch.delitem(sys.modules, "bpy", raising=False)     # as before a first import (put back afterwards)
     monkeypatch.setenv("BLENDER_USER_CONFIG", "/somewhere/of/theirs")
     monkeypatch.delenv("BLENDER_USER_SCRIPTS", raising=False)
     monkeypatch.setattr(_blender, "optional_import",
