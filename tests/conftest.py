@@ -123,7 +123,8 @@ def run_with_progress(cmd: list[str], progress, what: str, *, every: float = 20.
                 proc.kill()
                 proc.wait()
                 raise subprocess.TimeoutExpired(cmd, timeout) from None
-            last = next((ln.strip() for ln in reversed(out + err) if ln.strip()), "")
+            last = next((ln.strip() for ln in reversed(out) if ln.strip()), "")    # the child's own lines first
+            last = last or next((ln.strip() for ln in reversed(err) if ln.strip()), "")
             progress(f"{what}: {time.monotonic() - t0:.0f} s{', last: ' + last[:120] if last else ''}")
     for th in threads:
         th.join(5)

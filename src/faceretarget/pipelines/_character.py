@@ -518,16 +518,18 @@ def character_weights(drive: DriveRig, weights: np.ndarray, names: list[str]) ->
 
 
 # ------------------------------------------------------------------------------------- preview
-def look_rig(drive: DriveRig, *, margin: float = 0.7) -> tuple[Rig, np.ndarray, np.ndarray]:
+def look_rig(drive: DriveRig, *, margin: float = 0.7,
+             channels: list[int] | None = None) -> tuple[Rig, np.ndarray, np.ndarray]:
     """The character as it looks around its face, for preview videos: every mesh cropped to a sphere
     about the face (the face region's extent times ``1 + margin``), face meshes moving with the driving
-    channels, the others still; colours from the textures (sampled at each vertex's UVs) or materials.
+    channels (or with ``channels``, indices into ``drive.channels``), the others still; colours from the
+    textures (sampled at each vertex's UVs) or materials.
 
     Returns
     -------
     rig : Rig
         Head frame (+Y up, +Z out of the face), metres; the driving channels' shapes in
-        ``drive.rig``'s order.
+        ``drive.rig``'s order (or those of ``channels``, named as the channels).
     colors : (V, 3) float
         sRGB 0..1 per vertex.
     pivot : (3,) float
@@ -564,14 +566,16 @@ def look_rig(drive: DriveRig, *, margin: float = 0.7) -> tuple[Rig, np.ndarray, 
         n += len(used)
     if not parts:
         raise InvalidDataError(f"{ch.name}: nothing to show around the face")
-    D = np.zeros((len(drive.choice.drive), n, 3))
-    for r, c_i in enumerate(drive.choice.drive):
+    carried = list(drive.choice.drive) if channels is None else [int(c) for c in channels]
+    names = list(drive.rig.names) if channels is None else [drive.channels[c].name for c in carried]
+    D = np.zeros((len(carried), n, 3))
+    for r, c_i in enumerate(carried):
         for mi, k, w in drive.channels[c_i].weighted():
             for pmi, used, off in parts:
                 if pmi == mi:
                     D[r, off:off + len(used)] += w * ch.meshes[mi].deltas[k][used]
     V = np.concatenate(verts) @ F.T
-    rig = Rig(Mesh(V, np.concatenate(counts), np.concatenate(idx), name=ch.name), list(drive.rig.names), D @ F.T,
+    rig = Rig(Mesh(V, np.concatenate(counts), np.concatenate(idx), name=ch.name), names, D @ F.T,
               unit="m", name=ch.name, keep_names=True)
     head = ch.joint("head")
     pivot = (head.position if head is not None and np.linalg.norm(head.position - c) < 2 * radius else c) @ F.T

@@ -1,0 +1,334 @@
+"""P11 (issue 32): the main job against ground truth, by a round trip, beside the peer most users would pick.
+
+Truth: real ARKit takes (Live Link Face ``.csv`` under ``--takes``, default ``../shared/data/livelinkface``; the
+most active ``--seconds`` of each, resampled to 30 fps) played on every character with ARKit shapes under
+``--characters`` (default ``../shared/data``: rig folders and character files with at least 10 ARKit-named
+shapes), with real head motion from speech capture (``--head``, default the ZEGGS take's BVH head, relative to
+its mean pose: the shared takes carry no head rotation).  Each is rendered to an mp4 with the project's preview
+renderer (the character's textures sampled per vertex, or its material colours), in two set-ups:
+
+* ``webcam``: the camera in front, the key light above and to the left;
+* ``turned``: the camera turned 15 degrees about the head's vertical axis and the key light from the right.
+
+The video is captured once (:func:`~faceretarget.pipelines.capture_take`, MediaPipe) and given to
+
+* **ours**: the main job (:func:`~faceretarget.pipelines.animate`) onto the **same** character and onto
+  **another** one (the next character in the list); on another character the truth is the same ARKit weights
+  on its own ARKit shapes (both characters' shapes mean the same expressions by name);
+* **the peer**: MediaPipe's own ARKit scores (the capture's, after its gap filling and smoothing) copied onto
+  the character's shapes by name, as web avatar players do.
+
+Scores (:mod:`faceretarget.metrics._fidelity`), ours and the peer's on the same frames, and ours / peer:
+per-region error as % of the true motion (``mouth``, ``lids``, ``brows``, ``cheeks``; regions from the
+shapes' own displacement), per-shape correlation and mean absolute error (:data:`KEY_SHAPES`), blink F1
+(closed at >= 0.5), smile direction (share of smile frames whose lip corners move the right way) and the
+median head-rotation error in degrees.
+
+Usage::
+
+    python bench/fidelity.py [--json] [--characters DIR] [--takes DIR] [--head FILE] [--seconds S]
+                             [--setups webcam,turned] [--out DIR]
+
+The last line with ``--json``: ``{"runs": [{character, take, setup, target, ours: {...}, peer: {...}}],
+"summary": {...}}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+import traceback
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data"
+FPS = 30.0
+EXTS = (".glb", ".gltf", ".vrm", ".fbx", ".blend", ".usd", ".usda", ".usdc", ".usdz")
+SKIP_DIRS = ("conformance", "video", "speech", "livelinkface", "facial-mocap", "headmotion", "emotion-video")
+#: The two set-ups: the camera's yaw (degrees, about the head's vertical axis) and the key light's direction
+#: in view space (x right, y up, z toward the viewer).
+SETUPS = {"webcam": (0.0, (-0.35, 0.45, 0.82)), "turned": (15.0, (0.6, 0.3, 0.75))}
+REGIONS = ("mouth", "lids", "brows", "cheeks")
+
+
+# --------------------------------------------------------------------------------------------- inputs
+def find_characters(root: Path) -> list[Path]:
+    """Rig folders (a ``neutral*.obj`` beside shape OBJs) and character files under ``root``."""
+    def rig_folder(p: Path) -> bool:
+        return p.is_dir() and any(f.name.lower().startswith("neutral") and f.suffix.lower() == ".obj"
+                                  for f in p.iterdir())
+
+    if root.is_file() or rig_folder(root):
+        return [root]
+    out = []
+    for p in sorted(root.rglob("*")):
+        if any(part in SKIP_DIRS for part in p.relative_to(root).parts):
+            continue
+        if rig_folder(p):
+            out.append(p)
+        elif p.is_file() and p.suffix.lower() in EXTS:
+            out.append(p)
+    return out
+
+
+def find_takes(root: Path) -> list[Path]:
+    return [root] if root.is_file() else sorted(root.glob("*.csv"))
+
+
+def active_window(weights: np.ndarray, times: np.ndarray, seconds: float) -> tuple[float, float]:
+    """The ``seconds`` of the take where its weights vary most (summed variance), or the whole take."""
+    if times[-1] - times[0] <= seconds:
+        return float(times[0]), float(times[-1])
+    starts = np.arange(times[0], times[-1] - seconds, 1.0)
+    score = [weights[(times >= s) & (times <= s + seconds)].var(axis=0).sum() for s in starts]
+    s = float(starts[int(np.argmax(score))])
+    return s, s + seconds
+
+
+def resample(weights: np.ndarray, times: np.ndarray, t: np.ndarray) -> np.ndarray:
+    return np.stack([np.interp(t, times, weights[:, k]) for k in range(weights.shape[1])], axis=1)
+
+
+def head_truth(path: Path, n: int) -> Rotation:
+    """``n`` frames at 30 fps of real head rotation (relative to its mean pose) from a head-motion file."""
+    from faceretarget.io import read_head_motion
+
+    perf = read_head_motion(path)
+    q = perf.head.quaternions
+    ok = np.isfinite(q).all(axis=1)
+    t = perf.times[ok]
+    r = Rotation.from_quat(q[ok])
+    tt = np.minimum(np.arange(n) / FPS, t[-1])
+    from scipy.spatial.transform import Slerp
+
+    rr = Slerp(t, r)(tt)
+    return rr.mean().inv() * rr
+
+
+# ------------------------------------------------------------------------------------------ character
+class Target:
+    """A character loaded once: its drive rig, its ARKit channels, their displacement of the landmark mesh,
+    the regions, the lip corners' displacement."""
+
+    def __init__(self, path: Path):
+        from faceretarget.metrics._fidelity import face_regions
+        from faceretarget.names import ARKIT_NAMES, normalize_name
+        from faceretarget.pipelines import drive_rig, load_character
+
+        self.path = path
+        self.name = path.stem if path.is_file() else path.name
+        self.character = ch = load_character(path)
+        self.drive = drive_rig(ch, "auto")
+        chans = self.drive.channels
+        arkit = set(ARKIT_NAMES)
+        self.arkit = {}                                             # ARKit name -> channel index
+        for c, chan in enumerate(chans):
+            n = normalize_name(chan.name)
+            if n in arkit and n not in self.arkit:
+                self.arkit[n] = c
+        if len(self.arkit) < 10:
+            raise ValueError(f"{len(self.arkit)} ARKit-named shapes (needs 10)")
+        self.names = list(self.arkit)
+        lm = ch.landmarks
+        mesh = ch.meshes[lm.mesh]
+        D = np.zeros((len(self.names), mesh.mesh.n_vertices, 3))
+        for r, n in enumerate(self.names):
+            for mi, k, w in chans[self.arkit[n]].weighted():
+                if mi == lm.mesh:
+                    D[r] += w * mesh.deltas[k]
+        self.deltas = D
+        self.regions = face_regions(D, self.names)
+        corners = np.array([48, 54])
+        tri, bary = lm.triangles[corners], lm.bary[corners]
+        self.corner_deltas = np.einsum("cj,kcjd->kcd", bary, D[:, tri])    # (K, 2, 3)
+        self.up = np.asarray(ch.up if ch.up is not None else [0.0, 1.0, 0.0], np.float64)
+
+    def weights(self, W: np.ndarray, names: list[str]) -> np.ndarray:
+        """``(T, K)`` weights in :attr:`names` order from curves named ``names`` (any spelling; 0 where absent)."""
+        from faceretarget.names import normalize_name
+
+        idx = {normalize_name(n): i for i, n in enumerate(names)}
+        out = np.zeros((len(W), len(self.names)))
+        for r, n in enumerate(self.names):
+            if n in idx:
+                out[:, r] = W[:, idx[n]]
+        return out
+
+
+def render_video(target: Target, W: np.ndarray, head: Rotation, setup: str, out: Path, size: int = 512) -> int:
+    """The take (``W`` in ``target.names`` order, 30 fps) on the character as an mp4; frames written."""
+    from faceretarget.io._video import write_video
+    from faceretarget.pipelines import look_rig
+    from faceretarget.render import MeshRenderer
+
+    chans = [target.arkit[n] for n in target.names]
+    rig, colors, pivot = look_rig(target.drive, channels=chans)
+    yaw, light = SETUPS[setup]
+    V0 = rig.neutral.vertices
+    D = rig.deltas.reshape(len(rig.names), -1)
+    R = head.as_matrix()
+    with MeshRenderer(rig.neutral, (size, size), color=colors, pivot=pivot, mm_per_unit=rig.mm_per_unit,
+                      view=yaw, light=light, head_room=35.0) as r:
+        frames = (r.render(V0 + (W[i] @ D).reshape(-1, 3), R[i]) for i in range(len(W)))
+        write_video(out, frames, FPS)
+    return len(W)
+
+
+# ---------------------------------------------------------------------------------------------- scores
+def scores(target: Target, Wt: np.ndarray, Wp: np.ndarray, qt: np.ndarray, qp: np.ndarray | None) -> dict:
+    from faceretarget.metrics import _fidelity as F
+
+    head = F.head_rotation_error(qt, qp) if qp is not None else np.full(len(qt), np.nan)
+    return {"regions": F.region_errors(Wt, Wp, target.deltas, target.regions),
+            "shapes": F.shape_scores(Wt, Wp, target.names),
+            "blink": F.blink_f1(Wt, Wp, target.names),
+            "smile": F.smile_direction(Wt, Wp, target.names, target.corner_deltas, target.up),
+            "head_deg": float(np.nanmedian(head)) if np.isfinite(head).any() else float("nan")}
+
+
+def compare(ours: dict, peer: dict) -> dict:
+    from faceretarget.metrics._fidelity import ratio
+
+    return {"regions": {k: ratio(ours["regions"][k], peer["regions"][k]) for k in ours["regions"]},
+            "head": ratio(ours["head_deg"], peer["head_deg"])}
+
+
+def run_one(src: Target, dst: Target, cap, res, Wtake: np.ndarray, names: list[str], head: Rotation) -> dict:
+    n = min(len(Wtake), len(res.weights), len(cap.weights))
+    Wt = dst.weights(Wtake[:n], names)
+    ours = dst.weights(res.weights[:n], res.names)
+    capw = np.nan_to_num(cap.weights[:n])
+    peer = dst.weights(capw, cap.names)
+    qt = head.as_quat()[:n]
+    qo = res.head.quaternions[:n] if res.head is not None else None
+    qp = cap.head.quaternions[:n] if cap.head is not None else None
+    o, p = scores(dst, Wt, ours, qt, qo), scores(dst, Wt, peer, qt, qp)
+    return {"frames": n, "ours": o, "peer": p, "ratio": compare(o, p), "mouth_corr": res.mouth_corr}
+
+
+# ------------------------------------------------------------------------------------------------ main
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--characters", type=Path, default=DATA)
+    ap.add_argument("--takes", type=Path, default=DATA / "livelinkface")
+    ap.add_argument("--head", type=Path, default=DATA / "headmotion" / "zeggs_067_Speech_2_x_1_0.bvh")
+    ap.add_argument("--seconds", type=float, default=12.0, help="the most active seconds of each take")
+    ap.add_argument("--setups", default="webcam,turned")
+    ap.add_argument("--max-characters", type=int, default=0, help="only the first N characters (0: all)")
+    ap.add_argument("--out", type=Path, default=None, help="keep the rendered videos here")
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    from faceretarget.io import read_livelinkface
+    from faceretarget.pipelines import animate, capture_take
+
+    setups = [s for s in a.setups.split(",") if s]
+    targets, skipped = [], {}
+    for p in find_characters(a.characters):
+        try:
+            t0 = time.perf_counter()
+            targets.append(Target(p))
+            print(f"character {targets[-1].name}: {len(targets[-1].names)} ARKit shapes, regions "
+                  + ", ".join(f"{k} {len(v)}" for k, v in targets[-1].regions.items())
+                  + f" ({time.perf_counter() - t0:.1f} s)", flush=True)
+        except Exception as e:  # noqa: BLE001 - a character without ARKit shapes is left out, said why
+            skipped[p.name] = f"{type(e).__name__}: {str(e)[:120]}"
+    if a.max_characters:
+        targets = targets[:a.max_characters]
+    for k, v in skipped.items():
+        print(f"character {k}: left out ({v})", flush=True)
+    if not targets:
+        print("no character with ARKit shapes", file=sys.stderr)
+        return 2
+    work = a.out or Path(tempfile.mkdtemp(prefix="fidelity-"))
+    work.mkdir(parents=True, exist_ok=True)
+    runs = []
+    for take_path in find_takes(a.takes):
+        perf = read_livelinkface(take_path)
+        s0, s1 = active_window(perf.weights, perf.times, a.seconds)
+        t = np.arange(s0, s1, 1.0 / FPS)
+        Wtake = np.clip(resample(perf.weights, perf.times, t), 0.0, 1.0)
+        head = head_truth(a.head, len(t))
+        for i, src in enumerate(targets):
+            for setup in setups:
+                t0 = time.perf_counter()
+                video = work / f"{src.name}-{take_path.stem}-{setup}.mp4"
+                try:
+                    render_video(src, src.weights(Wtake, perf.names), head, setup, video)
+                    cap = capture_take(video, neutral_percentile=5.0, progress=False, log=lambda *_: None)
+                    dsts = [("same", src)] + ([("other", targets[(i + 1) % len(targets)])] if len(targets) > 1 else [])
+                    for kind, dst in dsts:
+                        res = animate(cap, dst.character)
+                        r = run_one(src, dst, cap, res, Wtake, perf.names, head)
+                        r.update(character=src.name, take=take_path.stem, setup=setup, target=kind,
+                                 onto=dst.name, window=[round(s0, 2), round(s1, 2)],
+                                 detected=float(cap.detected.mean()), seconds=round(time.perf_counter() - t0, 1))
+                        runs.append(r)
+                        print(line(r), flush=True)
+                except Exception as e:  # noqa: BLE001 - one failed run is reported, the rest go on
+                    runs.append({"character": src.name, "take": take_path.stem, "setup": setup,
+                                 "error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-2000:]})
+                    print(f"{src.name} {take_path.stem} {setup}: ERROR {type(e).__name__}: {e}", flush=True)
+    summ = summary(runs)
+    print(table(summ))
+    if a.json:
+        print(json.dumps({"runs": runs, "summary": summ, "skipped": skipped}, default=float))
+    return 0
+
+
+def line(r: dict) -> str:
+    o, p = r["ours"], r["peer"]
+    reg = " ".join(f"{k} {o['regions'][k]:.0f}/{p['regions'][k]:.0f}" for k in REGIONS)
+    return (f"{r['character']} {r['take']} {r['setup']} -> {r['target']} ({r['onto']}): {r['frames']} frames, "
+            f"face {r['detected']:.0%}; region err % ours/peer: {reg}; blink F1 {o['blink']['f1']:.2f}/"
+            f"{p['blink']['f1']:.2f}; smile right {o['smile']['share']:.2f}/{p['smile']['share']:.2f}; "
+            f"head {o['head_deg']:.1f}/{p['head_deg']:.1f} deg; {r['seconds']} s")
+
+
+def _median(xs) -> float:
+    xs = [x for x in xs if x is not None and np.isfinite(x)]
+    return float(np.median(xs)) if xs else float("nan")
+
+
+def summary(runs: list[dict]) -> dict:
+    """Medians over the runs, per target kind (same / other), ours and the peer's and their ratio."""
+    out = {}
+    for kind in ("same", "other"):
+        rs = [r for r in runs if r.get("target") == kind]
+        if not rs:
+            continue
+        d = {"runs": len(rs)}
+        for who in ("ours", "peer"):
+            d[who] = {"regions": {k: _median(r[who]["regions"][k] for r in rs) for k in REGIONS},
+                      "blink_f1": _median(r[who]["blink"]["f1"] for r in rs),
+                      "smile_share": _median(r[who]["smile"]["share"] for r in rs),
+                      "head_deg": _median(r[who]["head_deg"] for r in rs)}
+        d["ratio_of_medians"] = {k: d["ours"]["regions"][k] / d["peer"]["regions"][k] for k in REGIONS}
+        d["ratio_median"] = {k: _median(r["ratio"]["regions"][k] for r in rs) for k in REGIONS}
+        out[kind] = d
+    return out
+
+
+def table(summ: dict) -> str:
+    lines = []
+    for kind, d in summ.items():
+        lines.append(f"onto the {kind} character ({d['runs']} runs): median of each run's figure, ours / peer "
+                     "(ratio of medians)")
+        for k in REGIONS:
+            lines.append(f"  {k:7s} error % of true motion: {d['ours']['regions'][k]:6.1f} / "
+                         f"{d['peer']['regions'][k]:6.1f}  ({d['ratio_of_medians'][k]:.2f}x)")
+        lines.append(f"  blink F1: {d['ours']['blink_f1']:.2f} / {d['peer']['blink_f1']:.2f}; smile right: "
+                     f"{d['ours']['smile_share']:.2f} / {d['peer']['smile_share']:.2f}; head error: "
+                     f"{d['ours']['head_deg']:.1f} / {d['peer']['head_deg']:.1f} deg")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
