@@ -27,7 +27,7 @@ median head-rotation error in degrees.
 Usage::
 
     python bench/fidelity.py [--json] [--characters DIR] [--takes DIR] [--head FILE] [--seconds S]
-                             [--setups webcam,turned] [--out DIR]
+                             [--setups webcam,turned] [--solver default|legacy] [--figure PNG] [--out DIR]
 
 The last line with ``--json``: ``{"runs": [{character, take, setup, target, ours: {...}, peer: {...}}],
 "summary": {...}}``.
@@ -60,10 +60,9 @@ REGIONS = ("mouth", "lids", "brows", "cheeks")
 
 # --------------------------------------------------------------------------------------------- inputs
 def find_characters(root: Path) -> list[Path]:
-    """Rig folders (a ``neutral*.obj`` beside shape OBJs) and character files under ``root``."""
-    def rig_folder(p: Path) -> bool:
-        return p.is_dir() and any(f.name.lower().startswith("neutral") and f.suffix.lower() == ".obj"
-                                  for f in p.iterdir())
+    """Rig folders (at least 10 OBJs: a neutral and its shapes) and character files under ``root``."""
+    def rig_folder(p: Path) -> bool:                 # a neutral and its shapes as OBJs (any names)
+        return p.is_dir() and sum(f.suffix.lower() == ".obj" for f in p.iterdir()) >= 10
 
     if root.is_file() or rig_folder(root):
         return [root]
@@ -162,6 +161,31 @@ class Target:
         return out
 
 
+def figure(target: Target, Wt: np.ndarray, Wo: np.ndarray, Wp: np.ndarray, out: Path, size: int = 320) -> Path:
+    """Truth, ours and the peer side by side at the take's strongest smile frame and strongest blink frame
+    (the character at rest pose, front view)."""
+    from faceretarget.pipelines import look_rig
+    from faceretarget.render import MeshRenderer, render_grid, save_png
+
+    def frame(names: tuple[str, ...]) -> int:
+        cols = [target.names.index(n) for n in names if n in target.names]
+        return int(np.argmax(Wt[:, cols].mean(axis=1)))
+
+    rig, colors, pivot = look_rig(target.drive, channels=[target.arkit[n] for n in target.names])
+    D = rig.deltas.reshape(len(rig.names), -1)
+    imgs, labels = [], []
+    with MeshRenderer(rig.neutral, (size, size), color=colors, pivot=pivot, mm_per_unit=rig.mm_per_unit,
+                      head_room=35.0) as r:
+        for what, names in (("smile", ("mouthSmileLeft", "mouthSmileRight")), ("blink", ("eyeBlinkLeft",
+                                                                                          "eyeBlinkRight"))):
+            f = frame(names)
+            for who, W in (("truth", Wt), ("ours", Wo), ("peer", Wp)):
+                cols = [target.names.index(n) for n in names]
+                imgs.append(r.render(rig.neutral.vertices + (W[f] @ D).reshape(-1, 3)))
+                labels.append(f"{what} frame {f}: {who} ({what} {W[f, cols].mean():.2f})")
+    return save_png(out, render_grid(imgs, labels, cols=3))
+
+
 def render_video(target: Target, W: np.ndarray, head: Rotation, setup: str, out: Path, size: int = 512) -> int:
     """The take (``W`` in ``target.names`` order, 30 fps) on the character as an mp4; frames written."""
     from faceretarget.io._video import write_video
@@ -210,7 +234,8 @@ def run_one(src: Target, dst: Target, cap, res, Wtake: np.ndarray, names: list[s
     qo = res.head.quaternions[:n] if res.head is not None else None
     qp = cap.head.quaternions[:n] if cap.head is not None else None
     o, p = scores(dst, Wt, ours, qt, qo), scores(dst, Wt, peer, qt, qp)
-    return {"frames": n, "ours": o, "peer": p, "ratio": compare(o, p), "mouth_corr": res.mouth_corr}
+    return {"frames": n, "ours": o, "peer": p, "ratio": compare(o, p), "mouth_corr": res.mouth_corr,
+            "_weights": (Wt, ours, peer)}
 
 
 # ------------------------------------------------------------------------------------------------ main
@@ -223,6 +248,10 @@ def main(argv=None) -> int:
     ap.add_argument("--setups", default="webcam,turned")
     ap.add_argument("--max-characters", type=int, default=0, help="only the first N characters (0: all)")
     ap.add_argument("--out", type=Path, default=None, help="keep the rendered videos here")
+    ap.add_argument("--solver", choices=["default", "legacy"], default="default",
+                    help="legacy: the solver before issue 32 (prior 0.1, no per-take gains), for comparison")
+    ap.add_argument("--figure", type=Path, default=None, help="write truth / ours / peer at a smile and a blink "
+                    "frame (the same-character run with the most blinking) as a PNG")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
@@ -230,6 +259,12 @@ def main(argv=None) -> int:
     from faceretarget.pipelines import animate, capture_take
 
     setups = [s for s in a.setups.split(",") if s]
+    from faceretarget.pipelines import video_solver
+    from faceretarget.retarget import LandmarkSolver
+
+    def solver():
+        return LandmarkSolver() if a.solver == "legacy" else video_solver()
+
     targets, skipped = [], {}
     for p in find_characters(a.characters):
         try:
@@ -265,7 +300,7 @@ def main(argv=None) -> int:
                     cap = capture_take(video, neutral_percentile=5.0, progress=False, log=lambda *_: None)
                     dsts = [("same", src)] + ([("other", targets[(i + 1) % len(targets)])] if len(targets) > 1 else [])
                     for kind, dst in dsts:
-                        res = animate(cap, dst.character)
+                        res = animate(cap, dst.character, solver=solver())
                         r = run_one(src, dst, cap, res, Wtake, perf.names, head)
                         r.update(character=src.name, take=take_path.stem, setup=setup, target=kind,
                                  onto=dst.name, window=[round(s0, 2), round(s1, 2)],
@@ -276,6 +311,15 @@ def main(argv=None) -> int:
                     runs.append({"character": src.name, "take": take_path.stem, "setup": setup,
                                  "error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-2000:]})
                     print(f"{src.name} {take_path.stem} {setup}: ERROR {type(e).__name__}: {e}", flush=True)
+    if a.figure:
+        same = [r for r in runs if r.get("target") == "same"]
+        if same:
+            best = max(same, key=lambda r: r["ours"]["blink"]["closed_frames"])
+            tgt = next(t for t in targets if t.name == best["character"])
+            print(f"figure: {figure(tgt, *best['_weights'], a.figure)} ({best['character']}, {best['take']}, "
+                  f"{best['setup']})")
+    for r in runs:
+        r.pop("_weights", None)
     summ = summary(runs)
     print(table(summ))
     if a.json:

@@ -97,6 +97,29 @@ def test_landmark_solver_recovers_the_rigs_own_weights_under_head_motion(arkit):
     assert np.linalg.norm(arkit.evaluate(r2.weights, arkit.landmarks) - X) / np.linalg.norm(motion) < 0.05
 
 
+def test_per_take_gains_undo_a_tracker_that_reads_the_mouth_at_half_size(arkit):
+    """Issue 32: scores with the right timing but half the amplitude (a monocular tracker's bias) are put back to
+    size by the per-take gains fitted to the landmarks; the eye shapes keep the tracker's own scale."""
+    W, X, P = _take(arkit)
+    n0 = neutral_face(P, W)
+    mouth = np.array([n.startswith(("jaw", "mouth")) for n in arkit.names])
+    biased = W * np.where(mouth, 0.5, 1.0)
+    sol = LandmarkSolver(prior=10.0, gains=True, eye_prior=10.0).fit(arkit, n0)
+    eye = np.array([n.startswith(("eyeBlink", "eyeSquint", "eyeWide", "eyeLook")) for n in arkit.names])
+    assert (sol.eye_shapes_ <= eye).all() and sol.eye_shapes_[[arkit.names.index("eyeBlinkLeft"),
+                                                               arkit.names.index("eyeBlinkRight")]].all()
+    r = sol.transform(P, biased)
+    g = r.prior_gains
+    big = mouth & (W.max(axis=0) > 0.3)                       # shapes the take really uses
+    assert np.median(g[big]) == pytest.approx(2.0, rel=0.1), g[big]
+    assert (g[sol.eye_shapes_] == 1.0).all()
+    plain = LandmarkSolver(prior=10.0).fit(arkit, n0).transform(P, biased)
+    err = lambda w: np.abs(w[:, big] - W[:, big]).mean()      # noqa: E731
+    assert err(r.weights) < 0.5 * err(plain.weights), (err(r.weights), err(plain.weights))
+    # a short take (a live frame, a single pose) gets no gains
+    assert sol.transform(P[:10], biased[:10]).prior_gains is None
+
+
 def test_landmark_solver_errors_name_the_problem(arkit):
     _, _, P = _take(arkit, T=20)
     with pytest.raises(InvalidDataError, match="68"):

@@ -44,6 +44,7 @@ from ._animate import (
     gaze_rotations,
     parse_emotion,
     tracked_take,
+    video_solver,
 )
 from ._apply import TAKE_ROUTES, AppliedTake, apply_take, landmark_points
 from ._batch import (
@@ -137,7 +138,7 @@ __all__ = [
     "CharacterReport",
     "landmark_cache_path",
     "read_landmark_file", "landmark_record", "apply_landmark_record", "mesh_sha256",
-    "animate", "AnimateResult", "tracked_take", "face_take", "face_frame", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
+    "animate", "AnimateResult", "video_solver", "tracked_take", "face_take", "face_frame", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
     "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES", "check_result_path", "MAX_TEMPORAL",
     "target_weights", "keep_arkit_range", "blender_timeline_note",

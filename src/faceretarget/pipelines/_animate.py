@@ -124,6 +124,15 @@ class AnimateResult:
                 f"{self.mouth_corr:.3f}; {tm}; total {sum(self.timings.values()):.2f}s")
 
 
+def video_solver() -> LandmarkSolver:
+    """The solver :func:`animate` uses for a whole take: the tracker's scores as a strong prior (``prior=10``,
+    the eye shapes' ten times stronger; the shapes the tracker does not score keep the weak ``0.1``, else they
+    would be held at rest) with per-take gains fitted to the landmarks' motion
+    (:class:`~faceretarget.retarget.LandmarkSolver`'s module docstring).  Chosen on P11's range-of-motion take
+    (``alex_rom_3``) and measured on the three others (``bench/fidelity.py``)."""
+    return LandmarkSolver(prior=10.0, gains=True, eye_prior=10.0, unscored_prior=0.1)
+
+
 def drives_by_landmarks(character: Rig) -> bool:
     """Whether ``character`` is driven by its own shapes: its 68 landmarks and either ARKit-named shapes
     (a rig folder) or shapes chosen from a character file (:func:`~faceretarget.pipelines.drive_rig`,
@@ -426,7 +435,8 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
         :class:`~faceretarget.targets.Target` (control table, skeleton, drawings) is written in its
         own parameters and formats (no preview).
     solver : LandmarkSolver, optional
-        Unfitted, with its parameters (default ``LandmarkSolver()``).
+        Unfitted, with its parameters (default :func:`video_solver`: the tracker's scores a strong prior,
+        with per-take gains fitted to the landmarks).
     shapes : str
         For a character file: which of its shapes drive (``auto``, ``arkit``, ``visemes``, ``all`` or
         names; :func:`~faceretarget.character.choose_shapes`).
@@ -495,10 +505,14 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
     times = take.times
     if by_landmarks:
         prior = None if take.weights is None else character.map_weights(take.names, take.weights, warn=False)
-        sol = (solver or LandmarkSolver()).fit(character, neutral_face(ftake.points))   # the face take's rest face
+        sol = (solver or video_solver()).fit(character, neutral_face(ftake.points))   # the face take's rest face
+
+        # the shapes the tracker has a score for (any value), whatever it scored them in this take
+        scored = None if take.weights is None else np.abs(character.map_weights(
+            take.names, np.ones((1, len(take.names))), warn=False)).max(axis=0) > 0
 
         def solve(points: np.ndarray) -> np.ndarray:
-            return sol.transform(points, prior, times).weights
+            return sol.transform(points, prior, times, scored=scored).weights
 
         names = list(character.names)
         with working(f"solving {len(ftake.times)} frames on {character.name}", progress):
