@@ -161,28 +161,23 @@ class Target:
         return out
 
 
-def figure(target: Target, Wt: np.ndarray, Wo: np.ndarray, Wp: np.ndarray, out: Path, size: int = 320) -> Path:
-    """Truth, ours and the peer side by side at the take's strongest smile frame and strongest blink frame
-    (the character at rest pose, front view)."""
+def figure(rows: list[tuple[str, Target, tuple, tuple[str, ...]]], out: Path, size: int = 300) -> Path:
+    """Truth, ours and the peer side by side: one row per ``(what, target, (Wt, Wo, Wp), shape names)``, at the
+    frame where the truth's mean of those shapes peaks (the character at rest pose, front view)."""
     from faceretarget.pipelines import look_rig
     from faceretarget.render import MeshRenderer, render_grid, save_png
 
-    def frame(names: tuple[str, ...]) -> int:
-        cols = [target.names.index(n) for n in names if n in target.names]
-        return int(np.argmax(Wt[:, cols].mean(axis=1)))
-
-    rig, colors, pivot = look_rig(target.drive, channels=[target.arkit[n] for n in target.names])
-    D = rig.deltas.reshape(len(rig.names), -1)
     imgs, labels = [], []
-    with MeshRenderer(rig.neutral, (size, size), color=colors, pivot=pivot, mm_per_unit=rig.mm_per_unit,
-                      head_room=35.0) as r:
-        for what, names in (("smile", ("mouthSmileLeft", "mouthSmileRight")), ("blink", ("eyeBlinkLeft",
-                                                                                          "eyeBlinkRight"))):
-            f = frame(names)
+    for what, target, (Wt, Wo, Wp), names in rows:
+        cols = [target.names.index(n) for n in names if n in target.names]
+        f = int(np.argmax(Wt[:, cols].mean(axis=1)))
+        rig, colors, pivot = look_rig(target.drive, channels=[target.arkit[n] for n in target.names])
+        D = rig.deltas.reshape(len(rig.names), -1)
+        with MeshRenderer(rig.neutral, (size, size), color=colors, pivot=pivot, mm_per_unit=rig.mm_per_unit,
+                          head_room=35.0) as r:
             for who, W in (("truth", Wt), ("ours", Wo), ("peer", Wp)):
-                cols = [target.names.index(n) for n in names]
                 imgs.append(r.render(rig.neutral.vertices + (W[f] @ D).reshape(-1, 3)))
-                labels.append(f"{what} frame {f}: {who} ({what} {W[f, cols].mean():.2f})")
+                labels.append(f"{what} {who}: {W[f, cols].mean():.2f}")
     return save_png(out, render_grid(imgs, labels, cols=3))
 
 
@@ -314,10 +309,20 @@ def main(argv=None) -> int:
     if a.figure:
         same = [r for r in runs if r.get("target") == "same"]
         if same:
-            best = max(same, key=lambda r: r["ours"]["blink"]["closed_frames"])
-            tgt = next(t for t in targets if t.name == best["character"])
-            print(f"figure: {figure(tgt, *best['_weights'], a.figure)} ({best['character']}, {best['take']}, "
-                  f"{best['setup']})")
+            smile, blink = ("mouthSmileLeft", "mouthSmileRight"), ("eyeBlinkLeft", "eyeBlinkRight")
+
+            def peak(r, names):                        # the run's strongest true value of those shapes
+                tgt = next(t for t in targets if t.name == r["character"])
+                cols = [tgt.names.index(n) for n in names if n in tgt.names]
+                return float(r["_weights"][0][:, cols].mean(axis=1).max()) if cols else 0.0
+
+            rows = []
+            for what, names in (("smile", smile), ("blink", blink)):
+                best = max(same, key=lambda r, names=names: peak(r, names))
+                tgt = next(t for t in targets if t.name == best["character"])
+                rows.append((what, tgt, best["_weights"], names))
+                print(f"figure, {what}: {best['character']}, {best['take']}, {best['setup']}")
+            print(f"figure: {figure(rows, a.figure)}")
     for r in runs:
         r.pop("_weights", None)
     summ = summary(runs)

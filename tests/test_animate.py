@@ -99,7 +99,7 @@ def test_landmark_solver_recovers_the_rigs_own_weights_under_head_motion(arkit):
 
 def test_per_take_gains_undo_a_tracker_that_reads_the_mouth_at_half_size(arkit):
     """Issue 32: scores with the right timing but half the amplitude (a monocular tracker's bias) are put back to
-    size by the per-take gains fitted to the landmarks; the eye shapes keep the tracker's own scale."""
+    size by the per-take gains fitted to the landmarks; the eye shapes' gains never fall below 1."""
     W, X, P = _take(arkit)
     n0 = neutral_face(P, W)
     mouth = np.array([n.startswith(("jaw", "mouth")) for n in arkit.names])
@@ -112,7 +112,7 @@ def test_per_take_gains_undo_a_tracker_that_reads_the_mouth_at_half_size(arkit):
     g = r.prior_gains
     big = mouth & (W.max(axis=0) > 0.3)                       # shapes the take really uses
     assert np.median(g[big]) == pytest.approx(2.0, rel=0.1), g[big]
-    assert (g[sol.eye_shapes_] == 1.0).all()
+    assert (g[sol.eye_shapes_] >= 1.0).all() and np.median(g[sol.eye_shapes_]) < 1.3   # their scores were right
     plain = LandmarkSolver(prior=10.0).fit(arkit, n0).transform(P, biased)
     err = lambda w: np.abs(w[:, big] - W[:, big]).mean()      # noqa: E731
     assert err(r.weights) < 0.5 * err(plain.weights), (err(r.weights), err(plain.weights))
@@ -259,6 +259,7 @@ def mead_style():
         return fit_style(takes, reference="neutral"), takes
 
 
+# slow: its fixture tracks the shared videos with MediaPipe once for the module (~7 s)
 def test_face_takes_share_the_reference_neutral(mead_style):
     _, takes = mead_style
     from faceretarget.retarget import neutral_face
@@ -291,6 +292,7 @@ def test_emotion_blends_restyled_solves_by_alpha_and_keeps_the_lip_sync(arkit, a
     assert np.allclose(rc.alpha[late, 0], 1.0)
 
 
+# slow: fits a speaker style model on real MEAD takes, then animates an unseen actor (~6 s)
 def test_emotion_from_a_speaker_model_on_an_actor_it_has_not_seen(arkit, aoc_capture, tmp_path):
     """``animate --emotion`` with a :class:`SpeakerStyleModel` (issue 27) learned from two MEAD speakers,
     on the HDTF actor of ``aoc_capture``: the face changes, the speech is kept, and the file round-trips."""

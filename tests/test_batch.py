@@ -343,6 +343,7 @@ def _dask_processes(tmp_path: Path):
             f.close()
 
 
+# slow: starts a real Dask scheduler and worker processes (~11 s, most of it their start-up)
 def test_scheduler_option_runs_on_separate_dask_processes(data_dir, takes, tmp_path, capsys):
     _distributed()
     from faceretarget.cli import main

@@ -108,6 +108,7 @@ def p6(data_dir, tmp_path_factory):
     return ev, frames, res, ev.summarise(res)
 
 
+# slow: its fixture fits P6's speaker models leave-one-speaker-out over 19 real takes (~28 s, once per module)
 def test_p6_translation_and_recognition_on_three_real_speakers(p6):
     ev, frames, res, summ = p6
     for d in frames.values():                                    # every take on the neutral's timeline

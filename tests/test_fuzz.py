@@ -70,6 +70,7 @@ def worker(tmp_path_factory):
     w.close()
 
 
+# slow: a fixed number of hypothesis examples per reader (each parse is fast; ~5-9 s per format)
 @pytest.mark.parametrize("reader", fz.READER_NAMES)
 def test_fuzzed_reader(reader, seeds, worker):
     """``FACERETARGET_FUZZ_CASES`` mutated files per reader: each read correctly or refused by name."""

@@ -502,6 +502,7 @@ def node() -> str:
     return shutil.which("node")
 
 
+# slow: headless Chromium with software WebGL plays 5 s of a live session in real time (~7 s)
 def test_the_page_plays_the_session_in_headless_chromium(node, video, arkit_rig):
     lines = []
     session = LiveSession(video, arkit_rig, serve=("127.0.0.1", 0), max_frames=125, wait_for_viewer=60,

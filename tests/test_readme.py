@@ -36,6 +36,7 @@ def test_readme_is_a_front_page_and_its_links_exist():
     assert "animate" in blocks[1].text and "--character" in blocks[1].text   # the main job comes first
 
 
+# slow: every README command as a user runs it (video capture, previews, Blender, shape generation): ~50 s; it is the README's contract
 def test_every_readme_block_runs_as_written(data_dir, tmp_path):
     lines: list[str] = []
     results = readme_runner.run_page(README, str(data_dir.resolve()), tmp_path, log=lines.append)

@@ -143,6 +143,7 @@ def speaker_file(mead, data_dir, tmp_path_factory):
     return out
 
 
+# slow: restyles a real video end to end through the CLI (tracking, model, warp, encode) (~6 s)
 def test_cli_speaker_model_restyles_an_unseen_persons_video(mead, model_file, speaker_file, tmp_path, capsys):
     from faceretarget.pipelines import AppearanceStyleModel, restyle_video
     from faceretarget.style import SpeakerStyleModel

@@ -75,6 +75,7 @@ def test_neutral_character_head_and_landmarks(data_dir, rel):
     assert d[17:].max() < 1.0 * eye and d[:17].max() < 1.6 * eye          # none through a hole to the back
 
 
+# slow: its fixture generates the ARKit set on three characters once for the module (~10 s)
 def test_generated_lids_lips_surface_mirror(arkit_generated):
     ref, gen, ch, lines = arkit_generated
     assert len(gen.shape_names) == 51
@@ -107,6 +108,7 @@ def test_landmark_motion_points_the_artists_way(arkit_generated):
     assert cos[jaw] >= 0.9
 
 
+# slow: two full shape generations on a real avatar (keep, then replace) (~13 s)
 def test_kept_shapes_and_replace(data_dir):
     """Shapes the character has are kept (and said) unless replace."""
     ch = load_character(data_dir / "arkit-face")
@@ -120,6 +122,7 @@ def test_kept_shapes_and_replace(data_dir):
     assert ch.meshes[0].deltas is not new.meshes[0].deltas                 # the input is unchanged
 
 
+# slow: deformation transfer of 51 shapes onto a 22k-vertex VALID avatar, then the main job on a video (~18 s)
 def test_neutral_avatar_gets_driven(data_dir):
     """A VALID avatar with its shapes hidden: head mesh and landmarks found on the neutral, 51 shapes on the
     head, teeth and eyes; blinks close over its own eyeballs; the main job drives the shapes."""
@@ -143,6 +146,7 @@ def test_neutral_avatar_gets_driven(data_dir):
     assert "jawOpen" in r.names
 
 
+# slow: generates shapes on a VALID avatar and renders its mouth (~9 s)
 def test_lower_teeth_stay_behind_the_lower_lip(data_dir):
     """jawOpen on a VALID avatar: the lower teeth and tongue ride the jaw behind the lip.  Fitted to the chin's
     skin alone they came out through the lower lip and chin: 1,829 pixels of a 400-pixel view of the mouth."""
@@ -153,6 +157,7 @@ def test_lower_teeth_stay_behind_the_lower_lip(data_dir):
     assert px is not None and px <= 40, px
 
 
+# slow: generates shapes from the arkit-face USD asset and measures every rim vertex (~8 s)
 def test_blink_closes_the_whole_rim_of_the_eye(data_dir, tmp_path):
     """The arkit-face as a USD asset, its landmarks found automatically (its lid points land close together on
     this low-poly face without eyeballs): pinned only at those points the lids stayed open (72-88 % of the rim's
@@ -179,6 +184,7 @@ def test_blink_closes_the_whole_rim_of_the_eye(data_dir, tmp_path):
     assert blink_gap_pct(new)[0] == pytest.approx(max(gaps))
 
 
+# slow: the CLI generates a whole ARKit set and writes/reads an OBJ rig folder (~13 s)
 def test_cli_obj_folder_round_trip(data_dir, tmp_path):
     out = tmp_path / "gen"
     rc = main(["-q", "character", "shapes", str(data_dir / "arkit-face"), "--shapes", "eyeBlinkLeft,jawOpen",

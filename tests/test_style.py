@@ -228,6 +228,7 @@ def test_mfcc_alignment_of_real_speech_retimed_by_known_warp(data_dir):
     assert w.n_frames == ref.n_frames and np.median(np.abs(w.points - ref.points)) < 0.05
 
 
+# slow: P3: DTW alignment and bilinear fits over real takes (~7 s)
 def test_p3_face_alignment_and_known_expression(data_dir, ict_rig):
     from faceretarget.datasets import make_p3_takes
     from faceretarget.io import read_livelinkface

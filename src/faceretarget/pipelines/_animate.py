@@ -125,12 +125,12 @@ class AnimateResult:
 
 
 def video_solver() -> LandmarkSolver:
-    """The solver :func:`animate` uses for a whole take: the tracker's scores as a strong prior (``prior=10``,
-    the eye shapes' ten times stronger; the shapes the tracker does not score keep the weak ``0.1``, else they
-    would be held at rest) with per-take gains fitted to the landmarks' motion
+    """The solver :func:`animate` uses for a whole take: the tracker's scores as a strong prior (``prior=10``; the
+    shapes the tracker does not score keep the weak ``0.1``, else they would be held at rest) with per-take gains
+    fitted to the landmarks' motion (at least 1 for the eye shapes)
     (:class:`~faceretarget.retarget.LandmarkSolver`'s module docstring).  Chosen on P11's range-of-motion take
     (``alex_rom_3``) and measured on the three others (``bench/fidelity.py``)."""
-    return LandmarkSolver(prior=10.0, gains=True, eye_prior=10.0, unscored_prior=0.1)
+    return LandmarkSolver(prior=10.0, gains=True, unscored_prior=0.1)
 
 
 def drives_by_landmarks(character: Rig) -> bool:

@@ -32,8 +32,10 @@ noise averages out)::
     0 <= g <= gain_max      (mu: gain_reg times the mean energy of the columns q_tk d_kp)
 
 and the prior becomes ``g_k q_tk``.  The eye shapes (those whose landmark motion lies mostly on the 12 eye
-points, whatever they are called) keep the tracker's own scale: the lid points of a video tracker close
-less than the lids do, so a blink would be fitted away; ``eye_prior`` multiplies their prior strength.
+points, whatever they are called) get a gain of at least 1: a monocular tracker under-reads a closed lid
+(MediaPipe scores a real closed eye 0.2-0.5), and where its lid points close less than the lids (a
+rendered face), a blink would otherwise be fitted away; ``eye_prior`` multiplies the prior strength of the
+scored eye shapes.
 Measured by P11 (``bench/fidelity.py``): on takes held out of the choice of ``prior``, ``gains`` and
 ``eye_prior`` (chosen on a range-of-motion take), the mouth region's error falls from 1.05x to 0.78x the
 error of the tracker's scores copied onto the shapes.
@@ -206,8 +208,8 @@ class LandmarkSolver(Model):
         # eye shapes: most of their landmark motion on the 12 eye points (36-47), whatever their names
         eye_e = (D[:, _EYES] ** 2).sum(axis=(1, 2))
         self.eye_shapes_ = eye_e > 0.5 * np.maximum((D ** 2).sum(axis=(1, 2)), 1e-300)
-        self.prior_base_ = np.sqrt(np.maximum(e, self.floor * mean_e) * np.where(self.eye_shapes_, self.eye_prior, 1.0))
-        self.prior_weights_ = np.sqrt(self.prior) * self.prior_base_
+        self.prior_base_ = np.sqrt(np.maximum(e, self.floor * mean_e))
+        self.prior_weights_ = np.sqrt(self.prior * np.where(self.eye_shapes_, self.eye_prior, 1.0)) * self.prior_base_
         self.range_ = rng
         self.smooth_ = float(self.smooth) * mean_e
         self.unit_ = character.unit
@@ -291,7 +293,8 @@ class LandmarkSolver(Model):
         pw = self.prior_weights_
         if self.unscored_prior is not None and prior is not None:
             scored = np.abs(Q).max(axis=0) > 0 if scored is None else np.asarray(scored, bool).reshape(K)
-            pw = np.sqrt(np.where(scored, self.prior, float(self.unscored_prior))) * self.prior_base_
+            lam = np.where(scored, self.prior * np.where(self.eye_shapes_, self.eye_prior, 1.0), float(self.unscored_prior))
+            pw = np.sqrt(lam) * self.prior_base_
         A = np.vstack([self.keys_, np.diag(pw)])
         lo, hi = self.range_
         expr = None
@@ -314,10 +317,10 @@ class LandmarkSolver(Model):
 
     def _prior_gains(self, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
         """(K,) gains of the tracker's scores that best explain the take's landmark motion (module docstring);
-        1 for the eye shapes and for shapes the tracker never scores."""
+        at least 1 for the eye shapes, 1 for shapes the tracker never scores."""
         F = self._on_character(self.align(P)[0]).reshape(len(P), -1) * self.row_weights_     # (T, 204)
         K = self.keys_
-        free = ~self.eye_shapes_ & (np.abs(Q).max(axis=0) > 1e-6)
+        free = np.abs(Q).max(axis=0) > 1e-6
         g = np.ones(Q.shape[1])
         if not free.any():
             return g
@@ -330,6 +333,7 @@ class LandmarkSolver(Model):
         mu = self.gain_reg * max(float(np.diag(G).mean()), 1e-300)
         sol = np.linalg.solve(G + mu * np.eye(len(G)), rhs + mu)
         g[free] = np.clip(sol, 0.0, self.gain_max)
+        g[self.eye_shapes_] = np.maximum(g[self.eye_shapes_], 1.0)       # lids: never below the tracker's own
         return g
 
 
