@@ -318,6 +318,12 @@ def test_landmark_cache_is_the_users_keyed_by_content(tmp_path, chars, monkeypat
     c = load_character(moved, log=lines.append)
     assert not entry.exists() and not any("cache" in ln and "looking" not in ln for ln in lines), lines
     np.testing.assert_array_equal(a.landmarks.triangles, c.landmarks.triangles)
+    # the command line's --no-cache: the same, for the command and the processes it starts
+    monkeypatch.delenv("FACERETARGET_NO_CACHE")
+    r = subprocess.run([sys.executable, "-m", "faceretarget.cli", "--no-cache", "character", "inspect", str(moved),
+                        "--json"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert not list((tmp_path / "xdg" / "faceretarget" / "landmarks").glob("*.json"))     # nothing cached
 
 
 # ------------------------------------------------------------------------------------------ shapes
