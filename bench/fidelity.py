@@ -2,13 +2,17 @@
 
 Truth: real ARKit takes (Live Link Face ``.csv`` under ``--takes``, default ``../shared/data/livelinkface``; the
 most active ``--seconds`` of each, resampled to 30 fps) played on every character with ARKit shapes under
-``--characters`` (default ``../shared/data``: rig folders and character files with at least 10 ARKit-named
-shapes), with real head motion from speech capture (``--head``, default the ZEGGS take's BVH head, relative to
+``--characters`` (default ``../shared/data``: rig folders and character files with a human face; see below for
+those without ARKit-named shapes), with real head motion from speech capture (``--head``, default the ZEGGS take's BVH head, relative to
 its mean pose: the shared takes carry no head rotation).  Each is rendered to an mp4 with the project's preview
 renderer (the character's textures sampled per vertex, or its material colours), in two set-ups:
 
 * ``webcam``: the camera in front, the key light above and to the left;
 * ``turned``: the camera turned 15 degrees about the head's vertical axis and the key light from the right.
+
+A character without ARKit-named shapes (the VALID avatars) gets them generated first
+(:func:`~faceretarget.transfer.generate_shapes`, as ``faceretarget character shapes`` does; ``--no-generate`` leaves
+it out): P11 counts generated shapes, and these avatars have textured eyes, where a tracker can see a blink.
 
 The video is captured once (:func:`~faceretarget.pipelines.capture_take`, MediaPipe) and given to
 
@@ -27,7 +31,8 @@ median head-rotation error in degrees.
 Usage::
 
     python bench/fidelity.py [--json] [--characters DIR] [--takes DIR] [--head FILE] [--seconds S]
-                             [--setups webcam,turned] [--solver default|legacy] [--figure PNG] [--out DIR]
+                             [--setups webcam,turned] [--solver default|legacy] [--no-generate]
+                             [--figure PNG [--figure-character NAME]] [--out DIR]
 
 The last line with ``--json``: ``{"runs": [{character, take, setup, target, ours: {...}, peer: {...}}],
 "summary": {...}}``.
@@ -116,24 +121,31 @@ class Target:
     """A character loaded once: its drive rig, its ARKit channels, their displacement of the landmark mesh,
     the regions, the lip corners' displacement."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, generate: bool = False):
+        from faceretarget.errors import MissingShapeError
         from faceretarget.metrics._fidelity import face_regions
-        from faceretarget.names import ARKIT_NAMES, normalize_name
         from faceretarget.pipelines import drive_rig, load_character
 
         self.path = path
         self.name = path.stem if path.is_file() else path.name
-        self.character = ch = load_character(path)
+        self.generated = False
+        try:
+            ch = load_character(path)
+        except MissingShapeError:                                   # a neutral face: shapes to generate
+            if not generate:
+                raise
+            ch = load_character(path, need_shapes=False)
+        if len(self._arkit(ch)) < 10 and generate:          # its ARKit shapes made by deformation transfer
+            from faceretarget.transfer import generate_shapes
+
+            ch = generate_shapes(ch, replace=False).apply()
+            self.generated, self.name = True, self.name + "+arkit"
+        self.character = ch
         self.drive = drive_rig(ch, "auto")
         chans = self.drive.channels
-        arkit = set(ARKIT_NAMES)
-        self.arkit = {}                                             # ARKit name -> channel index
-        for c, chan in enumerate(chans):
-            n = normalize_name(chan.name)
-            if n in arkit and n not in self.arkit:
-                self.arkit[n] = c
+        self.arkit = self._arkit(ch)                                 # ARKit name -> channel index
         if len(self.arkit) < 10:
-            raise ValueError(f"{len(self.arkit)} ARKit-named shapes (needs 10)")
+            raise ValueError(f"{len(self.arkit)} ARKit-named shapes (needs 10; --generate makes them)")
         self.names = list(self.arkit)
         lm = ch.landmarks
         mesh = ch.meshes[lm.mesh]
@@ -148,6 +160,18 @@ class Target:
         tri, bary = lm.triangles[corners], lm.bary[corners]
         self.corner_deltas = np.einsum("cj,kcjd->kcd", bary, D[:, tri])    # (K, 2, 3)
         self.up = np.asarray(ch.up if ch.up is not None else [0.0, 1.0, 0.0], np.float64)
+
+    @staticmethod
+    def _arkit(ch) -> dict[str, int]:
+        from faceretarget.character import channels
+        from faceretarget.names import ARKIT_NAMES, normalize_name
+
+        arkit, out = set(ARKIT_NAMES), {}
+        for c, chan in enumerate(channels(ch)):
+            n = normalize_name(chan.name)
+            if n in arkit and n not in out:
+                out[n] = c
+        return out
 
     def weights(self, W: np.ndarray, names: list[str]) -> np.ndarray:
         """``(T, K)`` weights in :attr:`names` order from curves named ``names`` (any spelling; 0 where absent)."""
@@ -242,7 +266,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=12.0, help="the most active seconds of each take")
     ap.add_argument("--setups", default="webcam,turned")
     ap.add_argument("--max-characters", type=int, default=0, help="only the first N characters (0: all)")
+    ap.add_argument("--no-generate", action="store_true", help="leave out characters without ARKit shapes instead "
+                    "of generating them (faceretarget character shapes; P11 counts generated shapes)")
     ap.add_argument("--out", type=Path, default=None, help="keep the rendered videos here")
+    ap.add_argument("--figure-character", default="", help="only runs of characters whose name holds this")
     ap.add_argument("--solver", choices=["default", "legacy"], default="default",
                     help="legacy: the solver before issue 32 (prior 0.1, no per-take gains), for comparison")
     ap.add_argument("--figure", type=Path, default=None, help="write truth / ours / peer at a smile and a blink "
@@ -264,7 +291,7 @@ def main(argv=None) -> int:
     for p in find_characters(a.characters):
         try:
             t0 = time.perf_counter()
-            targets.append(Target(p))
+            targets.append(Target(p, generate=not a.no_generate))
             print(f"character {targets[-1].name}: {len(targets[-1].names)} ARKit shapes, regions "
                   + ", ".join(f"{k} {len(v)}" for k, v in targets[-1].regions.items())
                   + f" ({time.perf_counter() - t0:.1f} s)", flush=True)
@@ -307,7 +334,7 @@ def main(argv=None) -> int:
                                  "error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-2000:]})
                     print(f"{src.name} {take_path.stem} {setup}: ERROR {type(e).__name__}: {e}", flush=True)
     if a.figure:
-        same = [r for r in runs if r.get("target") == "same"]
+        same = [r for r in runs if r.get("target") == "same" and a.figure_character in r["character"]]
         if same:
             smile, blink = ("mouthSmileLeft", "mouthSmileRight"), ("eyeBlinkLeft", "eyeBlinkRight")
 
