@@ -185,20 +185,30 @@ class Target:
         return out
 
 
+def look(target: Target, size: int, yaw: float | str = "front", light=None):
+    """The character as the preview renderer shows it, carrying every ARKit shape in ``target.names`` order:
+    the look rig, its shapes as a ``(K, 3 V)`` matrix, and a renderer (a context manager) from ``yaw`` with
+    the key light ``light`` (the renderer's own by default)."""
+    from faceretarget.pipelines import look_rig
+    from faceretarget.render import MeshRenderer
+
+    rig, colors, pivot = look_rig(target.drive, channels=[target.arkit[n] for n in target.names])
+    r = MeshRenderer(rig.neutral, (size, size), color=colors, pivot=pivot, mm_per_unit=rig.mm_per_unit,
+                     view=yaw, head_room=35.0, **({} if light is None else {"light": light}))
+    return rig, rig.deltas.reshape(len(rig.names), -1), r
+
+
 def figure(rows: list[tuple[str, Target, tuple, tuple[str, ...]]], out: Path, size: int = 300) -> Path:
     """Truth, ours and the peer side by side: one row per ``(what, target, (Wt, Wo, Wp), shape names)``, at the
     frame where the truth's mean of those shapes peaks (the character at rest pose, front view)."""
-    from faceretarget.pipelines import look_rig
-    from faceretarget.render import MeshRenderer, render_grid, save_png
+    from faceretarget.render import render_grid, save_png
 
     imgs, labels = [], []
     for what, target, (Wt, Wo, Wp), names in rows:
         cols = [target.names.index(n) for n in names if n in target.names]
         f = int(np.argmax(Wt[:, cols].mean(axis=1)))
-        rig, colors, pivot = look_rig(target.drive, channels=[target.arkit[n] for n in target.names])
-        D = rig.deltas.reshape(len(rig.names), -1)
-        with MeshRenderer(rig.neutral, (size, size), color=colors, pivot=pivot, mm_per_unit=rig.mm_per_unit,
-                          head_room=35.0) as r:
+        rig, D, r = look(target, size)
+        with r:
             for who, W in (("truth", Wt), ("ours", Wo), ("peer", Wp)):
                 imgs.append(r.render(rig.neutral.vertices + (W[f] @ D).reshape(-1, 3)))
                 labels.append(f"{what} {who}: {W[f, cols].mean():.2f}")
@@ -208,17 +218,11 @@ def figure(rows: list[tuple[str, Target, tuple, tuple[str, ...]]], out: Path, si
 def render_video(target: Target, W: np.ndarray, head: Rotation, setup: str, out: Path, size: int = 512) -> int:
     """The take (``W`` in ``target.names`` order, 30 fps) on the character as an mp4; frames written."""
     from faceretarget.io._video import write_video
-    from faceretarget.pipelines import look_rig
-    from faceretarget.render import MeshRenderer
 
-    chans = [target.arkit[n] for n in target.names]
-    rig, colors, pivot = look_rig(target.drive, channels=chans)
-    yaw, light = SETUPS[setup]
+    rig, D, r = look(target, size, *SETUPS[setup])
     V0 = rig.neutral.vertices
-    D = rig.deltas.reshape(len(rig.names), -1)
     R = head.as_matrix()
-    with MeshRenderer(rig.neutral, (size, size), color=colors, pivot=pivot, mm_per_unit=rig.mm_per_unit,
-                      view=yaw, light=light, head_room=35.0) as r:
+    with r:
         frames = (r.render(V0 + (W[i] @ D).reshape(-1, 3), R[i]) for i in range(len(W)))
         write_video(out, frames, FPS)
     return len(W)

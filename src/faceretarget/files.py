@@ -27,7 +27,7 @@ import numpy as np
 from .errors import InputFileError, OutputError, excerpt
 
 __all__ = ["input_file", "read_text", "check_output_path", "atomic_path", "atomic_dir", "protect_inputs",
-           "cache_dir", "cache_enabled",
+           "cache_dir", "cache_enabled", "file_sha256",
            "save_npz_arrays", "load_npz_arrays"]
 
 
@@ -56,6 +56,17 @@ def cache_dir(*parts: str) -> Path:
 
         base = Path(platformdirs.user_cache_dir("faceretarget", appauthor=False))
     return base.joinpath(*parts)
+
+
+def file_sha256(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
+    """The SHA-256 of a file's bytes, as 64 hex digits: what every cache entry is named by."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while b := f.read(chunk):
+            h.update(b)
+    return h.hexdigest()
 
 
 def cache_enabled() -> bool:

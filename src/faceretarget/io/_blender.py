@@ -135,7 +135,8 @@ def _restore_env(values: dict[str, str | None]) -> None:
 def _foreign_paths(added: list[str]) -> list[str]:
     """The ``sys.path`` entries bpy added that are not its own: a user's or system's extension wheels
     (``extensions/.local/lib/pythonX.Y/site-packages``) or script folders outside the bpy package."""
-    here = str(Path(importlib.util.find_spec("bpy").origin).parent) if importlib.util.find_spec("bpy") else None
+    spec = importlib.util.find_spec("bpy")
+    here = str(Path(spec.origin).parent) if spec is not None and spec.origin else None
     return [p for p in added if here is None or not os.path.abspath(p).startswith(here)]
 
 

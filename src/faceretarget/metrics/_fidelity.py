@@ -15,7 +15,7 @@ score what came back against what was played, in the character's own geometry an
   least 0.3, the share of (frame, lip corner) pairs where the corner moves the right way: upward (along
   the character's up) when the truth moves it upward, and within 90 degrees of the true motion.
 * :func:`head_rotation_error`: the angle between the predicted and the true head rotation, each taken
-  relative to its own median pose (a capture knows the head relative to the actor's rest, not the
+  relative to its own mean pose (a capture knows the head relative to the actor's rest, not the
   camera's), in degrees per frame.
 """
 
@@ -144,15 +144,14 @@ def smile_direction(w_true: np.ndarray, w_pred: np.ndarray, names: list[str], co
 
 def head_rotation_error(q_true: np.ndarray, q_pred: np.ndarray) -> np.ndarray:
     """(T,) degrees between two head rotations (``x, y, z, w`` quaternions), each relative to its own
-    median pose; NaN where either has no pose."""
+    mean pose (scipy's ``Rotation.mean``); NaN where either has no pose."""
     qt, qp = np.asarray(q_true, np.float64), np.asarray(q_pred, np.float64)
     ok = np.isfinite(qt).all(axis=1) & np.isfinite(qp).all(axis=1)
     out = np.full(len(qt), np.nan)
     if not ok.any():
         return out
     rt, rp = Rotation.from_quat(qt[ok]), Rotation.from_quat(qp[ok])
-    rt = rt.mean().inv() * rt if len(rt) else rt
-    rp = rp.mean().inv() * rp if len(rp) else rp
+    rt, rp = rt.mean().inv() * rt, rp.mean().inv() * rp
     out[ok] = np.degrees((rp.inv() * rt).magnitude())
     return out
 

@@ -53,6 +53,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import DataWarning, FaceRetargetError, InvalidDataError
+from ..files import file_sha256
 from ..optional import VIDEO_NEEDS, has_module, optional_import, output_needs, require
 from ._jobs import BatchSpec, Character, Job, read_jobs
 from ._progress import ticking
@@ -90,15 +91,6 @@ def _one_line(text) -> str:
 
 
 # ------------------------------------------------------------------------------------------ hashing
-def file_sha256(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
-    """The SHA-256 of a file's bytes, as 64 hex digits."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while b := f.read(chunk):
-            h.update(b)
-    return h.hexdigest()
-
-
 def _digest(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 

@@ -54,7 +54,7 @@ from ..character import (
     face_rig,
 )
 from ..errors import FaceNotFoundError, InputFileError, InvalidDataError, MissingShapeError
-from ..files import atomic_path, cache_dir, cache_enabled
+from ..files import atomic_path, cache_dir, cache_enabled, file_sha256
 from ..rig import Rig
 
 __all__ = ["load_character", "drive_rig", "DriveRig", "inspect_character", "CharacterReport", "landmark_cache_path",
@@ -73,15 +73,14 @@ def _quiet(*_a) -> None:
 
 
 def _sha256(path: Path) -> str:
+    """A character's content digest: the file's (:func:`~faceretarget.files.file_sha256`), or a rig folder's
+    (every file's name and bytes, in order)."""
+    if not path.is_dir():
+        return file_sha256(path)
     h = hashlib.sha256()
-    if path.is_dir():
-        for f in sorted(p for p in path.rglob("*") if p.is_file()):
-            h.update(f.name.encode())
-            h.update(f.read_bytes())
-    else:
-        with open(path, "rb") as f:
-            for chunk in iter(lambda: f.read(1 << 20), b""):
-                h.update(chunk)
+    for f in sorted(p for p in path.rglob("*") if p.is_file()):
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
     return h.hexdigest()
 
 

@@ -59,7 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FaceRetargetError, FaceRetargetWarning, InvalidDataError
-from ..files import cache_dir, cache_enabled
+from ..files import cache_dir, cache_enabled, file_sha256
 
 __all__ = ["serve_jobs", "JOB_KINDS", "capture_cache_path", "cached_capture", "WorkerChannel"]
 
@@ -92,14 +92,6 @@ def _jsonable(x):
 
 
 # ------------------------------------------------------------------------------------- caches
-def _file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def capture_cache_path(video: str | os.PathLike) -> Path:
     """Where the capture of ``video`` that ``animate`` makes (``neutral_percentile=5``) is cached."""
     from ..errors import InputFileError
@@ -107,7 +99,7 @@ def capture_cache_path(video: str | os.PathLike) -> Path:
     p = Path(video)
     if not p.is_file():
         raise InputFileError(f"{p}: video not found")
-    return cache_dir("captures") / f"{_file_sha256(p)}-animate.pkl"
+    return cache_dir("captures") / f"{file_sha256(p)}-animate.pkl"
 
 
 def cached_capture(video: str | os.PathLike, *, progress=None, log: Callable[..., None] = print):
@@ -118,9 +110,7 @@ def cached_capture(video: str | os.PathLike, *, progress=None, log: Callable[...
     from ._capture import capture_take
 
     path = capture_cache_path(video)
-    if not cache_enabled():
-        return capture_take(video, neutral_percentile=5.0, progress=progress or False, log=log)
-    if path.is_file():
+    if cache_enabled() and path.is_file():
         try:
             with open(path, "rb") as f:
                 cap = pickle.load(f)
@@ -129,6 +119,8 @@ def cached_capture(video: str | os.PathLike, *, progress=None, log: Callable[...
         except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
             pass
     cap = capture_take(video, neutral_percentile=5.0, progress=progress or False, log=log)
+    if not cache_enabled():
+        return cap
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
