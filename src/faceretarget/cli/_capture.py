@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InvalidDataError, OutputError
+from ..formats import CSV, MP4, NPZ
 from ._support import (
     FRACTION,
     MAX_FRAMES,
@@ -76,8 +77,8 @@ def cmd_capture(args, log) -> int:
     from ..pipelines import capture_take
 
     video = Path(args.video)
-    out, lm_out, prev_out = _outputs([("--out", args.out, (".csv",)), ("--landmarks", args.landmarks, (".npz",)),
-                                      ("--preview", args.preview, (".mp4",))], [video, args.model])
+    out, lm_out, prev_out = _outputs([("--out", args.out, (CSV,)), ("--landmarks", args.landmarks, (NPZ,)),
+                                      ("--preview", args.preview, (MP4,))], [video, args.model])
     check_inputs(("video", video), ("--model", args.model))
     require_video_deps("video", video, args.model)
     cap = capture_take(video, landmarker=args.model, max_frames=args.max_frames, duration=args.duration,
@@ -127,7 +128,7 @@ def cmd_appearance_fit(args, log) -> int:
         raise InvalidDataError(f"give takes in at least 2 styles (--take STYLE=VIDEO), got {len(takes)}")
     if args.reference is not None and args.reference not in takes:
         raise InvalidDataError(f"--reference {args.reference}: no --take of that style")
-    (out,) = _outputs([("--out", args.out, (".npz",))], videos + list(takes.values()) + [args.landmarker])
+    (out,) = _outputs([("--out", args.out, (NPZ,))], videos + list(takes.values()) + [args.landmarker])
     check_inputs(*(("video", v) for v in videos), *(("--take", v) for v in takes.values()),
                  ("--landmarker", args.landmarker))
     require_video_deps("video", (videos + list(takes.values()))[0], args.landmarker)
@@ -154,7 +155,7 @@ def cmd_appearance_encode(args, log) -> int:
     from ..pipelines import encode_appearance
 
     video = Path(args.video)
-    (out,) = _outputs([("--out", args.out, (".npz",))], [video, args.model, args.landmarker])
+    (out,) = _outputs([("--out", args.out, (NPZ,))], [video, args.model, args.landmarker])
     check_inputs(("video", video), ("--model", args.model), ("--landmarker", args.landmarker))
     require_video_deps("video", video, args.landmarker)
     model = AppearanceModel.load(args.model)

@@ -18,6 +18,7 @@ import json
 from pathlib import Path
 
 from ..errors import FaceNotFoundError, OutputError
+from ..formats import PNG
 from ._support import check_inputs, warnings_to_log
 
 __all__ = ["register", "cmd_inspect", "cmd_shapes", "write_shapes_obj"]
@@ -30,7 +31,7 @@ def cmd_inspect(args, log) -> int:
     check_inputs(("FILE", args.file), ("--landmarks", args.landmarks), folders=("FILE",))
     if args.out is not None:
         out = Path(args.out)
-        if out.suffix.lower() != ".png":
+        if out.suffix.lower() != PNG:
             raise OutputError(f"{out}: the check picture is a .png")
         if out.resolve() == Path(args.file).resolve():
             raise OutputError(f"{out}: is the character file")
@@ -39,7 +40,7 @@ def cmd_inspect(args, log) -> int:
         check_output_path(out)
     sheet = getattr(args, "sheet", None)
     if sheet is not None:
-        if Path(sheet).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        if Path(sheet).suffix.lower() not in (PNG, ".jpg", ".jpeg"):
             raise OutputError(f"{sheet}: the contact sheet is a .png or .jpg")
         from ..files import check_output_path
 

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from ..errors import InvalidDataError
+from ..formats import NPZ
 from ._support import FPS, POSITIVE, Range, check_inputs, check_out, run_alone, warnings_to_log
 
 #: Option ranges (shown in ``--help``).
@@ -33,7 +34,7 @@ __all__ = ["register", "cmd_headmotion_build", "cmd_headmotion_synth", "main"]
 def cmd_headmotion_build(args, log) -> int:
     """``headmotion build``: analyse takes and write a database ``.npz``."""
     pairs = [(Path(a), Path(m)) for a, m in args.take]
-    out = check_out(args.out, [p for pair in pairs for p in pair], (".npz",))      # before any work
+    out = check_out(args.out, [p for pair in pairs for p in pair], (NPZ,))      # before any work
     check_inputs(*(("--take", p) for pair in pairs for p in pair))
     if not args.f0_min < args.f0_max:
         raise InvalidDataError(f"--f0-min {args.f0_min:g} must be below --f0-max {args.f0_max:g}")

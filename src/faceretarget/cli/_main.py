@@ -14,6 +14,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import InvalidDataError
+from ..formats import CSV
 from ._support import (
     FPS,
     NO_CACHE_HELP,
@@ -208,7 +209,7 @@ def cmd_keys_select(args, log) -> int:
     template = None
     if args.controls_template:
         template = check_out(args.controls_template, [args.performance, args.source_rig, args.template_rig],
-                             exts=(".csv",), option="--controls-template")
+                             exts=(CSV,), option="--controls-template")
     from ..io import read_performance, write_keyshapes
     from ..performance import Performance
     from ..pipelines import select_keys

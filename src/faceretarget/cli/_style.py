@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InvalidDataError
+from ..formats import GLB, MP4, NPZ
 from ._support import (
     FPS,
     MAX_FRAMES,
@@ -146,7 +147,7 @@ def cmd_style_fit_speakers(args, takes: dict[str, dict[str, str]], log) -> int:
             raise InvalidDataError(f"--take {spk}:...: speaker '{spk}' needs a '{ref}' take and another style "
                                    f"(has {', '.join(d)})")
     paths = [v for d in takes.values() for v in d.values()]
-    out = check_out(args.out, paths, (".npz",))                                   # before any work
+    out = check_out(args.out, paths, (NPZ,))                                   # before any work
     check_inputs(*(("--take", v) for v in paths))
     for v in paths:
         if Path(v).suffix.lower() not in VIDEO_EXTENSIONS:
@@ -181,7 +182,7 @@ def cmd_style_fit(args, log) -> int:
             raise InvalidDataError(f"--add {k}=...: style '{k}' is also a --take")
     if args.reference is not None and args.reference not in takes:
         raise InvalidDataError(f"--reference {args.reference}: no --take of that style (styles: {', '.join(takes)})")
-    out = check_out(args.out, [*takes.values(), *audio.values(), *adds.values()], (".npz",))   # before any work
+    out = check_out(args.out, [*takes.values(), *audio.values(), *adds.values()], (NPZ,))   # before any work
     check_inputs(*(("--take", v) for v in takes.values()), *(("--audio", v) for v in audio.values()),
                  *(("--add", v) for v in adds.values()), folders=("--take", "--add"))
     from ..pipelines import VIDEO_EXTENSIONS, face_takes, fit_style, read_style_take
@@ -225,7 +226,7 @@ def cmd_restyle(args, log) -> int:
     model = StyleModel.load(args.model)
     perf = read_style_take(args.performance, args.fps)
     ext = out.suffix.lower()
-    if perf.kind == "weights" and ext in (".glb", ".npz", "") and args.rig is None:
+    if perf.kind == "weights" and ext in (GLB, NPZ, "") and args.rig is None:
         raise InvalidDataError(f"{out}: writing a weight take as {ext or 'an OBJ sequence'} needs the rig (--rig DIR)")
     with neutral_option("--rig-neutral"):
         rig = read_rig(args.rig, neutral=args.rig_neutral) if args.rig else None
@@ -264,7 +265,7 @@ def cmd_restyle_video(args, log) -> int:
     if args.neutral_video is not None and args.speakers is None:
         raise InvalidDataError(f"--neutral-video {args.neutral_video}: only with --speakers")
     out = check_out(args.out, [args.video, args.appearance, args.landmarker, args.speakers, args.neutral_video],
-                    (".mp4",))                                                                # before any work
+                    (MP4,))                                                                # before any work
     check_inputs(("--video", args.video), ("--appearance", args.appearance), ("--landmarker", args.landmarker),
                  ("--speakers", args.speakers), ("--neutral-video", args.neutral_video))
     require_video_deps("--video", args.video, args.landmarker)

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
 from ..files import input_file
+from ..formats import WAV
 
 __all__ = ["read_audio", "checked_audio", "write_wav", "write_audio"]
 
@@ -54,7 +55,7 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
     from scipy.io import wavfile
 
     path = input_file(path)
-    if path.suffix.lower() not in (".wav", ".wave"):
+    if path.suffix.lower() not in (WAV, ".wave"):
         from ._video import read_video_audio
 
         got = read_video_audio(path)

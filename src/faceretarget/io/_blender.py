@@ -55,6 +55,7 @@ import numpy as np
 
 from ..errors import DataWarning, FaceRetargetWarning, InvalidDataError, OutputError
 from ..files import atomic_path, check_output_path
+from ..formats import BLEND, FBX
 from ..headpose import HeadPose
 from ..optional import optional_import
 from ..rig import Rig
@@ -326,7 +327,7 @@ def write_blend(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: n
     OutputError
         The file cannot be written (nothing partial is left).
     """
-    return _write(path, ".blend", rig, weights, times, names, head, audio, audio_rate, head_pivot)
+    return _write(path, BLEND, rig, weights, times, names, head, audio, audio_rate, head_pivot)
 
 
 def write_fbx(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.ndarray,
@@ -344,7 +345,7 @@ def write_fbx(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     readers) scale them back, so the face keeps its size in metres.  FBX has no packed audio:
     ``audio`` is checked and otherwise ignored.
     """
-    return _write(path, ".fbx", rig, weights, times, names, head, audio, audio_rate, head_pivot)
+    return _write(path, FBX, rig, weights, times, names, head, audio, audio_rate, head_pivot)
 
 
 def _write(path, kind: str, rig: Rig, weights, times, names, head, audio, audio_rate, head_pivot) -> Path:
@@ -376,10 +377,10 @@ def _write_scene(path: Path, kind: str, rig: Rig, w, t, lo, hi, head_keys, pivot
         # FBX time = scene frame / fps and Blender's FBX importer puts FBX time 0 at frame 1: the
         # FBX scene starts at frame 0 so the take starts at time 0 (and at frame 1 when re-imported)
         _build_scene(bpy, path, rig, w, t, lo, hi, head_keys, pivot,
-                     None if sound is None or kind != ".blend" else (sound, scratch),
-                     start=1.0 if kind == ".blend" else 0.0)
+                     None if sound is None or kind != BLEND else (sound, scratch),
+                     start=1.0 if kind == BLEND else 0.0)
         out = scratch / path.name
-        if kind == ".blend":
+        if kind == BLEND:
             res = bpy.ops.wm.save_as_mainfile(filepath=str(out), check_existing=False, compress=True,
                                               relative_remap=False)
         else:

@@ -35,6 +35,7 @@ import numpy as np
 from ..character import Channel, Character, EncodedImage, Joint, Material, SceneMesh, joint_motions, shape_key
 from ..errors import InputFileError, MissingShapeError, OutputError
 from ..files import atomic_path
+from ..formats import BLEND
 from ..headpose import HeadPose, continuous_quaternions
 from ..mesh import Mesh
 from ._audio import checked_audio
@@ -57,7 +58,7 @@ def _open(bpy, path: Path) -> None:
     """Open ``path`` in a fresh Blender session: a .blend as the main file, an .fbx imported into an empty scene."""
     ext = path.suffix.lower()
     try:
-        if ext == ".blend":
+        if ext == BLEND:
             bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
         else:
             bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -259,7 +260,7 @@ def _character_steps(bpy, path: Path | None, arms: list, mesh_objects: list) -> 
         done += w
         if sm is not None:
             meshes.append(sm)
-    fmt = "blend" if path is None or path.suffix.lower() == ".blend" else "fbx"
+    fmt = "blend" if path is None or path.suffix.lower() == BLEND else "fbx"
     return Character(path, fmt, "Blender 4.5 (bpy)", meshes, joints, up=np.array([0.0, 0.0, 1.0]), front=None,
                      notes=notes, source_unit="m")
 
@@ -478,7 +479,7 @@ def write_scene_copy(character: Character, out: Path, edit: Callable, *, fbx_opt
             _open(bpy, Path(character.path))
             value = edit(bpy, scratch, msgs)
             tmp_out = scratch / out.name
-            if out.suffix.lower() == ".blend":
+            if out.suffix.lower() == BLEND:
                 res = bpy.ops.wm.save_as_mainfile(filepath=str(tmp_out), check_existing=False, compress=True,
                                                   relative_remap=True, copy=True)
             else:
@@ -505,11 +506,11 @@ def write_blender_animation(out: Path, character: Character, chans: list[Channel
     with _blender_output():
         _bpy()                                   # a missing Blender is said before the sound is read
     kind = out.suffix.lower()
-    sound = checked_audio(out, audio, audio_rate) if kind == ".blend" else None
+    sound = checked_audio(out, audio, audio_rate) if kind == BLEND else None
 
     def edit(bpy, scratch: Path, msgs: list) -> None:
         _animate_scene(bpy, out, character, chans, W, t, head, neck_share, gaze, name, sound, scratch,
-                       start=1.0 if kind == ".blend" else 0.0, msgs=msgs)
+                       start=1.0 if kind == BLEND else 0.0, msgs=msgs)
 
     _, msgs = write_scene_copy(character, out, edit, fbx_options=dict(
         bake_anim=True, bake_anim_use_all_bones=True, bake_anim_use_nla_strips=False, bake_anim_use_all_actions=False,

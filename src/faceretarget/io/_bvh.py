@@ -34,6 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
 from ..files import atomic_path, check_output_path, input_file, read_text
+from ..formats import CSV, JSON
 from ..headpose import HeadPose
 
 __all__ = ["Bvh", "BvhJoint", "read_bvh", "write_bvh", "bvh_chain", "make_head_bvh", "bvh_pose", "bvh_world_positions",
@@ -638,7 +639,7 @@ def read_key_frames(path: str | os.PathLike) -> tuple[dict[str, int], int | None
     text = read_text(path)
     pairs: list[tuple[str, object, str]] = []            # (name, frame, where)
     listed: list[tuple[str, str]] | None = None
-    if ext == ".json":
+    if ext == JSON:
         try:
             doc = json.loads(text)
         except ValueError as e:
@@ -649,7 +650,7 @@ def read_key_frames(path: str | os.PathLike) -> tuple[dict[str, int], int | None
             listed = [(v, f"entry {i}") for i, v in enumerate(doc)]
         else:
             raise InputFileError(f"{path}: expected an object {{key: frame}} or a list of key names")
-    elif ext == ".csv":
+    elif ext == CSV:
         for n, line in enumerate(text.splitlines(), 1):
             s = line.strip()
             if not s:

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError, excerpt
 from ..files import atomic_path, check_output_path, input_file
+from ..formats import C3D
 from ..optional import optional_import
 from ..performance import Performance
 from ..units import normalize_unit
@@ -650,7 +651,7 @@ def _c3d_of_points(ezc3d, pts: np.ndarray, fps: float, labels: list[str], unit: 
 def _save_c3d(path: Path, c) -> None:
     """Write ``c`` to ``path``, whole or not at all."""
     with atomic_path(path) as tmp:
-        named = tmp.with_name(tmp.name + ".c3d")  # ezc3d appends .c3d to any other name
+        named = tmp.with_name(tmp.name + C3D)  # ezc3d appends .c3d to any other name
         try:
             c.write(str(named))
             os.replace(named, tmp)

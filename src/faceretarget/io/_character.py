@@ -27,35 +27,31 @@ import numpy as np
 
 from ..character import Character, SceneMesh, SurfacePoints
 from ..errors import InputFileError
+from ..formats import CHARACTER_EXTENSIONS, character_format_of, extension
 from ..mesh import Mesh
 from ..rig import Rig
 
 __all__ = ["read_character", "character_from_rig", "CHARACTER_EXTENSIONS", "is_character_file", "character_format",
            "check_character_route"]
 
-#: File extensions :func:`read_character` reads (besides folders of OBJ files).
-CHARACTER_EXTENSIONS = (".glb", ".gltf", ".vrm", ".fbx", ".blend", ".usd", ".usda", ".usdc", ".usdz", ".npz")
-
 
 def is_character_file(path: str | os.PathLike) -> bool:
-    """Whether ``path`` names a character file (not a folder) by its extension."""
-    return Path(path).suffix.lower() in CHARACTER_EXTENSIONS and Path(path).suffix.lower() != ".npz"
+    """Whether ``path`` names a character file (not a folder, not a ``.npz`` rig) by its extension."""
+    f = character_format_of(path)
+    return f is not None and not f.folder and f.name != "npz"
 
 
 def character_format(path: str | os.PathLike) -> str:
     """The :attr:`~faceretarget.character.Character.format` a character file will have, by extension
-    (``"vrm"`` for either VRM version; a folder is ``"obj"``)."""
-    p = Path(path)
-    if p.is_dir():
-        return "obj"
-    ext = p.suffix.lower()
-    return {".glb": "gltf", ".gltf": "gltf", ".vrm": "vrm", ".fbx": "fbx", ".blend": "blend", ".npz": "npz"}.get(
-        ext, "usd" if ext in (".usd", ".usda", ".usdc", ".usdz") else "")
+    (``"vrm"`` for either VRM version; a folder is ``"obj"``; ``""`` when it is no character format)."""
+    f = character_format_of(path)
+    return "" if f is None else f.name
 
 
 def check_character_route(path: str | os.PathLike, out: str | os.PathLike | None = None) -> None:
     """Refuse, before any work, a character route whose optional package is missing: reading ``path``
-    and (with ``out``) writing the animation back into a copy of it.
+    and (with ``out``) writing the animation back into a copy of it (the needs its
+    :class:`~faceretarget.formats.CharacterFormat` declares).
 
     Raises
     ------
@@ -64,16 +60,15 @@ def check_character_route(path: str | os.PathLike, out: str | os.PathLike | None
     """
     from ..optional import has_module, require
 
-    fmt = character_format(path)
-    oext = Path(out).suffix.lower() if out is not None else ""
-    if fmt == "blend":
-        require(f"{path} (a Blender file, read by Blender)", "bpy")
-    if fmt == "fbx" and oext in (".fbx", ".blend"):
-        require(f"{out} (written back into the FBX character by Blender)", "bpy")
-    if fmt == "fbx" and not has_module("ufbx"):
-        require(f"{path} (an FBX character: ufbx, else Blender)", "bpy")
-    if fmt == "usd":
-        require(f"{path} (a USD character)", "pxr")
+    f = character_format_of(path)
+    if f is None:
+        return
+    needs = f.needs_for(has_module)
+    if needs:
+        via = " or ".join("+".join(n) for n in (f.read_needs, f.read_fallback) if n)
+        require(f"{path} (a {f.name} character, read by {f.route}; needs {via})", *needs)
+    if out is not None and extension(out) in f.writes_back and f.write_needs:
+        require(f"{out} (written back into a copy of the {f.name} character)", *f.write_needs)
 
 
 def character_from_rig(rig: Rig, path: str | os.PathLike | None = None, route: str = "rig") -> Character:
@@ -115,39 +110,52 @@ def read_character(path: str | os.PathLike, *, prefer: str | None = None) -> Cha
         The route's optional package is not installed (the message says what to install).
     """
     p = Path(path)
-    if p.is_dir():
-        from ._rig import read_rig
-
-        return character_from_rig(read_rig(p), p, "OBJ folder")
-    if not p.exists():
+    if not p.is_dir() and not p.exists():
         raise InputFileError(f"{p}: character file not found")
-    ext = p.suffix.lower()
-    if ext in (".glb", ".gltf", ".vrm"):
-        from ._gltf_scene import read_gltf_character
+    f = character_format_of(p)
+    if f is None:
+        exts = ", ".join(CHARACTER_EXTENSIONS)
+        raise InputFileError(f"{p}: '{p.suffix or p.name}' is not a character format; give a {exts} file "
+                             "or a folder of OBJ files")
+    return f.read(p, prefer)
 
-        return read_gltf_character(p)
-    if ext == ".fbx":
-        if prefer != "blender":
-            from ..optional import has_module
 
-            if has_module("ufbx"):
-                from ._fbx_scene import read_fbx_character
+# --------------------------------------------------------------------- the routes CHARACTER_FORMATS names
+def read_gltf_route(p: Path, prefer: str | None = None) -> Character:
+    from ._gltf_scene import read_gltf_character
 
-                return read_fbx_character(p)
-        from ._blender_scene import read_blender_character
+    return read_gltf_character(p)
 
-        return read_blender_character(p)
-    if ext == ".blend":
-        from ._blender_scene import read_blender_character
 
-        return read_blender_character(p)
-    if ext in (".usd", ".usda", ".usdc", ".usdz"):
-        from ._usd_scene import read_usd_character
+def read_fbx_route(p: Path, prefer: str | None = None) -> Character:
+    from ..optional import has_module
 
-        return read_usd_character(p)
-    if ext == ".npz":
-        from ._rig import read_rig_npz
+    if prefer != "blender" and has_module("ufbx"):
+        from ._fbx_scene import read_fbx_character
 
-        return character_from_rig(read_rig_npz(p), p, ".npz rig")
-    raise InputFileError(f"{p}: '{ext or p.name}' is not a character format; give a .glb, .gltf, .vrm, .fbx, .blend, "
-                         ".usd/.usda/.usdc/.usdz file, a .npz rig or a folder of OBJ files")
+        return read_fbx_character(p)
+    return read_blender_route(p)
+
+
+def read_blender_route(p: Path, prefer: str | None = None) -> Character:
+    from ._blender_scene import read_blender_character
+
+    return read_blender_character(p)
+
+
+def read_usd_route(p: Path, prefer: str | None = None) -> Character:
+    from ._usd_scene import read_usd_character
+
+    return read_usd_character(p)
+
+
+def read_npz_route(p: Path, prefer: str | None = None) -> Character:
+    from ._rig import read_rig_npz
+
+    return character_from_rig(read_rig_npz(p), p, ".npz rig")
+
+
+def read_obj_folder_route(p: Path, prefer: str | None = None) -> Character:
+    from ._rig import read_rig
+
+    return character_from_rig(read_rig(p), p, "OBJ folder")

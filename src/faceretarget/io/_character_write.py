@@ -38,13 +38,14 @@ import numpy as np
 from ..character import Channel, Character, joint_motions, joint_rotations, mesh_columns
 from ..errors import InvalidDataError, OutputError
 from ..files import atomic_path, check_output_path
+from ..formats import CHARACTER_FORMATS, GLB, VRM, VRMA, WAV, character_format_of, extension, format_named
 from ..headpose import HeadPose
 
 __all__ = ["write_character_animation", "writes_back", "WRITE_BACK", "write_vrma", "check_motion", "write_plain_glb"]
 
-#: Output extensions that write back into the user's file, per character format.
-WRITE_BACK = {"gltf": (".glb", ".gltf"), "vrm0": (".vrm", ".glb"), "vrm1": (".vrm", ".glb"),
-              "fbx": (".fbx", ".blend"), "blend": (".blend", ".fbx"), "usd": (".usd", ".usda", ".usdc")}
+#: Output extensions that write back into the user's file, per character format (from
+#: :data:`faceretarget.formats.CHARACTER_FORMATS`, VRM under both of its versions' names).
+WRITE_BACK = {n: f.writes_back for f in CHARACTER_FORMATS.values() for n in (f.name, *f.aliases) if f.writes_back}
 _GLB_MAGIC, _JSON, _BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
 _FLOAT = 5126
 
@@ -53,15 +54,12 @@ def writes_back(character, out: str | os.PathLike) -> bool:
     """Whether writing ``out`` puts the animation back into a copy of the character's own file.
 
     ``character`` is a :class:`~faceretarget.character.Character` or the path of a character file."""
-    from ._character import character_format
-
     if isinstance(character, Character):
-        fmt, path = character.format, character.path
+        fmt, path = format_named(character.format), character.path
     else:
         path = Path(character)
-        fmt = character_format(path)
-        fmt = "vrm0" if fmt == "vrm" else fmt
-    return path is not None and Path(out).suffix.lower() in WRITE_BACK.get(fmt, ())
+        fmt = character_format_of(path)
+    return path is not None and fmt is not None and extension(out) in fmt.writes_back
 
 
 def write_character_animation(out: str | os.PathLike, character: Character, chans: list[Channel],
@@ -114,7 +112,7 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
     if fmt in ("gltf", "vrm0", "vrm1"):
         path = _write_gltf(out, character, chans, W, t, head, neck_share, gaze, name, log)
         if fmt.startswith("vrm") and chans and all(c.name in character.expressions for c in chans):
-            vrma = out.with_suffix(".vrma")
+            vrma = out.with_suffix(VRMA)
             check_output_path(vrma)
             write_vrma(vrma, character, chans, W, t, head=head, neck_share=neck_share, name=name)
             log(f"wrote {vrma} (the same animation as VRM expressions and humanoid head rotation, for VRM runtimes "
@@ -132,7 +130,7 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
     if audio is not None and audio_rate:
         from ._audio import checked_audio, write_wav
 
-        wav = out.with_suffix(".wav")
+        wav = out.with_suffix(WAV)
         check_output_path(wav)
         with atomic_path(wav) as tmp:
             write_wav(tmp, *checked_audio(wav, audio, audio_rate))
@@ -234,7 +232,7 @@ def _write_gltf(out: Path, character: Character, chans: list[Channel], W: np.nda
 
     doc = GltfDocument(character.path)
     js = copy.deepcopy(doc.json)
-    to_glb = out.suffix.lower() in (".glb", ".vrm")
+    to_glb = extension(out) in (GLB, VRM)
     new = bytearray()
 
     def add(arr: np.ndarray, type_: str, minmax: bool = False) -> int:

@@ -44,13 +44,14 @@ import numpy as np
 
 from ..errors import InputFileError, InvalidDataError, OutputError, excerpt
 from ..files import atomic_path, check_output_path, input_file, read_text
+from ..formats import CSV, JSON
 from ..names import normalize_name
 
 __all__ = ["ControlTable", "read_control_table", "write_control_template", "write_control_table",
            "write_control_curves", "CONTROL_TABLE_FORMATS"]
 
 #: Extensions :func:`read_control_table` reads.
-CONTROL_TABLE_FORMATS = (".csv", ".json")
+CONTROL_TABLE_FORMATS = (CSV, JSON)
 #: Largest magnitude of a control value or range end (nothing a slider holds comes near it).
 _MAX_VALUE = 1e6
 _SPECIAL = ("range", "min", "max", "neutral")
@@ -307,9 +308,9 @@ def read_control_table(path: str | os.PathLike) -> ControlTable:
     """
     path = input_file(path)
     ext = path.suffix.lower()
-    if ext == ".csv":
+    if ext == CSV:
         return _read_csv(path)
-    if ext == ".json":
+    if ext == JSON:
         return _read_json(path)
     raise InputFileError(f"{path}: unknown control-table format '{ext}' (use {', '.join(CONTROL_TABLE_FORMATS)})")
 
@@ -338,7 +339,7 @@ def write_control_template(path: str | os.PathLike, keys: Sequence[str], control
         The controls at rest (a ``neutral`` row; default none, i.e. all 0).
     """
     path = check_output_path(path)
-    if path.suffix.lower() != ".csv":
+    if path.suffix.lower() != CSV:
         raise OutputError(f"{path}: a control-table template is a .csv")
     M = len(controls)
     lo_a = np.broadcast_to(np.asarray(lo, dtype=np.float64), (M,))
@@ -362,7 +363,7 @@ def write_control_table(path: str | os.PathLike, table: ControlTable) -> Path:
     """Write a :class:`ControlTable` as a ``.csv`` (``range`` and ``neutral`` rows, then one row per
     key; values in full precision, so :func:`read_control_table` gives them back exactly)."""
     path = check_output_path(path)
-    if path.suffix.lower() != ".csv":
+    if path.suffix.lower() != CSV:
         raise OutputError(f"{path}: a control table is written as .csv")
     buf = _io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -400,11 +401,11 @@ def write_control_curves(path: str | os.PathLike, times: np.ndarray, values: np.
         raise InvalidDataError(f"{path}: control curves hold a non-finite value; nothing written")
     t = t - t[0] if t.size else t
     ext = path.suffix.lower()
-    if ext == ".json":
+    if ext == JSON:
         doc = {"times": [round(float(x), 9) for x in t],
                "controls": {c: [float(x) for x in v[:, j]] for j, c in enumerate(controls)}}
         text = json.dumps(doc)
-    elif ext == ".csv":
+    elif ext == CSV:
         buf = _io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(["time", *controls])

@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import DataWarning, InputFileError, InvalidDataError, excerpt
 from ..files import input_file, load_npz_arrays
+from ..formats import BVH, C3D, CSV, GLB, NPZ
 from ..headpose import HeadPose
 from ..names import find_joints
 from ..performance import Performance
@@ -42,7 +43,7 @@ from ._bvh import Bvh, bvh_chain, read_bvh
 __all__ = ["read_bvh_head", "read_glb_skin_head", "read_smplx_head", "read_marker_head", "read_head_motion", "read_head_take",
            "HEAD_READ_FORMATS"]
 
-HEAD_READ_FORMATS = (".bvh", ".npz", ".c3d", ".glb", ".csv")
+HEAD_READ_FORMATS = (BVH, NPZ, C3D, GLB, CSV)
 
 
 def _head_chain(names: list[str], parents, source: str, joints: tuple[str, ...] | None) -> list[int]:
@@ -246,13 +247,13 @@ def read_head_motion(path: str | os.PathLike, *, neck_length: float = 0.10) -> P
 
     path = input_file(path)
     ext = path.suffix.lower()
-    if ext == ".bvh":
+    if ext == BVH:
         return read_bvh_head(path)
-    if ext == ".npz":
+    if ext == NPZ:
         return read_smplx_head(path, neck_length=neck_length)
-    if ext == ".c3d":
+    if ext == C3D:
         return read_marker_head(read_c3d(path))
-    if ext == ".glb":
+    if ext == GLB:
         from ._gltf import read_glb_head
         from ._gltf_skin import glb_skin_and_nodes
 
@@ -261,7 +262,7 @@ def read_head_motion(path: str | os.PathLike, *, neck_length: float = 0.10) -> P
             return read_glb_skin_head(path)           # a character's body animation: its head joint by role
         times, head = read_glb_head(path)
         return Performance.from_head(head, times=times, source=str(path))
-    if ext == ".csv":
+    if ext == CSV:
         from ._livelinkface import read_livelinkface
 
         take = read_livelinkface(path)

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..errors import InputFileError, InvalidDataError, MissingShapeError, OutputError, TopologyError
 from ..files import atomic_dir
+from ..formats import OBJ
 from ..mesh import Mesh
 from ..performance import Performance
 from ..rig import Rig
@@ -311,7 +312,7 @@ def _frame_of(item, folder: Path, rows: list[tuple[str, int, str]]) -> int:
             if lab == item:
                 return f
         s = item.strip()
-        if s.endswith(".obj"):
+        if s.endswith(OBJ):
             s = s[:-4]
         if s.startswith("frame_"):
             s = s[6:]

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import DataWarning, InputFileError, InvalidDataError, OutputError, TopologyError, excerpt
 from ..files import atomic_dir, atomic_path, check_output_path
+from ..formats import OBJ
 from ..mesh import Mesh
 from ..performance import Performance
 from ..rig import RigFrames
@@ -399,7 +400,7 @@ def read_obj_sequence(folder: str | os.PathLike, fps: float | None = None) -> Pe
     folder = Path(folder)
     if not folder.is_dir():
         raise InputFileError(f"{folder}: folder not found" if not folder.exists() else f"{folder}: not a folder")
-    files = sorted((p for p in folder.iterdir() if p.suffix.lower() == ".obj" and p.is_file()),
+    files = sorted((p for p in folder.iterdir() if p.suffix.lower() == OBJ and p.is_file()),
                    key=lambda p: _natural_key(p.name))
     if not files:
         raise InputFileError(f"{folder}: no .obj frames found")

@@ -37,6 +37,7 @@ import numpy as np
 
 from ..errors import InputFileError, InvalidDataError, OutputError
 from ..files import check_output_path
+from ..formats import BLEND, BVH, C3D, CSV, FBX, GLB, NPZ, OBJ, USD, USDA, USDC
 from ..headpose import HeadPose
 from ..mesh import Mesh
 from ..performance import Performance
@@ -46,7 +47,7 @@ __all__ = ["read_performance", "write_animation", "write_head_motion", "register
            "READERS", "WRITERS", "READ_FORMATS", "WRITE_FORMATS", "HEAD_FORMATS", "Animation", "holds_head"]
 
 #: Formats that hold head motion on its own (:func:`write_head_motion`).
-HEAD_FORMATS = (".bvh", ".glb", ".csv")
+HEAD_FORMATS = (BVH, GLB, CSV)
 
 
 @dataclass(frozen=True)
@@ -409,22 +410,22 @@ def _read_folder(path: Path, fps=None) -> Performance:
     return read_obj_sequence(path, fps=fps)
 
 
-for _ext_, _fn, _what in ((".csv", _read_csv, "Live Link Face"), (".c3d", _read_c3d, "markers"),
-                          (".npz", _read_npz, "vertices, weights or SMPL-X poses"),
-                          (".glb", _read_glb, "morph-target weights"), (".bvh", _read_bvh, "head motion"),
-                          (".obj", _read_obj, "one mesh"), ("folder", _read_folder, "OBJ frames")):
+for _ext_, _fn, _what in ((CSV, _read_csv, "Live Link Face"), (C3D, _read_c3d, "markers"),
+                          (NPZ, _read_npz, "vertices, weights or SMPL-X poses"),
+                          (GLB, _read_glb, "morph-target weights"), (BVH, _read_bvh, "head motion"),
+                          (OBJ, _read_obj, "one mesh"), ("folder", _read_folder, "OBJ frames")):
     register_reader(_ext_, _fn, _what)
-for _ext_, _fn, _what, _head in ((".glb", _write_glb, "glTF morph targets + head node", True),
-                                 (".npz", _write_npz, "vertices", False),
-                                 (".csv", _write_csv, "Live Link Face", True),
-                                 (".bvh", _write_bvh, "head motion", True),
+for _ext_, _fn, _what, _head in ((GLB, _write_glb, "glTF morph targets + head node", True),
+                                 (NPZ, _write_npz, "vertices", False),
+                                 (CSV, _write_csv, "Live Link Face", True),
+                                 (BVH, _write_bvh, "head motion", True),
                                  ("folder", _write_folder, "OBJ frames", False)):
     register_writer(_ext_, _fn, _what, head=_head)
 
-for _ext_ in (".usd", ".usda", ".usdc"):
+for _ext_ in (USD, USDA, USDC):
     register_writer(_ext_, _write_usd, "USD blend shapes or baked points + head xform", head=True)
-register_writer(".blend", _write_blend, "Blender scene: shape keys + head bone + audio", head=True)
-register_writer(".fbx", _write_fbx, "FBX blend shapes + head bone (Blender's exporter)", head=True)
+register_writer(BLEND, _write_blend, "Blender scene: shape keys + head bone + audio", head=True)
+register_writer(FBX, _write_fbx, "FBX blend shapes + head bone (Blender's exporter)", head=True)
 
 #: Extensions :func:`read_performance` / :func:`write_animation` know (``"folder"`` for OBJ frames).
 READ_FORMATS = tuple(READERS)
@@ -452,6 +453,6 @@ def write_head_motion(path: str | os.PathLike, perf: Performance, protect: tuple
             raise OutputError(f"{path}: refusing to overwrite an input file")
     if perf.head is None:
         raise InvalidDataError(f"{perf.source}: no head motion to write")
-    weights = perf.weights if ext == ".csv" else None
+    weights = perf.weights if ext == CSV else None
     return write_animation(path, times=perf.times, head=perf.head, weights=weights,
                            names=perf.names if weights is not None else None)

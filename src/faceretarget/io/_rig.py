@@ -65,6 +65,7 @@ from ..errors import (
     excerpt,
 )
 from ..files import atomic_dir, atomic_path, check_output_path, load_npz_arrays, read_text
+from ..formats import OBJ
 from ..mesh import Mesh
 from ..rig import Rig
 from ..units import guess_unit, normalize_unit
@@ -191,7 +192,7 @@ def read_rig(folder: str | os.PathLike, neutral: str | os.PathLike | None = None
     if not folder.is_dir():
         raise InputFileError(f"{folder}: rig folder not found" if not folder.exists()
                              else f"{folder}: is not a folder; a rig is a folder of OBJ files")
-    objs = sorted((p for p in folder.iterdir() if p.suffix.lower() == ".obj" and p.is_file()),
+    objs = sorted((p for p in folder.iterdir() if p.suffix.lower() == OBJ and p.is_file()),
                   key=lambda p: (p.name.lower(), p.name))
     npath = _neutral_path(folder, objs, neutral)
     keys = _key_shape_files(objs, npath, exclude)

@@ -44,13 +44,14 @@ import numpy as np
 from ..character import Character, SceneMesh, character_frame
 from ..errors import InvalidDataError, OutputError
 from ..files import atomic_dir, atomic_path, check_output_path
+from ..formats import GLB, VRM, extension
+from ._character_write import WRITE_BACK
 
 __all__ = ["write_character_shapes", "SHAPES_WRITE"]
 
-#: Output extensions per character format (besides an OBJ folder, which every format can write).
-SHAPES_WRITE = {"gltf": (".glb", ".gltf"), "vrm0": (".vrm", ".glb"), "vrm1": (".vrm", ".glb"),
-                "fbx": (".fbx", ".blend"), "blend": (".blend", ".fbx"),
-                "usd": (".usd", ".usda", ".usdc")}
+#: Output extensions per character format (besides an OBJ folder, which every format can write): the same
+#: copies as an animation's (:data:`faceretarget.formats.CHARACTER_FORMATS`).
+SHAPES_WRITE = WRITE_BACK
 _FLOAT = 5126
 
 
@@ -317,7 +318,7 @@ def _write_gltf(out: Path, character: Character, shapes: dict, replace: bool, lo
             if "weights" in nodes[i]:
                 nodes[i]["weights"] = list(nodes[i]["weights"]) + [0.0] * (Knew - len(nodes[i]["weights"]))
         _widen_weight_animations(doc, js, set(users_all), K, Knew, add, log)
-    if out.suffix.lower() in (".glb", ".vrm"):
+    if extension(out) in (GLB, VRM):
         _write_glb(out, js, _attach_glb_buffer(js, doc, bytes(new)))
     else:
         _write_gltf_json(out, js, doc, bytes(new), new_name=out.stem + ".shapes.bin")

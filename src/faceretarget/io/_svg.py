@@ -33,14 +33,15 @@ import numpy as np
 
 from ..errors import InputFileError, InvalidDataError, OutputError, excerpt
 from ..files import atomic_dir, atomic_path, check_output_path, input_file, read_text
+from ..formats import CSV, MP4, NPY, PNG, SVG
 
 __all__ = ["Drawing", "read_svg_drawing", "read_point_set", "write_svg_animation", "write_svg_frames",
            "read_svg_animation", "render_drawing", "write_drawing_preview", "DRAWING_FORMATS", "POINT_SET_FORMATS"]
 
 SVG_NS = "http://www.w3.org/2000/svg"
 #: Key drawing files :func:`read_svg_drawing` / :func:`read_point_set` read.
-DRAWING_FORMATS = (".svg",)
-POINT_SET_FORMATS = (".npy", ".csv")
+DRAWING_FORMATS = (SVG,)
+POINT_SET_FORMATS = (NPY, CSV)
 _ARGS = {"M": 2, "L": 2, "H": 1, "V": 1, "C": 6, "S": 4, "Q": 4, "T": 2, "A": 7, "Z": 0}
 _NPTS = {"M": 1, "L": 1, "C": 3, "Q": 2, "Z": 0}
 _TOKEN = re.compile(r"([MmLlHhVvCcSsQqTtAaZz])|([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)|([\s,]+)|(.)")
@@ -353,7 +354,7 @@ def read_point_set(path: str | os.PathLike) -> Drawing:
     """
     path = input_file(path)
     ext = path.suffix.lower()
-    if ext == ".npy":
+    if ext == NPY:
         try:
             with open(path, "rb") as f:
                 a = np.load(f, allow_pickle=False)
@@ -362,7 +363,7 @@ def read_point_set(path: str | os.PathLike) -> Drawing:
         if a.dtype.kind not in "fiu":
             raise InputFileError(f"{path}: the array holds {a.dtype}, not numbers")
         a = a.astype(np.float64)
-    elif ext == ".csv":
+    elif ext == CSV:
         rows = []
         for n, line in enumerate(read_text(path).splitlines(), 1):
             s = line.strip()
@@ -640,7 +641,7 @@ def write_drawing_preview(path: str | os.PathLike, drawing: Drawing, points: np.
     p, t = _check_frames(path, drawing, points, times)
     view = _view(drawing, p)
     ext = path.suffix.lower()
-    if ext == ".png":
+    if ext == PNG:
         from ..render import render_grid, save_png
 
         idx = np.unique(np.linspace(0, len(p) - 1, min(max_tiles, len(p))).round().astype(int))
@@ -648,7 +649,7 @@ def write_drawing_preview(path: str | os.PathLike, drawing: Drawing, points: np.
         sheet = render_grid(tiles, [f"{t[i] - t[0]:.2f} s" for i in idx], background=(255, 255, 255),
                             text_color=(20, 20, 20)) if len(idx) > 1 else tiles[0]
         return save_png(path, sheet)
-    if ext == ".mp4":
+    if ext == MP4:
         from tqdm.auto import tqdm
 
         from ..timebase import infer_fps

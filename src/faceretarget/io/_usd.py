@@ -66,6 +66,7 @@ import numpy as np
 
 from ..errors import InvalidDataError, OutputError
 from ..files import atomic_path, check_output_path
+from ..formats import USD, USDA, USDC, WAV
 from ..headpose import HeadPose
 from ..optional import optional_import
 from ..rig import Rig, RigFrames
@@ -76,7 +77,7 @@ from ._gltf import _checked_weights, _head_arrays
 __all__ = ["write_usd", "USD_FORMATS", "usd_prim_names"]
 
 #: Extensions :func:`write_usd` writes, with the Sdf file format each one gets.
-USD_FORMATS = {".usd": "usdc", ".usda": "usda", ".usdc": "usdc"}
+USD_FORMATS = {USD: "usdc", USDA: "usda", USDC: "usdc"}
 
 #: Frames evaluated at once when baking points (bounded memory: ``chunk x V x 3`` float64).
 _BAKE_CHUNK = 256
@@ -193,7 +194,7 @@ def write_usd(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
         raise InvalidDataError(f"{path}: head_pivot must be 3 finite numbers (metres), got {head_pivot!r}")
     head_keys = None if head is None else _head_arrays(path, head, t.size)
     sound = checked_audio(path, audio, audio_rate)
-    wav = path.with_suffix(".wav") if sound is not None else None
+    wav = path.with_suffix(WAV) if sound is not None else None
     if wav is not None:
         check_output_path(wav)
     Sdf = _pxr()[2]
@@ -208,7 +209,7 @@ def write_usd(path: str | os.PathLike, rig: Rig, weights: np.ndarray, times: np.
     crate = USD_FORMATS[ext] == "usdc"
     with atomic_path(path) as tmp:
         # Sdf picks the file format from the extension, so USD writes beside the temporary file
-        out = tmp.with_name(tmp.name + (".usdc" if crate else ".usda"))
+        out = tmp.with_name(tmp.name + (USDC if crate else USDA))
         try:
             try:
                 if crate:  # on disk from the start: a baked take is saved chunk by chunk (appended)

@@ -39,6 +39,7 @@ from ..character import (
 )
 from ..errors import InputFileError, OutputError
 from ..files import atomic_path, check_output_path
+from ..formats import USDA, USDC, WAV
 from ..headpose import HeadPose
 from ..mesh import Mesh
 from ..optional import optional_import
@@ -255,7 +256,7 @@ def export_layer(layer, asset: Path, out: Path, tmp: Path) -> None:
     from pxr import Tf
 
     layer.subLayerPaths[0] = os.path.relpath(asset, out.resolve().parent).replace(os.sep, "/")
-    dst = tmp.with_name(tmp.name + (".usda" if out.suffix.lower() == ".usda" else ".usdc"))
+    dst = tmp.with_name(tmp.name + (USDA if out.suffix.lower() == USDA else USDC))
     try:
         if not layer.Export(str(dst)):
             raise OutputError(f"{out}: USD could not write the layer")
@@ -292,7 +293,7 @@ def write_usd_animation(out: Path, character: Character, chans: list[Channel], W
     if out.resolve() == asset:
         raise OutputError(f"{out}: is the asset itself; write the animation layer to another file")
     sound = checked_audio(out, audio, audio_rate)
-    wav = out.with_suffix(".wav") if sound is not None else None
+    wav = out.with_suffix(WAV) if sound is not None else None
     if wav is not None:
         check_output_path(wav)
     from ..timebase import infer_fps

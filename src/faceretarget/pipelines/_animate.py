@@ -35,6 +35,8 @@ import numpy as np
 
 from ..capture import Capture, face_points, mouth_opening
 from ..errors import InvalidDataError, StyleRangeWarning
+from ..formats import CSV, GLB
+from ..formats import VIDEO_EXTENSIONS as _VIDEO_EXTENSIONS
 from ..headpose import HeadPose
 from ..names import is_arkit
 from ..performance import Performance
@@ -210,7 +212,7 @@ def face_frame(take: Capture | Performance, *, neutral: np.ndarray | None = None
 
 
 #: Video file extensions ``style fit`` captures into face takes.
-VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".flv", ".webm", ".m4v")
+VIDEO_EXTENSIONS = _VIDEO_EXTENSIONS
 
 
 def face_takes(videos: Mapping[str, str | os.PathLike], *, reference: str | None = None, scores: bool = False,
@@ -684,7 +686,7 @@ def _write(out, rig: Rig, res: AnimateResult, bake: bool, log) -> Path:
     pose = res.head if holds_head(path) else None
     if res.head is not None and pose is None:
         log(f"{path.suffix} does not hold head motion: the head is left out")
-    if path.suffix.lower() == ".csv":
+    if path.suffix.lower() == CSV:
         from ._transfer import _is_arkit
 
         if not all(_is_arkit(n) for n in res.names):
@@ -696,7 +698,7 @@ def _write(out, rig: Rig, res: AnimateResult, bake: bool, log) -> Path:
                     audio=res.audio, audio_rate=res.audio_rate, bake=bake)
     log(f"wrote {path} ({len(res.times)} frames, {len(res.names)} shapes"
         + (", head" if pose is not None else "") + ")")
-    if path.suffix.lower() == ".glb":
+    if path.suffix.lower() == GLB:
         from ._transfer import blender_timeline_note
 
         note = blender_timeline_note(path, res.times)

@@ -54,6 +54,7 @@ import numpy as np
 from .. import __version__
 from ..errors import DataWarning, FaceRetargetError, InvalidDataError
 from ..files import file_sha256
+from ..formats import NPZ
 from ..optional import VIDEO_NEEDS, has_module, optional_import, output_needs, require
 from ._jobs import BatchSpec, Character, Job, read_jobs
 from ._progress import ticking
@@ -321,7 +322,7 @@ def _load_rig(c: Character):
         return make_demo_character(c.demo)
     if c.rig.is_dir():
         return read_rig(c.rig, neutral=c.neutral, landmarks=c.landmarks)
-    if c.rig.suffix.lower() == ".npz":
+    if c.rig.suffix.lower() == NPZ:
         return read_rig_npz(c.rig)
     if is_character_file(c.rig):
         from ._character import load_character
@@ -496,7 +497,7 @@ def _animate(job: Job, f: _Fitted) -> int:
     src = job.input
     if src.suffix.lower() in VIDEO_EXTENSIONS:
         video = src
-    elif src.suffix.lower() == ".npz" and _is_capture(src):
+    elif src.suffix.lower() == NPZ and _is_capture(src):
         from ..capture import Capture
 
         video = Capture.read_npz(src)

@@ -55,6 +55,7 @@ from ..character import (
 )
 from ..errors import FaceNotFoundError, InputFileError, InvalidDataError, MissingShapeError
 from ..files import atomic_path, cache_dir, cache_enabled, file_sha256
+from ..formats import JSON, character_format_of
 from ..rig import Rig
 
 __all__ = ["load_character", "drive_rig", "DriveRig", "inspect_character", "CharacterReport", "landmark_cache_path",
@@ -91,8 +92,6 @@ def landmark_cache_path(path: str | os.PathLike, sha: str | None = None, *, for_
     return cache_dir("landmarks") / f"{sha or _sha256(Path(path))}.json"
 
 
-#: Formats whose reader runs out of process: what they read is cached (module docstring).
-SLOW_READ = (".fbx", ".blend")
 READ_CACHE_FORMAT = "faceretarget.character-read/1"
 
 
@@ -118,7 +117,7 @@ def _read_character_cached(path: Path, prefer: str | None, cache: bool, log) -> 
 
     from ..io import read_character
 
-    if not (cache and cache_enabled() and path.is_file() and path.suffix.lower() in SLOW_READ):
+    if not (cache and cache_enabled() and path.is_file() and getattr(character_format_of(path), "slow_read", False)):
         return read_character(path, prefer=prefer), None
     sha = _sha256(path)
     cand = _read_cache_path(sha, prefer)
@@ -245,7 +244,7 @@ def read_landmark_file(character: Character, path: str | os.PathLike) -> Surface
     p = Path(path)
     if not p.is_file():
         raise InputFileError(f"{p}: landmark file not found")
-    if p.suffix.lower() == ".json":
+    if p.suffix.lower() == JSON:
         try:
             d = json.loads(p.read_text(encoding="utf-8"))
         except ValueError as e:

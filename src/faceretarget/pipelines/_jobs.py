@@ -44,6 +44,7 @@ from pathlib import Path
 
 from ..errors import InputFileError, InvalidDataError
 from ..files import read_text
+from ..formats import BVH, C3D, NPZ, VIDEO_EXTENSIONS, WAV
 
 __all__ = ["OPERATIONS", "OUTPUT_PLACEHOLDERS", "JOB_OPTIONS", "Character", "Job", "JobGroup", "BatchSpec",
            "read_jobs"]
@@ -54,7 +55,7 @@ OPERATIONS = ("clone", "retarget", "animate", "headmotion-synth")
 #: name, the operation and the name of the input's folder.
 OUTPUT_PLACEHOLDERS = ("character", "take", "job", "operation", "parent")
 _ALIASES = {"headmotion synth": "headmotion-synth", "headmotion_synth": "headmotion-synth"}
-_VIDEO = (".mp4", ".mov", ".avi", ".mkv", ".flv", ".webm", ".m4v")    # = pipelines.VIDEO_EXTENSIONS
+_VIDEO = VIDEO_EXTENSIONS
 
 
 # ------------------------------------------------------------------------------------ option checks
@@ -477,8 +478,8 @@ def _input_exts(op: str) -> tuple[str, ...]:
     if op in ("clone", "retarget"):
         return tuple(e for e in READ_FORMATS if e.startswith("."))
     if op == "animate":
-        return _VIDEO + (".npz", ".c3d")
-    return (".wav",)
+        return _VIDEO + (NPZ, C3D)
+    return (WAV,)
 
 
 def _writes_back(rig: Path, out: Path) -> bool:
@@ -492,7 +493,7 @@ def _output_exts(op: str) -> tuple[str, ...]:
 
     if op == "headmotion-synth":
         return HEAD_FORMATS
-    return tuple(e for e in WRITERS if e.startswith(".") and e != ".bvh")
+    return tuple(e for e in WRITERS if e.startswith(".") and e != BVH)
 
 
 def _template(path: Path, where: str, template: str) -> str:

@@ -29,6 +29,7 @@ from importlib import resources
 from urllib.parse import urlsplit
 
 from ..errors import InvalidDataError, OutputError
+from ..formats import GLB, JSON
 
 __all__ = ["LiveServer", "websocket_accept", "encode_ws_frame", "read_ws_frame", "parse_address", "WebSocketError"]
 
@@ -36,7 +37,7 @@ _GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
 #: Largest message a page may send (its slider messages are a few dozen bytes).
 MAX_INCOMING = 1 << 16
 _TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
-          ".glb": "model/gltf-binary", ".json": "application/json", "": "text/plain; charset=utf-8"}
+          GLB: "model/gltf-binary", JSON: "application/json", "": "text/plain; charset=utf-8"}
 _SAFE_PART = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 OP_CONT, OP_TEXT, OP_BINARY, OP_CLOSE, OP_PING, OP_PONG = 0x0, 0x1, 0x2, 0x8, 0x9, 0xA
 
@@ -325,7 +326,7 @@ class LiveServer:
         if path == "/live.js":
             return self._file("live.js"), _TYPES[".js"]
         if path == "/character.glb":
-            return self.glb, _TYPES[".glb"]
+            return self.glb, _TYPES[GLB]
         if path.startswith("/three/"):
             parts = path[1:].split("/")
             if all(_SAFE_PART.match(p) for p in parts):

@@ -20,6 +20,7 @@ import numpy as np
 from ..character import Character, channels, character_frame, choose_shapes
 from ..errors import InvalidDataError, MissingShapeError, OutputError
 from ..files import atomic_path, check_output_path
+from ..formats import PNG
 from ..names import normalize_name
 
 __all__ = ["shape_sheet"]
@@ -80,7 +81,7 @@ def shape_sheet(character: Character, out: str | os.PathLike, *, shapes: str = "
     from ..render import look_at, render_scene
 
     out = Path(out)
-    fmt = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(out.suffix.lower())
+    fmt = {PNG: "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(out.suffix.lower())
     if fmt is None:
         raise OutputError(f"{out}: the contact sheet is a .png or .jpg")
     check_output_path(out)

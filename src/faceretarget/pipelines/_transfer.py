@@ -20,6 +20,7 @@ import numpy as np
 from ..cloning import CloneResult, ExpressionCloner
 from ..errors import InvalidDataError, OutputError, TopologyError
 from ..files import check_output_path
+from ..formats import BAKED_FORMATS, BLEND, BVH, CLAMPED_IN_BLENDER, CSV, GLB
 from ..headpose import HeadPose
 from ..io import WRITERS, holds_head, read_head_motion, write_animation
 from ..names import ARKIT_NAMES, normalize_name, split_parent
@@ -36,7 +37,7 @@ __all__ = ["CHUNK_FRAMES", "source_geometry", "clone_take", "retarget_take", "wr
 #: The ``head`` choices of :func:`write_result` besides a head-motion file, a take or a pose.
 HEAD_CHOICES = ("auto", "off")
 #: Registered writers that hold a head but no face: not an output of a clone or retarget.
-_HEAD_ONLY = (".bvh",)
+_HEAD_ONLY = (BVH,)
 #: Largest ``temporal`` of :func:`retarget_take` (relative to the keys' mean squared norm): every real
 #: take tried converges up to it; from about 3e3 the smoothed solve stops converging (docs/retargeting.md).
 MAX_TEMPORAL = 1000.0
@@ -462,13 +463,13 @@ def check_result_path(path: str | os.PathLike, *, keys: Rig | None = None, bake:
             raise OutputError(f"{path}: baking applies to USD output of mesh targets")
         return target.check_output(path)
     holds_head(path)                                # unknown extension -> OutputError
-    if bake and path.suffix.lower() not in _BAKES:
-        raise OutputError(f"{path}: baking applies to USD output ({', '.join(sorted(_BAKES))}); an OBJ "
+    if bake and path.suffix.lower() not in BAKED_FORMATS:
+        raise OutputError(f"{path}: baking applies to USD output ({', '.join(sorted(BAKED_FORMATS))}); an OBJ "
                           "sequence or .npz already holds the meshes")
     if path.suffix.lower() in _HEAD_ONLY:
         raise OutputError(f"{path}: a {path.suffix} holds head motion only, not the face; write "
                           f"{', '.join(face_and_head_formats())} (or 'headmotion' tools for head motion alone)")
-    if keys is not None and path.suffix.lower() == ".csv" and not all(_is_arkit(n) for n in keys.names) and not (
+    if keys is not None and path.suffix.lower() == CSV and not all(_is_arkit(n) for n in keys.names) and not (
             keys.basis is not None and all(_is_arkit(n) for n in keys.basis_names)):
         bad = next(n for n in keys.names if not _is_arkit(n))
         raise OutputError(f"{path}: a Live Link Face CSV holds ARKit curves, but the target keys '{keys.name}' "
@@ -543,7 +544,7 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
         log(f"wrote {path} ({len(res.times)} frames of the {own.kind} target, {own.n_keys} keys"
             f"{', head motion' if pose is not None else ''})")
         return out
-    if path.suffix.lower() == ".csv":
+    if path.suffix.lower() == CSV:
         W, names = arkit_curves(transfer, path=path, log=log)
         out = write_animation(path, weights=W, names=names, times=res.times, head=pose, **clock)
     else:
@@ -556,7 +557,7 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
     note = None if bake else _slider_note(path, res.weights)
     if note:
         log(note)
-    if path.suffix.lower() == ".glb":
+    if path.suffix.lower() == GLB:
         note = blender_timeline_note(path, res.times)
         if note:
             log(note)
@@ -594,24 +595,16 @@ def blender_timeline_note(path: str | os.PathLike, times: np.ndarray) -> str | N
         return None
     return (f"note: Blender opens {Path(path).name} in its default scene (24 fps, frames 1-250), which plays the "
             f"first {shown:.1f} s of this {span:.1f} s take: set the scene's end frame to "
-            f"{int(np.ceil(span * _BLENDER_DEFAULT_FPS)) + 1} there, or write {Path(path).with_suffix('.blend').name} "
+            f"{int(np.ceil(span * _BLENDER_DEFAULT_FPS)) + 1} there, or write {Path(path).with_suffix(BLEND).name} "
             "(the take's own rate and frame range)")
-
-
-#: Formats with a baked (mesh points per frame) variant.
-_BAKES = (".usd", ".usda", ".usdc")
-
-#: Formats whose importers in Blender play shape-key weights only inside [0, 1].
-_CLAMPED_IN_BLENDER = {".glb": "Blender's glTF importer", ".usd": "Blender's USD importer",
-                       ".usda": "Blender's USD importer", ".usdc": "Blender's USD importer"}
 
 
 def _slider_note(path: Path, W: np.ndarray) -> str | None:
     """One line when a file's weights leave [0, 1] and Blender's importer of that format would clamp them."""
-    who = _CLAMPED_IN_BLENDER.get(path.suffix.lower())
+    who = CLAMPED_IN_BLENDER.get(path.suffix.lower())
     if who is None or W.size == 0 or (W.min() >= 0.0 and W.max() <= 1.0):
         return None
     share = float(((W < 0) | (W > 1)).mean())
     return (f"note: weights run {W.min():.2f} .. {W.max():.2f} ({share:.0%} outside [0, 1]): {who} clamps them "
-            f"to its sliders; for Blender write {path.with_suffix('.blend').name} (sliders sized to the weights), "
+            f"to its sliders; for Blender write {path.with_suffix(BLEND).name} (sliders sized to the weights), "
             f"or keep [0, 1] with --weight-range 0 1")

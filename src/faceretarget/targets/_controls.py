@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataWarning, InvalidDataError, OutputError
+from ..formats import BVH, CSV, JSON
 from ..io import ControlTable, holds_head, write_animation, write_control_curves
 from ..mesh import Mesh
 from ..names import ARKIT_NAMES, normalize_name, split_parent
@@ -23,7 +24,7 @@ __all__ = ["ControlTarget", "RangeReport", "CONTROL_RANGES"]
 CONTROL_RANGES = ("solve", "report", "clip", "project")
 
 #: Formats written from the curves alone (``.csv``: Live Link Face for ARKit controls, else ``time,<controls>``).
-_CURVE_FORMATS = (".csv", ".json")
+_CURVE_FORMATS = (CSV, JSON)
 
 
 def _is_arkit(name: str) -> bool:
@@ -214,9 +215,9 @@ class ControlTarget(Target):
 
     def holds_head(self, path) -> bool:
         ext = self.output_ext(path)
-        if ext == ".csv":
+        if ext == CSV:
             return self.arkit
-        if ext == ".json":
+        if ext == JSON:
             return False
         return holds_head(path)
 
@@ -258,9 +259,9 @@ class ControlTarget(Target):
                     "inside")
             c = self.in_ranges(raw)
         ext = self.output_ext(path)
-        if ext == ".json" or (ext == ".csv" and not self.arkit):
+        if ext == JSON or (ext == CSV and not self.arkit):
             return write_control_curves(path, times, c, self.controls)
-        if ext == ".csv":
+        if ext == CSV:
             keep = {k: v for k, v in extra.items() if k in ("timecode", "timecode_rate", "curves", "curve_names")}
             return write_animation(path, weights=c, names=self.controls, times=times, head=head, **keep)
         live = np.abs(self._drive).any(axis=1)      # controls that drive none of the rig's shapes were warned about
@@ -271,4 +272,4 @@ class ControlTarget(Target):
 def _rig_formats() -> list[str]:
     from ..io import WRITERS
 
-    return [k for k in WRITERS if k not in (".csv", ".bvh")]
+    return [k for k in WRITERS if k not in (CSV, BVH)]

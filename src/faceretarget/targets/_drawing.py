@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import DataWarning, InvalidDataError
 from ..files import save_npz_arrays
+from ..formats import MP4, NPZ, PNG, SVG
 from ..io import Drawing, write_drawing_preview, write_svg_animation, write_svg_frames
 from ..mesh import Mesh
 from ..rig import Rig
@@ -40,7 +41,7 @@ class DrawingTarget(Target):
 
     kind = "drawing"
     key_word = "key drawings"
-    formats = (".svg", "folder", ".png", ".mp4", ".npz")
+    formats = (SVG, "folder", PNG, MP4, NPZ)
 
     def __init__(self, neutral: Drawing, keys: Mapping[str, Drawing], *, source: str | None = None) -> None:
         src = source or str(Path(neutral.source).parent)
@@ -87,10 +88,10 @@ class DrawingTarget(Target):
         path = self.check_output(path)
         P = self.params(weights)
         ext = self.output_ext(path)
-        if ext == ".svg":
+        if ext == SVG:
             return write_svg_animation(path, self.neutral, P, times)
         if ext == "folder":
             return write_svg_frames(path, self.neutral, P, times)
-        if ext == ".npz":
+        if ext == NPZ:
             return save_npz_arrays(path, {"points": P, "times": np.asarray(times, dtype=np.float64)})
         return write_drawing_preview(path, self.neutral, P, times, progress=bool(extra.get("progress")))

@@ -7,6 +7,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from ..errors import InputFileError, InvalidDataError, MissingShapeError
+from ..formats import BVH, GLB, SVG
 from ..io import (
     CONTROL_TABLE_FORMATS,
     POINT_SET_FORMATS,
@@ -49,7 +50,7 @@ def target_kind(path: str | os.PathLike) -> str:
     ext = p.suffix.lower()
     if ext in CONTROL_TABLE_FORMATS:
         return "controls"
-    if ext in (".bvh", ".glb"):
+    if ext in (BVH, GLB):
         return "skeleton"
     return "mesh"
 
@@ -135,7 +136,7 @@ def read_target(path: str | os.PathLike, *, rig: Rig | None = None, frames=None,
         return ControlTarget(read_control_table(p), rig, ranges=ranges)
     if kind == "skeleton":
         keys, nf = _frames_arg(frames, p)
-        if p.suffix.lower() == ".bvh":
+        if p.suffix.lower() == BVH:
             bvh, u = read_bvh(p), "cm"
         else:
             bvh, u = _glb_as_bvh(p)
@@ -147,17 +148,17 @@ def read_target(path: str | os.PathLike, *, rig: Rig | None = None, frames=None,
 
 
 def _read_drawings(folder: Path, neutral=None) -> DrawingTarget:
-    files = sorted(f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in (".svg",) + POINT_SET_FORMATS)
+    files = sorted(f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in (SVG,) + POINT_SET_FORMATS)
     exts = {f.suffix.lower() for f in files}
-    if ".svg" in exts and exts - {".svg"}:
-        files = [f for f in files if f.suffix.lower() == ".svg"]
+    if SVG in exts and exts - {SVG}:
+        files = [f for f in files if f.suffix.lower() == SVG]
     npath = Path(neutral) if neutral is not None else next((f for f in files if f.stem.lower() == "neutral"), None)
     if npath is None or not npath.is_file():
         raise MissingShapeError(f"{folder}: no neutral drawing (neutral.svg, neutral.npy or neutral.csv): the "
                                 "character at rest, with the same paths as every key drawing")
 
     def read(f: Path):
-        return read_svg_drawing(f) if f.suffix.lower() == ".svg" else read_point_set(f)
+        return read_svg_drawing(f) if f.suffix.lower() == SVG else read_point_set(f)
 
     base = read(npath)
     keys = {}

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataWarning, InvalidDataError
+from ..formats import BVH, GLB
 from ..io import Bvh, BvhJoint, bvh_pose, bvh_with_pose, bvh_world_positions, write_bvh, write_glb_skeleton
 from ..mesh import Mesh
 from ..numerics import blend_rotations
@@ -62,7 +63,7 @@ class SkeletonTarget(Target):
 
     kind = "skeleton"
     key_word = "key poses"
-    formats = (".bvh", ".glb")
+    formats = (BVH, GLB)
 
     def __init__(self, skeleton: Bvh, frames: Mapping[str, int], neutral_frame: int = 0, *, unit: str = "cm",
                  source: str | None = None) -> None:
@@ -150,7 +151,7 @@ class SkeletonTarget(Target):
         L0 = self.rest_bone_lengths()
         log(f"bone lengths kept: largest change {np.abs(L - L0).max(initial=0.0):.3g} {self.unit} over "
             f"{L.shape[1]} bones and {L.shape[0]} frames")
-        if self.output_ext(path) == ".bvh":
+        if self.output_ext(path) == BVH:
             return write_bvh(path, self.to_bvh(weights, times))
         q, pos = self.params(weights)
         joints: list[BvhJoint] = self.skeleton.joints
