@@ -94,8 +94,9 @@ def out_ext(path: Path) -> str:
 
 
 def one(name: str, path: Path, ref, caps: dict, cap_seconds: dict, work: Path, log) -> dict:
+    from faceretarget.characters import drive_rig, load_character
     from faceretarget.io import check_character_route
-    from faceretarget.pipelines import animate, drive_rig, load_character
+    from faceretarget.pipelines import animate
 
     res = {k: None for k in ("route", "meshes", "joints", "shapes_used", "shapes_total", "landmarks_nme_inner",
                              "landmarks_nme_contour", "mouth_corr", "fps", "prepare_s", "prepare_cached_s",

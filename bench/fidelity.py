@@ -11,7 +11,7 @@ renderer (the character's textures sampled per vertex, or its material colours),
 * ``turned``: the camera turned 15 degrees about the head's vertical axis and the key light from the right.
 
 A character without ARKit-named shapes (the VALID avatars) gets them generated first
-(:func:`~faceretarget.transfer.generate_shapes`, as ``faceretarget character shapes`` does; ``--no-generate`` leaves
+(:func:`~faceretarget.characters.generate_shapes`, as ``faceretarget character shapes`` does; ``--no-generate`` leaves
 it out): P11 counts generated shapes, and these avatars have textured eyes, where a tracker can see a blink.
 
 The video is captured once (:func:`~faceretarget.pipelines.capture_take`, MediaPipe) and given to
@@ -122,9 +122,9 @@ class Target:
     the regions, the lip corners' displacement."""
 
     def __init__(self, path: Path, generate: bool = False):
+        from faceretarget.characters import drive_rig, load_character
         from faceretarget.errors import MissingShapeError
         from faceretarget.metrics._fidelity import face_regions
-        from faceretarget.pipelines import drive_rig, load_character
 
         self.path = path
         self.name = path.stem if path.is_file() else path.name
@@ -136,7 +136,7 @@ class Target:
                 raise
             ch = load_character(path, need_shapes=False)
         if len(self._arkit(ch)) < 10 and generate:          # its ARKit shapes made by deformation transfer
-            from faceretarget.transfer import generate_shapes
+            from faceretarget.characters import generate_shapes
 
             ch = generate_shapes(ch, replace=False).apply()
             self.generated, self.name = True, self.name + "+arkit"
@@ -189,7 +189,7 @@ def look(target: Target, size: int, yaw: float | str = "front", light=None):
     """The character as the preview renderer shows it, carrying every ARKit shape in ``target.names`` order:
     the look rig, its shapes as a ``(K, 3 V)`` matrix, and a renderer (a context manager) from ``yaw`` with
     the key light ``light`` (the renderer's own by default)."""
-    from faceretarget.pipelines import look_rig
+    from faceretarget.characters import look_rig
     from faceretarget.render import MeshRenderer
 
     rig, colors, pivot = look_rig(target.drive, channels=[target.arkit[n] for n in target.names])

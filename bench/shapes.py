@@ -77,7 +77,8 @@ def find_characters(root: Path) -> dict:
 def residual(ch, shapes: str, cap) -> float:
     """Mean per-frame RMS landmark-fit residual of the take on the character's shapes, over the character's
     outer-eye-corner distance."""
-    from faceretarget.pipelines import drive_rig, face_take
+    from faceretarget.characters import drive_rig
+    from faceretarget.pipelines import face_take
     from faceretarget.retarget import LandmarkSolver, neutral_face
 
     rig = drive_rig(ch, shapes).rig
@@ -110,10 +111,11 @@ def direction_cos(ref, gen, names) -> float | None:
 
 
 def one(name: str, src, caps: dict, work: Path, log) -> dict:
+    from faceretarget.characters import generate_shapes, load_character
     from faceretarget.io import character_from_rig, read_character
     from faceretarget.names import ARKIT_NAMES, normalize_name
-    from faceretarget.pipelines import animate, load_character
-    from faceretarget.transfer import generate_shapes, shape_metrics
+    from faceretarget.pipelines import animate
+    from faceretarget.transfer import shape_metrics
 
     keys = ("ok", "error", "template", "shapes", "mouth_corr", "residual_ratio", "blink_gap_pct", "lid_inside_eye",
             "lip_gap_pct", "lips_in_teeth", "teeth_showing_px", "inverted_triangles", "mirror_err_pct", "seconds",

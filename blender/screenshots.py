@@ -65,8 +65,8 @@ def face_camera(bpy, names: list[str], size: int):
     import json
 
     from faceretarget.character import character_frame
+    from faceretarget.characters import apply_landmark_record
     from faceretarget.io import read_blender_scene_character
-    from faceretarget.pipelines import apply_landmark_record
 
     sc = bpy.context.scene
     objs = [bpy.data.objects[n] for n in names]

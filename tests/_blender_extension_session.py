@@ -157,8 +157,8 @@ class Session:
                 "slowest_tick": _slowest(ticks)}
 
     def scene_character(self, names: list[str]):
+        from faceretarget.characters import apply_landmark_record
         from faceretarget.io import read_blender_scene_character
-        from faceretarget.pipelines import apply_landmark_record
 
         objs = [self.bpy.data.objects[n] for n in names]
         ch = read_blender_scene_character(objs)
@@ -307,19 +307,12 @@ class Session:
     def _take_reference(self, path: Path, ch, route: str, source_keys):
         """The library's clone / retarget / animate on the take, composed as the command line does."""
         from faceretarget.character import channels
+        from faceretarget.characters import character_weights, drive_rig
         from faceretarget.cloning import keymodel_pair
         from faceretarget.datasets import make_demo_character
         from faceretarget.io import read_keys, read_performance
         from faceretarget.performance import Performance
-        from faceretarget.pipelines import (
-            animate,
-            arkit_curves,
-            character_weights,
-            clone_take,
-            drive_rig,
-            landmark_points,
-            retarget_take,
-        )
+        from faceretarget.pipelines import animate, arkit_curves, clone_take, landmark_points, retarget_take
 
         perf = read_performance(path)
         if route == "clone":

@@ -3,8 +3,10 @@ functions alike).
 
 core (data model, errors, units, time, head pose, files, model protocol)
   -> numerics (shared solvers and signal tools) -> render (pictures) -> io (every file format)
-  -> targets (what a character's keys are: meshes, controls, skeletons, drawings) -> methods (cloning, retarget, style, headmotion, capture; none imports another)
-  -> evaluation (metrics, datasets) -> applications (pipelines) -> generated shapes (transfer) -> cli
+  -> targets (what a character's keys are: meshes, controls, skeletons, drawings)
+  -> methods (cloning, retarget, style, headmotion, capture, transfer; none imports another)
+  -> characters (a user's character: read, landmarks, drive rig, generated shapes)
+  -> evaluation (metrics, datasets) -> applications (pipelines) -> cli
 
 A module may import only from its own layer or below; a private module (``pkg._mod``) only from
 inside its package; and no group of modules may import each other in a cycle.  See
@@ -24,9 +26,9 @@ ROOT = "faceretarget"
 CORE = {"__init__", "errors", "units", "timebase", "names", "mesh", "rig", "character", "headpose", "performance", "files",
         "base", "optional", "formats"}
 LAYERS = {**{m: 0 for m in CORE}, "numerics": 1, "render": 2, "io": 3, "targets": 3.5,
-          "cloning": 4, "retarget": 4, "style": 4, "headmotion": 4, "capture": 4,
-          "metrics": 5, "datasets": 5, "pipelines": 6, "transfer": 6.5, "cli": 7}
-METHODS = {"cloning", "retarget", "style", "headmotion", "capture"}
+          "cloning": 4, "retarget": 4, "style": 4, "headmotion": 4, "capture": 4, "transfer": 4,
+          "characters": 4.5, "metrics": 5, "datasets": 5, "pipelines": 6, "cli": 7}
+METHODS = {"cloning", "retarget", "style", "headmotion", "capture", "transfer"}
 
 
 def _module_name(path: Path) -> str:
@@ -202,3 +204,54 @@ def test_the_checks_catch_what_they_are_for(graph):
 def test_relative_imports_resolve_to_real_modules(graph):
     missing = sorted(f"{m} -> {d}" for m, deps in graph.items() for d in deps if not _exists(d))
     assert missing == []
+
+
+def extension_literals(src: Path = SRC) -> list[str]:
+    """``file:line '.ext'`` for every string constant that is exactly a file extension the registry declares
+    (:mod:`faceretarget.formats`), outside the registry itself (a file name built in an f-string, such as
+    ``f"{name}.obj"``, is not a format decision)."""
+    from faceretarget import formats
+
+    known = {v for k, v in vars(formats).items() if k.isupper() and isinstance(v, str) and v.startswith(".")}
+    known |= {e for v in vars(formats).values() if isinstance(v, tuple) for e in v
+              if isinstance(e, str) and e.startswith(".")}
+    out = []
+    for path in sorted(src.rglob("*.py")):
+        if path == src / "formats.py":
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        in_fstring = {id(v) for n in ast.walk(tree) if isinstance(n, ast.JoinedStr) for v in n.values}
+        for node in ast.walk(tree):
+            if id(node) not in in_fstring and isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value.lower() in known:
+                out.append(f"{path.relative_to(src)}:{node.lineno} {node.value!r}")
+    return out
+
+
+def test_every_file_extension_is_declared_only_in_the_format_registry(tmp_path):
+    """Issue 33: one place answers which formats, which route, what is needed; the check catches a literal."""
+    assert extension_literals() == []
+    (tmp_path / "m.py").write_text('OUT = "x"\nif OUT.endswith(".usda"):\n    pass\n')
+    assert extension_literals(tmp_path) == ["m.py:2 '.usda'"]
+
+
+def test_each_character_format_is_one_declaration_that_answers_everything():
+    from faceretarget import formats, io
+
+    seen = set()
+    for f in formats.CHARACTER_FORMATS.values():
+        assert not seen & set(f.extensions), f"{f.name}: an extension declared twice"
+        seen |= set(f.extensions)
+        assert callable(formats._resolve(f.reader)), f.reader            # the reader it names exists
+        for w in (f.animation_writer, f.shapes_writer):
+            assert not w or callable(formats._resolve(w)), w
+        for e in f.extensions:
+            assert formats.character_format_of(f"x{e.upper()}") is f
+            assert io.character_format(f"x{e}") == f.name
+        for out in f.writes_back:
+            assert io.writes_back(f"x{f.extensions[0]}", f"y{out}")
+        assert not io.writes_back(f"x{f.extensions[0]}", "y.csv") if f.extensions else True
+    assert set(io.CHARACTER_EXTENSIONS) == seen
+    assert io.WRITE_BACK["vrm0"] == io.WRITE_BACK["vrm1"] == formats.CHARACTER_FORMATS["vrm"].writes_back
+    assert io.SHAPES_WRITE is io.WRITE_BACK                        # was a second, hand-kept copy
+    assert formats.character_format_of(SRC) is formats.CHARACTER_FORMATS["obj"]     # a folder
+    assert formats.character_format_of("take.csv") is None

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from faceretarget.character import Channel, channels, choose_shapes, is_viseme, joint_motions, joint_rotations
+from faceretarget.characters import load_character
 from faceretarget.errors import (
     FaceNotFoundError,
     InputFileError,
@@ -24,7 +25,7 @@ from faceretarget.errors import (
 )
 from faceretarget.headpose import HeadPose
 from faceretarget.io import read_character, write_character_animation, write_glb
-from faceretarget.pipelines import animate, capture_take, load_character
+from faceretarget.pipelines import animate, capture_take
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 import _character_checks as checks  # noqa: E402
@@ -285,8 +286,8 @@ def test_landmark_cache_is_the_users_keyed_by_content(tmp_path, chars, monkeypat
     FACERETARGET_CACHE is unset), named by the file's SHA-256: a read-only character folder is left as it was,
     the second load reads them back, a copy elsewhere finds them too, and --no-cache neither reads nor writes."""
     pytest.importorskip("mediapipe")
+    from faceretarget.characters import landmark_cache_path
     from faceretarget.files import cache_dir
-    from faceretarget.pipelines import landmark_cache_path
 
     monkeypatch.delenv("FACERETARGET_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))

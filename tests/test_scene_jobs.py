@@ -68,10 +68,11 @@ def arkit_character(arkit_rig):
 
 
 def test_apply_take_clone_route_is_the_clone_command(arkit_character, data_dir):
+    from faceretarget.characters import character_weights, drive_rig
     from faceretarget.cloning import keymodel_pair
     from faceretarget.datasets import make_demo_character
     from faceretarget.io import read_performance
-    from faceretarget.pipelines import apply_take, arkit_curves, character_weights, clone_take, drive_rig
+    from faceretarget.pipelines import apply_take, arkit_curves, clone_take
 
     take = read_performance(data_dir / "livelinkface" / "MySlate_3_Jason_Millers_iPhone.csv").slice(0, 60)
     res = apply_take(take, arkit_character)
@@ -120,7 +121,7 @@ def test_clone_route_on_a_character_without_arkit_shapes_names_it(arkit_rig):
 
 
 def test_landmark_record_round_trip_and_refusal(arkit_character):
-    from faceretarget.pipelines import apply_landmark_record, landmark_record, mesh_sha256
+    from faceretarget.characters import apply_landmark_record, landmark_record, mesh_sha256
 
     rec = landmark_record(arkit_character)
     assert rec["sha256"] == mesh_sha256(arkit_character.meshes[0].mesh) and len(rec["triangles"]) == 68

@@ -11,18 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from faceretarget.characters import generate_shapes, load_character, load_template
 from faceretarget.cli import main
 from faceretarget.io import read_character, read_rig
 from faceretarget.names import normalize_name
-from faceretarget.pipelines import animate, capture_take, load_character
-from faceretarget.transfer import (
-    generate_shapes,
-    load_template,
-    packaged_template_path,
-    shape_delta,
-    shape_metrics,
-    teeth_showing_px,
-)
+from faceretarget.pipelines import animate, capture_take
+from faceretarget.transfer import packaged_template_path, shape_delta, shape_metrics, teeth_showing_px
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from _character_checks import hide_shapes  # noqa: E402

@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 
 from faceretarget.character import character_frame
+from faceretarget.characters import drive_rig
 from faceretarget.errors import InvalidDataError, MissingShapeError, OutputError
 from faceretarget.io import read_character, write_character_shapes
-from faceretarget.pipelines import drive_rig, shape_sheet
+from faceretarget.pipelines import shape_sheet
 
 REPO = Path(__file__).resolve().parents[1]
 VALIDATOR = REPO / ".tools" / "node_modules" / "gltf-validator"

@@ -322,7 +322,7 @@ class Character:
     face_filter : list of int, optional
         The face mesh chosen by the user (``--mesh``) when the file holds several heads.
     timings : dict
-        Seconds spent reading and finding landmarks (set by ``pipelines.load_character``).
+        Seconds spent reading and finding landmarks (set by ``characters.load_character``).
     search : object
         What the landmark search saw (:class:`~faceretarget.capture.LandmarkSearch`), when it ran.
     neutral_head : int, optional

@@ -6,7 +6,7 @@ inspect_character`): the route and meshes, the face meshes and joints found, the
 region they move, which of them will drive the face, and a picture of the render with the 68 landmarks.
 
 ``character shapes`` generates the ARKit expression shapes of a character that has only a neutral face
-(:func:`faceretarget.transfer.generate_shapes`) and writes them: an OUT without a suffix (or an existing
+(:func:`faceretarget.characters.generate_shapes`) and writes them: an OUT without a suffix (or an existing
 folder) is an OBJ rig folder of the head mesh (``neutral.obj``, one OBJ per shape, ``landmarks68.txt``);
 any other OUT is the character's own format with the new morph targets (``faceretarget.io.write_character_shapes``).
 """
@@ -25,8 +25,8 @@ __all__ = ["register", "cmd_inspect", "cmd_shapes", "write_shapes_obj"]
 
 
 def cmd_inspect(args, log) -> int:
+    from ..characters import inspect_character
     from ..io import check_character_route
-    from ..pipelines import inspect_character
 
     check_inputs(("FILE", args.file), ("--landmarks", args.landmarks), folders=("FILE",))
     if args.out is not None:
@@ -53,7 +53,8 @@ def cmd_inspect(args, log) -> int:
         except FaceNotFoundError:
             if sheet is None:
                 raise
-            from ..pipelines import load_character, shape_sheet
+            from ..characters import load_character
+            from ..pipelines import shape_sheet
 
             log("no landmarks: the contact sheet frames the face mesh's moving vertices instead")
             shape_sheet(load_character(args.file, mesh=args.mesh, find=False), sheet, shapes=args.shapes, log=log)
@@ -105,9 +106,9 @@ def write_shapes_obj(out, gen) -> Path:
 
 
 def cmd_shapes(args, log) -> int:
+    from ..characters import generate_shapes
     from ..errors import InputFileError
     from ..files import check_output_path
-    from ..transfer import generate_shapes
 
     check_inputs(("CHAR", args.file), ("--landmarks", args.landmarks), folders=("CHAR",))
     out = Path(args.out)

@@ -59,7 +59,7 @@ def cmd_live(args, log) -> int:
     from ..io import check_character_route, is_character_file
 
     if is_character_file(args.character):                  # its own shapes, its landmarks found (and cached)
-        from ..pipelines import drive_rig, load_character
+        from ..characters import drive_rig, load_character
 
         check_character_route(args.character)
         drive = drive_rig(load_character(args.character, landmarks=args.landmarks, mesh=args.mesh, log=log),

@@ -44,7 +44,7 @@ KEYS = Range(1, 10000, integer=True)
 def _rig(path, neutral=None, landmarks=None, flag: str = "--neutral", log=None, args=None):
     """The rig folder ``path`` (None without one); a missing neutral names the command's ``flag``; ``log``
     says which rig is read (a large rig takes a second).  A character file (.glb, .fbx, ...) gives its face
-    rig on its ARKit shapes (``args.shapes``), and the :class:`~faceretarget.pipelines.DriveRig` is kept as
+    rig on its ARKit shapes (``args.shapes``), and the :class:`~faceretarget.characters.DriveRig` is kept as
     ``args.character`` for the output."""
     from ..io import is_character_file, read_rig
 
@@ -53,7 +53,7 @@ def _rig(path, neutral=None, landmarks=None, flag: str = "--neutral", log=None, 
     if log is not None:
         log(f"reading {path}")
     if is_character_file(path):
-        from ..pipelines import drive_rig, load_character
+        from ..characters import drive_rig, load_character
 
         drive = drive_rig(load_character(path, find=False, mesh=getattr(args, "mesh", None)),
                           getattr(args, "shapes", "arkit") or "arkit", need_landmarks=False)

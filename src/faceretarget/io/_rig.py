@@ -223,7 +223,7 @@ def _neutral_path(folder: Path, objs: list[Path], neutral: str | os.PathLike | N
     if not cands:
         raise MissingShapeError(
             f"{folder}: no neutral mesh found among {len(objs)} OBJ file(s); looked for a file "
-            f"named {' / '.join(n + '.obj' for n in NEUTRAL_NAMES)} or '*_neutral.obj' "
+            f"named {' / '.join(n + OBJ for n in NEUTRAL_NAMES)} or '*_neutral.obj' "
             "(any case); pass neutral=... to choose one")
     if len(cands) > 1:
         raise InputFileError(

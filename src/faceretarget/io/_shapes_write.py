@@ -69,7 +69,7 @@ def write_character_shapes(out: str | os.PathLike, character: Character, added: 
         The copy: the character's own format (:data:`SHAPES_WRITE`), or an OBJ folder (no suffix, or a
         trailing ``/``).  Never the character's file itself.
     character : Character
-        As read from its file (:func:`~faceretarget.io.read_character` or ``pipelines.load_character``).
+        As read from its file (:func:`~faceretarget.io.read_character` or ``characters.load_character``).
     added : dict
         ``{SceneMesh.name: {shape name: (V, 3) delta}}``: world-space deltas in metres, the frame of
         ``SceneMesh.mesh``.

@@ -64,20 +64,6 @@ from ._capture import (
     fit_appearance,
     tracked_videos,
 )
-from ._character import (
-    CharacterReport,
-    DriveRig,
-    apply_landmark_record,
-    character_weights,
-    drive_rig,
-    inspect_character,
-    landmark_cache_path,
-    landmark_record,
-    load_character,
-    look_rig,
-    mesh_sha256,
-    read_landmark_file,
-)
 from ._demo import run_demo
 from ._head import build_head_database
 from ._jobs import JOB_OPTIONS, OPERATIONS, BatchSpec, Job, read_jobs
@@ -128,16 +114,7 @@ from ._worker import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_pat
 __all__ = [
     "gaze_rotations",
     "GAZE_DEG",
-    "load_character",
-    "drive_rig",
-    "character_weights",
-    "look_rig",
-    "DriveRig",
-    "inspect_character",
     "shape_sheet",
-    "CharacterReport",
-    "landmark_cache_path",
-    "read_landmark_file", "landmark_record", "apply_landmark_record", "mesh_sha256",
     "animate", "AnimateResult", "video_solver", "tracked_take", "face_take", "face_frame", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks",
     "clone_take", "retarget_take", "write_result", "source_geometry", "Transfer", "CHUNK_FRAMES",
     "result_head", "arkit_curves", "face_and_head_formats", "HEAD_CHOICES", "check_result_path", "MAX_TEMPORAL",
@@ -154,3 +131,19 @@ __all__ = [
     "run_batch", "CONNECT_TIMEOUT", "read_jobs", "read_manifest", "local_cluster", "BatchSpec", "BatchSummary", "Job", "JobOutcome", "ClusterError",
     "OPERATIONS", "JOB_OPTIONS",
 ]
+
+#: Names that moved to :mod:`faceretarget.characters` (issue 33); they still work here for one release.
+_MOVED = ("CharacterReport", "DriveRig", "apply_landmark_record", "character_weights", "drive_rig",
+          "inspect_character", "landmark_cache_path", "landmark_record", "load_character", "look_rig", "mesh_sha256",
+          "read_landmark_file")
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        import importlib
+        import warnings
+
+        warnings.warn(f"faceretarget.pipelines.{name} moved to faceretarget.characters.{name}; the old name goes in "
+                      "the next release", DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module("faceretarget.characters"), name)
+    raise AttributeError(f"module 'faceretarget.pipelines' has no attribute {name!r}")

@@ -137,7 +137,7 @@ def video_solver() -> LandmarkSolver:
 
 def drives_by_landmarks(character: Rig) -> bool:
     """Whether ``character`` is driven by its own shapes: its 68 landmarks and either ARKit-named shapes
-    (a rig folder) or shapes chosen from a character file (:func:`~faceretarget.pipelines.drive_rig`,
+    (a rig folder) or shapes chosen from a character file (:func:`~faceretarget.characters.drive_rig`,
     any names)."""
     return (character.landmarks is not None and len(character.landmarks) == 68 and character.n_shapes > 0
             and (character.keep_names or sum(is_arkit(n) for n in character.names) >= _MIN_ARKIT))
@@ -461,7 +461,7 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
                                "made by 'faceretarget headmotion build')")
     drive = None
     if not isinstance(character, Rig):
-        from ._character import drive_rig, load_character
+        from ..characters import drive_rig, load_character
 
         t0 = time.perf_counter()
         loaded = load_character(character, landmarks=landmarks, mesh=mesh, log=log)
@@ -611,7 +611,7 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
             raise InvalidDataError(f"{preview}: a preview of a capture or take needs the video to show beside "
                                    "the character (preview_video)")
         if drive is not None:                     # the character as it looks: textures, every mesh about the face
-            from ._character import look_rig
+            from ..characters import look_rig
 
             look, colors, pivot = look_rig(drive)
             res.outputs.append(_preview(preview, shown, look, res, preview_size, preview_backend, progress, log,

@@ -6,7 +6,7 @@ Three routes, each the library's own job (nothing solved differently here):
     Pyun's cloning exactly as ``faceretarget clone --source-rig SRC --target-rig CHARACTER --keys arkit``:
     key-models paired by their ARKit names on the source rig the take drives (default the embedded demo
     character ``ada``, all 52 ARKit shapes) and on the character's ARKit shapes
-    (:func:`~faceretarget.pipelines.drive_rig` with ``"arkit"``), :func:`clone_take`, the result's
+    (:func:`~faceretarget.characters.drive_rig` with ``"arkit"``), :func:`clone_take`, the result's
     ARKit curves (:func:`arkit_curves`) on the character's own shapes (:func:`character_weights`).
 ``retarget`` (a point or vertex take: C3D markers, ``.npz`` points or vertices)
     Chuang's keyshape retargeting as ``faceretarget retarget --source-keys KEYS --target-keys CHARACTER``:
@@ -141,8 +141,8 @@ def apply_take(take: str | os.PathLike | Performance, character: Character, *, r
     MissingShapeError
         The clone or retarget route on a character without ARKit shapes.
     """
+    from ..characters import drive_rig
     from ..io import read_performance
-    from ._character import drive_rig
 
     if route not in TAKE_ROUTES:
         raise InvalidDataError(f"route must be one of {', '.join(TAKE_ROUTES)}, got {route!r}")
@@ -182,7 +182,7 @@ def _has_arkit(character: Character) -> bool:
 
 
 def _arkit_drive(character: Character):
-    from ._character import drive_rig
+    from ..characters import drive_rig
 
     if not _has_arkit(character):
         raise MissingShapeError(f"{character.name}: fewer than {_MIN_ARKIT} ARKit-named shapes, so the ARKit curves "
@@ -191,7 +191,7 @@ def _arkit_drive(character: Character):
 
 
 def _result(transfer, drive, perf: Performance, route: str, log) -> AppliedTake:
-    from ._character import character_weights
+    from ..characters import character_weights
     from ._transfer import arkit_curves
 
     W, names = arkit_curves(transfer, log=log)

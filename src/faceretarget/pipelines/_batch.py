@@ -325,7 +325,7 @@ def _load_rig(c: Character):
     if c.rig.suffix.lower() == NPZ:
         return read_rig_npz(c.rig)
     if is_character_file(c.rig):
-        from ._character import load_character
+        from ..characters import load_character
 
         return load_character(c.rig, landmarks=c.landmarks)
     raise InvalidDataError(f"{c.rig}: a character's rig is a folder of OBJs, a rig .npz or a character file "
@@ -338,7 +338,7 @@ def _target_rig(rig, f: _Fitted):
     from ..character import Character as FileCharacter
 
     if isinstance(rig, FileCharacter):
-        from ._character import drive_rig
+        from ..characters import drive_rig
 
         f.drive = drive_rig(rig, "arkit", need_landmarks=False)
         return f.drive.rig

@@ -60,7 +60,7 @@ def shape_sheet(character: Character, out: str | os.PathLike, *, shapes: str = "
     Parameters
     ----------
     character : Character
-        Read (and with landmarks, when found; :func:`~faceretarget.pipelines.load_character`).
+        Read (and with landmarks, when found; :func:`~faceretarget.characters.load_character`).
     out : path-like
         ``.png``, ``.jpg`` or ``.jpeg``.
     shapes : str

@@ -502,7 +502,7 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
     bake : bool
         USD only: time-sampled mesh points instead of blend shapes and weights.
     character : DriveRig, optional
-        The target as a character file (:func:`~faceretarget.pipelines.drive_rig`): an output in its own
+        The target as a character file (:func:`~faceretarget.characters.drive_rig`): an output in its own
         format gets the animation written back into a copy of that file, the ARKit curves of the result
         (:func:`arkit_curves`) on the character's shapes and the head motion on its head joint.
     neck_share : float
@@ -566,8 +566,8 @@ def write_result(path: str | os.PathLike, transfer: Transfer, *, head="auto", ba
 
 def _write_back(path: Path, transfer: Transfer, drive, head, neck_share: float, log) -> Path:
     """The result written back into a copy of the target character's own file."""
+    from ..characters import character_weights
     from ..io import write_character_animation
-    from ._character import character_weights
 
     res = transfer.result
     W, names = arkit_curves(transfer, path=path, log=log)

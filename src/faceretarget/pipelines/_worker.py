@@ -210,7 +210,7 @@ class _Job:
 
     def character(self, *, find: bool = True):
         """The pickled character with its landmarks (the record given, else found on a render)."""
-        from ._character import apply_landmark_record, load_character
+        from ..characters import apply_landmark_record, load_character
 
         path = Path(self.params["character"])
         data = path.read_bytes()
@@ -246,7 +246,7 @@ class _Job:
         return str(out)
 
     def _done(self, ch, found: bool, drive, W, times, head, audio, audio_rate, **extra) -> dict:
-        from ._character import landmark_record
+        from ..characters import landmark_record
 
         npz = self._save(weights=np.asarray(W, np.float64), times=np.asarray(times, np.float64),
                          head=None if head is None else np.asarray(head.quaternions, np.float64))
@@ -296,7 +296,7 @@ class _Job:
                           route=res.route)
 
     def landmarks(self) -> dict:
-        from ._character import landmark_record, read_landmark_file
+        from ..characters import landmark_record, read_landmark_file
 
         p = self.params
         ch, found = self.character()
@@ -323,7 +323,7 @@ class _Job:
     def live(self) -> dict:
         from scipy.spatial.transform import Rotation
 
-        from ._character import drive_rig
+        from ..characters import drive_rig
         from ._live import LiveSession
 
         p = self.params
@@ -347,7 +347,7 @@ class _Job:
         with session:
             stats = session.run()
         self.stop.set()
-        from ._character import landmark_record
+        from ..characters import landmark_record
 
         stages = {k: round(stats.stage_ms(k), 2) for k in ("decode", "track", "points", "solve", "head", "send")
                   if k in stats.stages and len(stats.stages[k])}

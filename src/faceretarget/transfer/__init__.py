@@ -8,6 +8,7 @@ Eyeballs turn for ``eyeLook*``, the lower teeth and tongue ride the jaw, lids cl
 eyeballs, the inner lips meet for ``jawOpen + mouthClose``.  See docs/shapes.md.
 """
 
+from ._geometry import closest_points, gradient_operator, triangle_areas, umeyama, vertex_normals
 from ._metrics import (
     blink_gap_pct,
     eye_parts,
@@ -19,14 +20,29 @@ from ._metrics import (
     shape_metrics,
     teeth_showing_px,
 )
-from ._parts import LidMargin, Part, find_parts, fit_sphere, lid_margins
+from ._parts import LidMargin, Part, components, find_parts, fit_sphere, lid_margins
 from ._register import register_template
-from ._template import TEMPLATES, Template, ict_to_arkit, load_template, packaged_template_path
-from ._transfer import EYE_LOOK_DEGREES, LID_PAIRS, LIP_PAIRS, METHODS, GeneratedShapes, generate_shapes
+from ._template import TEMPLATES, Template, ict_to_arkit, packaged_template, packaged_template_path
 
-__all__ = ["generate_shapes", "GeneratedShapes", "load_template", "Template", "TEMPLATES", "ict_to_arkit",
+__all__ = ["Template", "TEMPLATES", "ict_to_arkit", "packaged_template", "closest_points", "gradient_operator",
+           "triangle_areas", "umeyama", "vertex_normals", "components",
            "packaged_template_path", "register_template", "find_parts", "fit_sphere", "Part", "LidMargin",
-           "lid_margins", "LID_PAIRS",
-           "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS", "blink_gap_pct", "lip_gap_pct", "inverted_triangles",
+           "lid_margins", "blink_gap_pct", "lip_gap_pct", "inverted_triangles",
            "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta", "lips_in_teeth",
            "teeth_showing_px"]
+
+#: Names that moved to :mod:`faceretarget.characters` (issue 33: generating a character's shapes is a
+#: character job; this package keeps the method); they still work here for one release.
+_MOVED = ("generate_shapes", "GeneratedShapes", "load_template", "LID_PAIRS", "LIP_PAIRS", "EYE_LOOK_DEGREES",
+          "METHODS")
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        import importlib
+        import warnings
+
+        warnings.warn(f"faceretarget.transfer.{name} moved to faceretarget.characters.{name}; the old name goes in "
+                      "the next release", DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module("faceretarget.characters"), name)
+    raise AttributeError(f"module 'faceretarget.transfer' has no attribute {name!r}")

@@ -194,7 +194,7 @@ def mirror_err_pct(character: Character, *, symmetric_tol: float = 0.02) -> floa
 
 def eye_parts(character: Character) -> list:
     """The character's eyeballs (:class:`~faceretarget.transfer.Part` with ``centre`` and ``radius``), found
-    as :func:`~faceretarget.transfer.generate_shapes` finds them."""
+    as :func:`~faceretarget.characters.generate_shapes` finds them."""
     from ._parts import components, find_parts
 
     mi = character.landmarks.mesh

@@ -1,4 +1,5 @@
-"""Generate a neutral character's expression shapes by deformation transfer (:func:`generate_shapes`)."""
+"""Generate a neutral character's expression shapes by deformation transfer (:func:`generate_shapes`): the
+character-level job that loads the template and the character and runs :mod:`faceretarget.transfer`'s method."""
 
 from __future__ import annotations
 
@@ -12,10 +13,20 @@ import numpy as np
 from ..character import Character, character_frame
 from ..errors import InvalidDataError, MissingShapeError
 from ..names import ARKIT_NAMES, normalize_name
-from ._geometry import closest_points, gradient_operator, triangle_areas, vertex_normals
-from ._parts import LidMargin, Part, find_parts, lid_margins
-from ._register import register_template
-from ._template import Template, load_template
+from ..transfer import (
+    LidMargin,
+    Part,
+    Template,
+    closest_points,
+    components,
+    find_parts,
+    gradient_operator,
+    lid_margins,
+    register_template,
+    triangle_areas,
+    vertex_normals,
+)
+from ._template import load_template
 
 __all__ = ["generate_shapes", "GeneratedShapes", "LID_PAIRS", "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS"]
 
@@ -190,14 +201,14 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
         those it already has are kept (listed in ``skipped``) unless ``replace``.
     template : str, path-like or Template
         ``"ict-face"`` (packaged), ``"arkit-face"`` or a rig folder / character file with ARKit shapes
-        (:func:`~faceretarget.transfer.load_template`).
+        (:func:`~faceretarget.characters.load_template`).
     shapes : str or list of str
         ``"arkit"`` (every ARKit shape the template has) or ARKit names.
     replace : bool
         Generate shapes the character already has too (they replace the artist's in :meth:`GeneratedShapes.apply`).
     progress : callable, optional
         Called with one line per step and per shape.
-    mesh, landmarks : ``--mesh`` and ``--landmarks`` of :func:`~faceretarget.pipelines.load_character`.
+    mesh, landmarks : ``--mesh`` and ``--landmarks`` of :func:`~faceretarget.characters.load_character`.
     method : str
         ``"deformation"`` (default) or ``"barycentric"`` (:data:`METHODS`).
     symmetric : bool
@@ -212,7 +223,7 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     from scipy.sparse import csr_matrix, diags
     from scipy.spatial import cKDTree
 
-    from ..pipelines import load_character
+    from ._load import load_character
 
     say = progress or log or (lambda *_: None)
     if method not in METHODS:
@@ -241,7 +252,6 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     size = float(np.linalg.norm(lm[36] - lm[45]))
     centre = lm[17:68].mean(axis=0)
     # the face's skin: the head mesh's piece that holds the landmarks, near the face
-    from ._parts import components
 
     lab = components(len(V), T)
     skin_label = np.bincount(lab[ch.landmarks.triangles.ravel()]).argmax()
