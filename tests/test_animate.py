@@ -206,6 +206,40 @@ def test_animate_a_real_video_follows_the_mouth_and_the_head(arkit, aoc_capture,
     assert animate(aoc_capture, arkit, head="off").head is None
 
 
+def test_animate_options_object_and_keywords_give_the_same_animation(arkit, aoc_capture):
+    """Issue 33: one options object (the CLI, batch and the Blender worker fill it); keywords override it, and
+    bad values are refused before any work, naming the option."""
+    from faceretarget.pipelines import AnimateOptions, animate
+
+    o = AnimateOptions(head_amplitude=0.5, head="video")
+    a = animate(aoc_capture, arkit, o)
+    b = animate(aoc_capture, arkit, head_amplitude=0.5)
+    assert np.array_equal(a.weights, b.weights) and np.array_equal(a.head.as_quat(), b.head.as_quat())
+    c = animate(aoc_capture, arkit, o, head="off")                      # a keyword overrides the object
+    assert c.head is None and o.head == "video"                         # ... and does not change it
+    assert np.array_equal(c.weights, a.weights)
+    for bad, word in ((dict(head="nod"), "head must be one of"), (dict(head_amplitude=-1), "head amplitude"),
+                      (dict(neck_share=2), "neck share"), (dict(head="speech"), "head-motion database")):
+        with pytest.raises(InvalidDataError, match=word):
+            AnimateOptions(**bad).check()
+    with pytest.raises(TypeError, match="head_amp"):
+        animate(aoc_capture, arkit, head_amp=0.5)
+
+
+def test_moved_character_names_still_work_with_a_deprecation_warning():
+    import faceretarget.characters as characters
+    import faceretarget.pipelines as pipelines
+    import faceretarget.transfer as transfer
+
+    for mod, name in ((pipelines, "load_character"), (pipelines, "drive_rig"), (transfer, "generate_shapes"),
+                      (transfer, "load_template")):
+        with pytest.warns(DeprecationWarning, match=f"moved to faceretarget.characters.{name}"):
+            assert getattr(mod, name) is getattr(characters, name)
+        assert name not in mod.__all__ and name in characters.__all__
+    with pytest.raises(AttributeError):
+        pipelines.no_such_name  # noqa: B018
+
+
 def test_animate_cli_checks_outputs_before_any_work(tmp_path, capsys):
     from faceretarget.cli import main
 

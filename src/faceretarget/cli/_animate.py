@@ -57,7 +57,7 @@ def character_out(character, out: Path) -> bool:
 def cmd_animate(args, log) -> int:
     from ..files import check_output_path
     from ..io import is_character_file, read_rig
-    from ..pipelines import animate
+    from ..pipelines import AnimateOptions, animate
 
     video = Path(args.video)
     if not video.is_file():
@@ -100,12 +100,12 @@ def cmd_animate(args, log) -> int:
     if (sk is None) != (tk is None):
         raise InvalidDataError("give both --source-keys and --target-keys")
     with warnings_to_log(log):
-        res = animate(video, character, out=out, preview=preview, head=args.head, head_db=args.head_db,
-                      head_amplitude=args.head_amplitude, emotion=args.emotion, style=args.style,
-                      speech=args.speech, source_keys=sk, target_keys=tk, max_frames=args.max_frames,
-                      landmarker=args.model, preview_size=args.preview_size, bake=args.bake,
-                      progress=not log.quiet, shapes=args.shapes, landmarks=args.landmarks, mesh=args.mesh,
-                      neck_share=args.neck_share, log=log)
+        res = animate(video, character, AnimateOptions(
+            out=out, preview=preview, head=args.head, head_db=args.head_db, head_amplitude=args.head_amplitude,
+            emotion=args.emotion, style=args.style, speech=args.speech, source_keys=sk, target_keys=tk,
+            max_frames=args.max_frames, landmarker=args.model, preview_size=args.preview_size, bake=args.bake,
+            progress=not log.quiet, shapes=args.shapes, landmarks=args.landmarks, mesh=args.mesh,
+            neck_share=args.neck_share), log=log)
     return 0 if res.outputs else 1
 
 

@@ -24,6 +24,7 @@ content (what is said) is kept by the style model, so the lip sync is kept.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 import warnings
@@ -47,7 +48,7 @@ from ..style import SpeakerStyleModel
 from ..timebase import infer_fps
 from ._progress import working
 
-__all__ = ["FACE_EYE_MM", "GAZE_DEG", "gaze_rotations", "animate", "AnimateResult", "tracked_take", "face_take",
+__all__ = ["FACE_EYE_MM", "GAZE_DEG", "gaze_rotations", "animate", "AnimateOptions", "AnimateResult", "tracked_take", "face_take",
            "face_frame", "face_takes", "VIDEO_EXTENSIONS", "parse_emotion", "HEAD_SOURCES", "drives_by_landmarks"]
 
 #: Where ``animate``'s head motion comes from.
@@ -382,31 +383,14 @@ def gaze_rotations(names: list[str], scores: np.ndarray) -> dict:
 
 
 # --------------------------------------------------------------------------------------- animate
-def animate(video: str | os.PathLike | Capture, character, *, out: str | os.PathLike | None = None,
-            preview: str | os.PathLike | None = None, preview_video: str | os.PathLike | None = None,
-            head: str = "video",
-            head_db: str | os.PathLike | None = None, head_amplitude: float = 1.0,
-            emotion=None, style=None, speech: str | os.PathLike | None = None,
-            source_keys: Rig | None = None, target_keys: Rig | None = None,
-            solver: LandmarkSolver | None = None, max_frames: int | None = None,
-            landmarker: str | os.PathLike | None = None, preview_size: int = 512, preview_backend: str = "auto",
-            bake: bool = False, progress: bool = False, shapes: str = "auto",
-            landmarks: str | os.PathLike | None = None, mesh: str | None = None, neck_share: float = 0.0,
-            log: Callable[..., None] = _quiet) -> AnimateResult:
-    """Animate ``character`` from a video of an actor (Chuang Ch. 5's system), optionally writing
-    the animation (face and head, with the soundtrack where the format holds one) and a preview.
+@dataclass
+class AnimateOptions:
+    """Every option of :func:`animate`, with its default: one object the CLI, the Blender extension's worker,
+    batch jobs and live sessions fill and pass (``animate(video, character, options)``), or keyword arguments
+    of the same names (``animate(video, character, out="a.glb")``).
 
-    Parameters
+    Attributes
     ----------
-    video : path-like, Capture or Performance
-        Any video FFmpeg reads, a capture already made (:func:`capture_take`), or a tracked take of
-        the 68 face points, with the tracker's scores as weights when it has them (:func:`tracked_take`).
-    character : path-like, Character or Rig
-        A character file (``.glb``/``.gltf``/``.vrm``, ``.fbx``, ``.blend``, ``.usd*``) or a
-        :class:`~faceretarget.character.Character` read from one: its own shapes, whatever their names,
-        drive its face from the landmarks (found on a render and cached; ``landmarks``, ``mesh``,
-        ``shapes``).  Or a :class:`~faceretarget.rig.Rig` (a folder of OBJ files): ARKit-named shapes and
-        68 landmarks, or any rig with ``source_keys`` / ``target_keys``.
     out : path-like, optional
         For a character file, the same format as its input writes the animation back into a copy of
         that file (:func:`~faceretarget.io.write_character_animation`: every node, mesh, material,
@@ -420,8 +404,10 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
         preview of a capture or take).
     head : {"video", "speech", "off"}
         Tracked head pose, head motion synthesized from the speech (needs ``head_db``), or none.
+    head_db : path-like, optional
+        The head-motion database (``faceretarget headmotion build``) for ``head="speech"``.
     head_amplitude : float
-        Scale of the head's rotation angles and translation (>= 0).
+        Scale of the head's rotation angles and translation (0..10).
     emotion : str, path or mapping, optional
         ``"angry:0.6"``, or a curve file (:func:`parse_emotion`); needs ``style``.
     style : StyleModel, SpeakerStyleModel or path-like, optional
@@ -439,6 +425,18 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
     solver : LandmarkSolver, optional
         Unfitted, with its parameters (default :func:`video_solver`: the tracker's scores a strong prior,
         with per-take gains fitted to the landmarks).
+    max_frames : int, optional
+        Track at most this many frames of the video.
+    landmarker : path-like, optional
+        A MediaPipe Face Landmarker model file (default the packaged one).
+    preview_size : int
+        Pixels of the character's half of the preview.
+    preview_backend : str
+        ``"auto"``, ``"gl"`` or ``"numpy"`` (:func:`~faceretarget.render.preview_renderer`).
+    bake : bool
+        USD output: mesh points per frame instead of blend-shape weights.
+    progress : bool
+        Progress bars on stderr.
     shapes : str
         For a character file: which of its shapes drive (``auto``, ``arkit``, ``visemes``, ``all`` or
         names; :func:`~faceretarget.character.choose_shapes`).
@@ -449,178 +447,284 @@ def animate(video: str | os.PathLike | Capture, character, *, out: str | os.Path
     neck_share : float
         For a character file with a neck joint: the share of the head's rotation the neck takes (0..1).
     """
-    from ._capture import capture_take
 
+    out: str | os.PathLike | None = None
+    preview: str | os.PathLike | None = None
+    preview_video: str | os.PathLike | None = None
+    head: str = "video"
+    head_db: str | os.PathLike | None = None
+    head_amplitude: float = 1.0
+    emotion: object = None
+    style: object = None
+    speech: str | os.PathLike | None = None
+    source_keys: Rig | None = None
+    target_keys: object = None
+    solver: LandmarkSolver | None = None
+    max_frames: int | None = None
+    landmarker: str | os.PathLike | None = None
+    preview_size: int = 512
+    preview_backend: str = "auto"
+    bake: bool = False
+    progress: bool = False
+    shapes: str = "auto"
+    landmarks: str | os.PathLike | None = None
+    mesh: str | None = None
+    neck_share: float = 0.0
+
+    def check(self) -> AnimateOptions:
+        """Refuse out-of-range values before any work (an :class:`~faceretarget.errors.InvalidDataError`)."""
+        if self.head not in HEAD_SOURCES:
+            raise InvalidDataError(f"head must be one of {', '.join(HEAD_SOURCES)}, got {self.head!r}")
+        if not (np.isfinite(self.head_amplitude) and 0.0 <= self.head_amplitude <= 10.0):
+            raise InvalidDataError(f"head amplitude must be in [0, 10], got {self.head_amplitude}")
+        if self.head == "speech" and self.head_db is None:
+            raise InvalidDataError("head motion from speech needs a head-motion database (--head-db DB.npz, "
+                                   "made by 'faceretarget headmotion build')")
+        if not (np.isfinite(self.neck_share) and 0.0 <= self.neck_share <= 1.0):
+            raise InvalidDataError(f"neck share must be in [0, 1], got {self.neck_share}")
+        return self
+
+
+@dataclass(eq=False)
+class _Solved:
+    """The face solved onto the character: weights, their names, what plays them, a target that writes itself
+    (controls, skeleton, drawings), and the solve itself for restyled points."""
+
+    weights: np.ndarray
+    names: list[str]
+    play: Rig
+    own: object
+    solve: Callable[[np.ndarray], np.ndarray]
+    face: Performance
+
+
+class _Clock:
+    """``with clock("stage"):`` adds the stage's seconds to ``timings``."""
+
+    def __init__(self, timings: dict):
+        self.timings, self._stage = timings, None
+
+    def __call__(self, stage: str) -> _Clock:
+        self._stage = stage
+        return self
+
+    def __enter__(self):
+        self._t0 = time.perf_counter()
+
+    def __exit__(self, *exc):
+        if exc[0] is None:
+            self.timings[self._stage] = time.perf_counter() - self._t0
+
+
+def animate(video: str | os.PathLike | Capture, character, options: AnimateOptions | None = None, *,
+            log: Callable[..., None] = _quiet, **kwargs) -> AnimateResult:
+    """Animate ``character`` from a video of an actor (Chuang Ch. 5's system): capture -> solve -> emotion ->
+    head -> write -> preview, optionally writing the animation (face and head, with the soundtrack where the
+    format holds one) and a preview.
+
+    Parameters
+    ----------
+    video : path-like, Capture or Performance
+        Any video FFmpeg reads, a capture already made (:func:`capture_take`), or a tracked take of
+        the 68 face points, with the tracker's scores as weights when it has them (:func:`tracked_take`).
+    character : path-like, Character or Rig
+        A character file (any format of :data:`faceretarget.formats.CHARACTER_FORMATS`) or a
+        :class:`~faceretarget.character.Character` read from one: its own shapes, whatever their names,
+        drive its face from the landmarks (found on a render and cached; ``landmarks``, ``mesh``,
+        ``shapes``).  Or a :class:`~faceretarget.rig.Rig` (a folder of OBJ files): ARKit-named shapes and
+        68 landmarks, or any rig with ``source_keys`` / ``target_keys``.
+    options : AnimateOptions, optional
+        Every other option (its attributes document them); keyword arguments of the same names override it.
+    """
+    o = dataclasses.replace(options or AnimateOptions(), **kwargs).check()
     timings: dict[str, float] = {}
-    if head not in HEAD_SOURCES:
-        raise InvalidDataError(f"head must be one of {', '.join(HEAD_SOURCES)}, got {head!r}")
-    if not (np.isfinite(head_amplitude) and 0.0 <= head_amplitude <= 10.0):
-        raise InvalidDataError(f"head amplitude must be in [0, 10], got {head_amplitude}")
-    if head == "speech" and head_db is None:
-        raise InvalidDataError("head motion from speech needs a head-motion database (--head-db DB.npz, "
-                               "made by 'faceretarget headmotion build')")
-    drive = None
-    if not isinstance(character, Rig):
-        from ..characters import drive_rig, load_character
+    clock = _Clock(timings)
+    character, drive = _drive(character, o, clock, log)
+    by_landmarks = _check_drivable(character, o)
+    style_model, keys = _emotion_keys(o)
+    speech_audio = None
+    if o.speech is not None:
+        from ..io import read_audio
 
-        t0 = time.perf_counter()
-        loaded = load_character(character, landmarks=landmarks, mesh=mesh, log=log)
-        drive = drive_rig(loaded, shapes)
-        timings["character"] = time.perf_counter() - t0
-        log(f"{loaded.name}: {drive.summary}")
-        character = drive.rig
-    if not (np.isfinite(neck_share) and 0.0 <= neck_share <= 1.0):
-        raise InvalidDataError(f"neck share must be in [0, 1], got {neck_share}")
+        speech_audio = read_audio(o.speech)
+    with clock("capture"):
+        cap, take = _capture(video, o, log)
+    with clock("solve"):
+        s = _solve(character, take, o, by_landmarks, log)
+    if o.preview is not None and s.own is not None:
+        raise InvalidDataError(f"{o.preview}: a preview plays a mesh character; a {s.own.kind} target writes its "
+                               "own pictures (out: .png / .mp4 for drawings)")
+    how = "its own shapes from the landmarks" if by_landmarks else "keyshape pairs"
+    log(f"solved {len(s.weights)} frames on {character.name} ({how}) in {timings['solve']:.2f} s")
+    alpha, emotions, W = None, [], s.weights
+    if keys:
+        with clock("emotion"):
+            W, alpha, emotions = _emotion(s, take, style_model, keys, log)
+    character_mouth = (mouth_opening(s.play.evaluate(W, s.play.landmarks)) if s.play.landmarks is not None
+                       and len(s.play.landmarks) == 68 else np.full(len(W), np.nan))
+    with clock("head"):
+        W, times, pose, audio, rate = _head(W, take, o, speech_audio, log)
+    res = AnimateResult(weights=W, names=s.names, times=times, head=pose, audio=audio, audio_rate=rate, take=take,
+                        capture=cap, tracked_mouth=mouth_opening(take.points), character_mouth=character_mouth,
+                        timings=timings, alpha=alpha, emotions=emotions, drive=drive)
+    if o.out is not None:
+        with clock("write"):
+            _write_out(res, s, drive, take, o, speech_audio is not None, log)
+    if o.preview is not None:
+        with clock("preview"):
+            _write_preview(res, video, s, drive, o, log)
+    log(res.summary())
+    return res
+
+
+def _drive(character, o: AnimateOptions, clock: _Clock, log):
+    """The rig the solve works on, and the character file's drive rig (None for a rig given as such)."""
+    if isinstance(character, Rig):
+        return character, None
+    from ..characters import drive_rig, load_character
+
+    with clock("character"):
+        loaded = load_character(character, landmarks=o.landmarks, mesh=o.mesh, log=log)
+        drive = drive_rig(loaded, o.shapes)
+    log(f"{loaded.name}: {drive.summary}")
+    return drive.rig, drive
+
+
+def _check_drivable(character: Rig, o: AnimateOptions) -> bool:
+    """Whether the character is driven by its own shapes from landmarks; else it needs keyshape pairs."""
     by_landmarks = drives_by_landmarks(character)
-    if not by_landmarks and (source_keys is None or target_keys is None):
+    if not by_landmarks and (o.source_keys is None or o.target_keys is None):
         raise InvalidDataError(
             f"{character.name}: the character has {sum(is_arkit(n) for n in character.names)} ARKit-named shapes "
             f"and {0 if character.landmarks is None else len(character.landmarks)} landmarks; to be driven by its "
             f"own shapes it needs >= {_MIN_ARKIT} and the 68 (landmarks68.txt). Otherwise give keyshape pairs "
             "(--source-keys DIR --target-keys DIR)")
-    style_model = _load_style(style)
-    keys = parse_emotion(emotion, styles=None if style_model is None else style_model.styles_)
+    return by_landmarks
+
+
+def _emotion_keys(o: AnimateOptions):
+    style_model = _load_style(o.style)
+    keys = parse_emotion(o.emotion, styles=None if style_model is None else style_model.styles_)
     if keys and style_model is None:
         raise InvalidDataError("--emotion needs a style model (--style MODEL.npz, from 'faceretarget style fit' "
                                "on face takes of the emotions)")
-    speech_audio = None
-    if speech is not None:
-        from ..io import read_audio
+    return style_model, keys
 
-        speech_audio = read_audio(speech)
 
-    # ---- capture
-    t0 = time.perf_counter()
-    cap = None
+def _capture(video, o: AnimateOptions, log) -> tuple[Capture | None, Performance]:
+    """The capture of a video file (None when a capture or take is given) and its tracked take."""
     if isinstance(video, Capture | Performance):
-        cap = video if isinstance(video, Capture) else None
-        take = _tracked(video)
-    else:
-        cap = capture_take(video, landmarker=landmarker, max_frames=max_frames, neutral_percentile=5.0,
-                           progress=progress, log=log)
-        take = tracked_take(cap)
-    timings["capture"] = time.perf_counter() - t0
+        return (video if isinstance(video, Capture) else None), _tracked(video)
+    from ._capture import capture_take
 
-    # ---- onto the character
-    t0 = time.perf_counter()
+    cap = capture_take(video, landmarker=o.landmarker, max_frames=o.max_frames, neutral_percentile=5.0,
+                       progress=o.progress, log=log)
+    return cap, tracked_take(cap)
+
+
+def _solve(character: Rig, take: Performance, o: AnimateOptions, by_landmarks: bool, log) -> _Solved:
+    """The take solved onto the character: its own shapes from the landmarks (the tracker's scores a prior),
+    or keyshape pairs."""
     ftake = face_take(take)
-    times = take.times
-    if by_landmarks:
-        prior = None if take.weights is None else character.map_weights(take.names, take.weights, warn=False)
-        sol = (solver or video_solver()).fit(character, neutral_face(ftake.points))   # the face take's rest face
-
-        # the shapes the tracker has a score for (any value), whatever it scored them in this take
-        scored = None if take.weights is None else np.abs(character.map_weights(
-            take.names, np.ones((1, len(take.names))), warn=False)).max(axis=0) > 0
-
-        def solve(points: np.ndarray) -> np.ndarray:
-            return sol.transform(points, prior, times, scored=scored).weights
-
-        names = list(character.names)
-        with working(f"solving {len(ftake.times)} frames on {character.name}", progress):
-            W = solve(ftake.points)
-        play = character
-        own = None
-    else:
+    if not by_landmarks:
         from ._transfer import retarget_take
 
-        def solve(points: np.ndarray) -> np.ndarray:
-            return retarget_take(ftake.with_points(points), source_keys, target_keys, solver="nnls").result.weights
+        def solve_pairs(points: np.ndarray) -> np.ndarray:
+            return retarget_take(ftake.with_points(points), o.source_keys, o.target_keys,
+                                 solver="nnls").result.weights
 
-        tr = retarget_take(ftake, source_keys, target_keys, solver="nnls", log=log)
-        names = list(tr.result.names)
-        W = tr.result.weights
-        play = tr.target_keys
+        tr = retarget_take(ftake, o.source_keys, o.target_keys, solver="nnls", log=log)
         own = tr.target if tr.target is not None and tr.target.kind != "mesh" else None
-    timings["solve"] = time.perf_counter() - t0
-    if preview is not None and own is not None:
-        raise InvalidDataError(f"{preview}: a preview plays a mesh character; a {own.kind} target writes its own "
-                               "pictures (out: .png / .mp4 for drawings)")
-    how = "its own shapes from the landmarks" if by_landmarks else "keyshape pairs"
-    log(f"solved {len(W)} frames on {character.name} ({how}) in {timings['solve']:.2f} s")
+        return _Solved(tr.result.weights, list(tr.result.names), tr.target_keys, own, solve_pairs, ftake)
+    prior = None if take.weights is None else character.map_weights(take.names, take.weights, warn=False)
+    sol = (o.solver or video_solver()).fit(character, neutral_face(ftake.points))   # the face take's rest face
+    # the shapes the tracker has a score for (any value), whatever it scored them in this take
+    scored = None if take.weights is None else np.abs(character.map_weights(
+        take.names, np.ones((1, len(take.names))), warn=False)).max(axis=0) > 0
 
-    # ---- emotion (Eq. 5.1)
-    alpha, emotions = None, []
-    if keys:
-        t0 = time.perf_counter()
-        emotions, alpha = _alpha(keys, times - times[0])
-        src = "neutral" if "neutral" in style_model.styles_ else None
-        blend = (1.0 - alpha.sum(axis=1, keepdims=True)) * W
-        speakers = isinstance(style_model, SpeakerStyleModel)
-        if speakers and take.weights is not None:                       # its score spaces read the scores
-            ftake = ftake.replace(weights=take.weights, names=list(take.names))
-        for j, e in enumerate(emotions):
-            if not alpha[:, j].any():
-                continue
-            if speakers:                                                # the actor's rest: the take itself
-                r = style_model.transform(ftake, e, 1.0)
-            else:
-                r = style_model.transform(ftake, e, 1.0, source=src if src != e else None, warn=False)
-            blend += alpha[:, j:j + 1] * solve(r.take.points)
-            log(f"emotion '{e}': up to {alpha[:, j].max():.2f} of the face")
-            if r.range.outside:                  # the same warning as 'restyle' gives (one line, by the CLI)
-                warnings.warn(f"emotion '{e}': the restyled take leaves the range of the style model's training "
-                              f"data by {r.range.score:.2f} of its width ({r.range.frames_outside:.0%} of frames "
-                              f"beyond {r.range.margin:g}); the face may be implausible (reduce the amount)",
-                              StyleRangeWarning, stacklevel=2)
-        W = blend
-        timings["emotion"] = time.perf_counter() - t0
+    def solve(points: np.ndarray) -> np.ndarray:
+        return sol.transform(points, prior, take.times, scored=scored).weights
 
-    tracked_mouth = mouth_opening(take.points)
-    character_mouth = (mouth_opening(play.evaluate(W, play.landmarks)) if play.landmarks is not None
-                       and len(play.landmarks) == 68 else np.full(len(W), np.nan))
+    with working(f"solving {len(ftake.times)} frames on {character.name}", o.progress):
+        W = solve(ftake.points)
+    return _Solved(W, list(character.names), character, None, solve, ftake)
 
-    # ---- head (on the take's frames), then new speech: re-timed by DTW of the audio
-    t0 = time.perf_counter()
-    audio, rate = take.audio, take.audio_rate
-    pose = _video_head(take, head_amplitude) if head == "video" else None
+
+def _emotion(s: _Solved, take: Performance, style_model, keys, log):
+    """Eq. 5.1: the solve blended, per emotion, with the solve of the restyled take by the emotion's alpha(t)."""
+    emotions, alpha = _alpha(keys, take.times - take.times[0])
+    src = "neutral" if "neutral" in style_model.styles_ else None
+    blend = (1.0 - alpha.sum(axis=1, keepdims=True)) * s.weights
+    speakers = isinstance(style_model, SpeakerStyleModel)
+    ftake = s.face
+    if speakers and take.weights is not None:                       # its score spaces read the scores
+        ftake = ftake.replace(weights=take.weights, names=list(take.names))
+    for j, e in enumerate(emotions):
+        if not alpha[:, j].any():
+            continue
+        if speakers:                                                # the actor's rest: the take itself
+            r = style_model.transform(ftake, e, 1.0)
+        else:
+            r = style_model.transform(ftake, e, 1.0, source=src if src != e else None, warn=False)
+        blend += alpha[:, j:j + 1] * s.solve(r.take.points)
+        log(f"emotion '{e}': up to {alpha[:, j].max():.2f} of the face")
+        if r.range.outside:                  # the same warning as 'restyle' gives (one line, by the CLI)
+            warnings.warn(f"emotion '{e}': the restyled take leaves the range of the style model's training "
+                          f"data by {r.range.score:.2f} of its width ({r.range.frames_outside:.0%} of frames "
+                          f"beyond {r.range.margin:g}); the face may be implausible (reduce the amount)",
+                          StyleRangeWarning, stacklevel=3)
+    return blend, alpha, emotions
+
+
+def _head(W: np.ndarray, take: Performance, o: AnimateOptions, speech_audio, log):
+    """Head motion on the take's frames, then new speech: everything re-timed to it by DTW of the audio."""
+    times, audio, rate = take.times, take.audio, take.audio_rate
+    pose = _video_head(take, o.head_amplitude) if o.head == "video" else None
     if speech_audio is not None:
         W, times, src_t = _retime(W, times, take, speech_audio, log)
         audio, rate = speech_audio
         if pose is not None:
             pose = pose.resample(take.times, src_t)
-    if head == "speech":
-        pose = _speech_head(head_db, audio, rate, times, head_amplitude, log)
-    timings["head"] = time.perf_counter() - t0
+    if o.head == "speech":
+        pose = _speech_head(o.head_db, audio, rate, times, o.head_amplitude, log)
+    return W, times, pose, audio, rate
 
-    res = AnimateResult(weights=W, names=names, times=times, head=pose, audio=audio, audio_rate=rate, take=take,
-                        capture=cap, tracked_mouth=tracked_mouth, character_mouth=character_mouth,
-                        timings=timings, alpha=alpha, emotions=emotions, drive=drive)
-    if out is not None:
-        t0 = time.perf_counter()
-        log(f"writing {out}")
-        if own is not None:                       # controls, skeleton, drawings: the target writes itself
-            res.outputs.append(own.write(out, res.weights[:, own.key_order(names)], res.times, log=log,
-                                         progress=progress))
-            log(f"wrote {out} ({len(res.times)} frames of the {own.kind} target)")
-        elif drive is not None and _writes_back(drive.character, out):
-            from ..io import write_character_animation
 
-            res.gaze = _eye_joints(drive, take) if speech_audio is None else {}
-            res.outputs.append(write_character_animation(
-                out, drive.character, drive.channels, drive.full_weights(res.weights), res.times, head=res.head,
-                audio=res.audio, audio_rate=res.audio_rate, neck_share=neck_share, gaze=res.gaze, log=log))
-        else:
-            res.outputs.append(_write(out, play, res, bake, log))
-        timings["write"] = time.perf_counter() - t0
-    if preview is not None:
-        t0 = time.perf_counter()
-        shown = preview_video if preview_video is not None else (
-            video if isinstance(video, str | os.PathLike) else None)
-        if shown is None:
-            raise InvalidDataError(f"{preview}: a preview of a capture or take needs the video to show beside "
-                                   "the character (preview_video)")
-        if drive is not None:                     # the character as it looks: textures, every mesh about the face
-            from ..characters import look_rig
+def _write_out(res: AnimateResult, s: _Solved, drive, take: Performance, o: AnimateOptions, new_speech: bool,
+               log) -> None:
+    """``out``: a target that writes itself, a copy of the character's own file, or any animation format."""
+    log(f"writing {o.out}")
+    if s.own is not None:                       # controls, skeleton, drawings: the target writes itself
+        res.outputs.append(s.own.write(o.out, res.weights[:, s.own.key_order(res.names)], res.times, log=log,
+                                       progress=o.progress))
+        log(f"wrote {o.out} ({len(res.times)} frames of the {s.own.kind} target)")
+    elif drive is not None and _writes_back(drive.character, o.out):
+        from ..io import write_character_animation
 
-            look, colors, pivot = look_rig(drive)
-            res.outputs.append(_preview(preview, shown, look, res, preview_size, preview_backend, progress, log,
-                                        colors=colors, pivot=pivot))
-        else:
-            res.outputs.append(_preview(preview, shown, play, res, preview_size, preview_backend, progress, log))
-        timings["preview"] = time.perf_counter() - t0
-    log(res.summary())
-    return res
+        res.gaze = _eye_joints(drive, take) if not new_speech else {}
+        res.outputs.append(write_character_animation(
+            o.out, drive.character, drive.channels, drive.full_weights(res.weights), res.times, head=res.head,
+            audio=res.audio, audio_rate=res.audio_rate, neck_share=o.neck_share, gaze=res.gaze, log=log))
+    else:
+        res.outputs.append(_write(o.out, s.play, res, o.bake, log))
+
+
+def _write_preview(res: AnimateResult, video, s: _Solved, drive, o: AnimateOptions, log) -> None:
+    """``preview``: the video beside the character as it looks (textures, every mesh about the face)."""
+    shown = o.preview_video if o.preview_video is not None else (
+        video if isinstance(video, str | os.PathLike) else None)
+    if shown is None:
+        raise InvalidDataError(f"{o.preview}: a preview of a capture or take needs the video to show beside "
+                               "the character (preview_video)")
+    if drive is not None:
+        from ..characters import look_rig
+
+        look, colors, pivot = look_rig(drive)
+        res.outputs.append(_preview(o.preview, shown, look, res, o.preview_size, o.preview_backend, o.progress,
+                                    log, colors=colors, pivot=pivot))
+    else:
+        res.outputs.append(_preview(o.preview, shown, s.play, res, o.preview_size, o.preview_backend, o.progress,
+                                    log))
 
 
 def _eye_joints(drive, take: Performance) -> dict:

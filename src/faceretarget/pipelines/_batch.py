@@ -492,7 +492,7 @@ def _is_capture(path: Path) -> bool:
 
 def _animate(job: Job, f: _Fitted) -> int:
     from ..io import read_performance
-    from ._animate import VIDEO_EXTENSIONS, animate
+    from ._animate import VIDEO_EXTENSIONS, AnimateOptions, animate
 
     src = job.input
     if src.suffix.lower() in VIDEO_EXTENSIONS:
@@ -505,9 +505,10 @@ def _animate(job: Job, f: _Fitted) -> int:
         video = read_performance(src)
     o = job.apply
     job.out.parent.mkdir(parents=True, exist_ok=True)
-    res = animate(video, f.character, out=job.out, head=o["head"], head_db=o["head_db"],
-                  head_amplitude=o["head_amplitude"], emotion=o["emotion"], style=f.style,
-                  source_keys=f.source_keys, target_keys=f.target_keys, max_frames=o["max_frames"], bake=o["bake"])
+    res = animate(video, f.character, AnimateOptions(
+        out=job.out, head=o["head"], head_db=o["head_db"], head_amplitude=o["head_amplitude"], emotion=o["emotion"],
+        style=f.style, source_keys=f.source_keys, target_keys=f.target_keys, max_frames=o["max_frames"],
+        bake=o["bake"]))
     return len(res.times)
 
 

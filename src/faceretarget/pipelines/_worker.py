@@ -261,7 +261,7 @@ class _Job:
 
     # ---- jobs
     def animate(self) -> dict:
-        from ._animate import animate
+        from ._animate import AnimateOptions, animate
 
         p = self.params
         ch, found = self.character()
@@ -274,9 +274,9 @@ class _Job:
         cap = cached_capture(p["video"], progress=tick, log=self.log)
         self.progress(0.85, "solve")
         emotion = {k: float(v) for k, v in (p.get("emotion") or {}).items() if float(v) > 0} or None
-        res = animate(cap, ch, shapes=p.get("shapes", "auto"), head=p.get("head", "video"),
-                      head_amplitude=float(p.get("head_amplitude", 1.0)), emotion=emotion,
-                      style=p.get("style") if emotion else None, log=self.log)
+        res = animate(cap, ch, AnimateOptions(shapes=p.get("shapes", "auto"), head=p.get("head", "video"),
+                                              head_amplitude=float(p.get("head_amplitude", 1.0)), emotion=emotion,
+                                              style=p.get("style") if emotion else None), log=self.log)
         self.progress(1.0, "done")
         return self._done(ch, found, res.drive, res.drive.full_weights(res.weights), res.times, res.head, res.audio,
                           res.audio_rate, mouth_corr=None if np.isnan(res.mouth_corr) else res.mouth_corr,
