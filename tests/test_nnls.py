@@ -89,7 +89,7 @@ def test_duplicate_and_zero_keys_give_an_optimal_solution():
 
 @pytest.mark.parametrize("D,N,seed", [(204, 40, 30), (123, 30, 31)])
 def test_rom_keys_match_scipy_with_both_methods(D, N, seed):
-    from faceretarget.numerics._nnls import _bpp, _lh
+    from faceretarget.numerics._nnls_active_set import _bpp, _lh
 
     K, F = rom_problem(D, N, 240, seed)
     R = per_frame_nnls(K, F)
@@ -119,7 +119,7 @@ def test_dependent_rom_keys_fit_as_well_as_scipy():
 
 
 def test_lawson_hanson_with_upper_bounds():
-    from faceretarget.numerics._nnls import _lh
+    from faceretarget.numerics._nnls_active_set import _lh
 
     K, F = keyshape_problem(60, 10, 80, 33, noise=0.1)
     F = 1.5 * F
@@ -220,7 +220,8 @@ def test_smooth_matches_reference(s, upper):
 
 
 def test_smooth_projected_newton_fallback():
-    from faceretarget.numerics._nnls import _box_qp, _smooth_qp
+    from faceretarget.numerics._nnls_box_qp import _box_qp
+    from faceretarget.numerics._nnls_temporal import _smooth_qp
 
     K, F = keyshape_problem(30, 6, 40, 15, noise=0.2)
     G, B = K.T @ K, F @ K
@@ -402,7 +403,7 @@ def test_box_kernel_matches_numpy_from_any_start(start):
     reach the NumPy methods' optimum; the sets come back with the weights."""
     nb = pytest.importorskip("numba")
     del nb
-    from faceretarget.numerics._nnls import _box_qp
+    from faceretarget.numerics._nnls_box_qp import _box_qp
     from faceretarget.numerics._nnls_numba import box_frames
 
     K, F, ub = bounded_rom_problem(200, 50)
@@ -447,7 +448,7 @@ def test_box_kernel_probe_hands_dense_problems_to_pivoting(monkeypatch):
     """Dense weights whose sets change at every frame: the probe stops the kernel after 64 frames and
     block pivoting solves the take; the answers are the same either way."""
     pytest.importorskip("numba")
-    from faceretarget.numerics import _nnls
+    from faceretarget.numerics import _nnls_box_qp
     from faceretarget.numerics._nnls_numba import box_frames
 
     K, F = keyshape_problem(204, 40, 400, 52)
@@ -455,7 +456,7 @@ def test_box_kernel_probe_hands_dense_problems_to_pivoting(monkeypatch):
     _, _, _, solves, done = box_frames(G, B, probe=64, max_solves=0.5)
     assert done == 64 and solves[64:].sum() == 0
     W = solve_nnls(K, F, upper=1.0)
-    monkeypatch.setattr(_nnls, "_COMPILED_MAX_SOLVES", 0.5)
+    monkeypatch.setattr(_nnls_box_qp, "_COMPILED_MAX_SOLVES", 0.5)
     Wp = solve_nnls(K, F, upper=1.0)
     assert np.abs(W - Wp).max() <= 1e-9
     assert np.abs(W - per_frame_bvls(K, F, np.ones(40))).max() <= 1e-6
@@ -463,7 +464,7 @@ def test_box_kernel_probe_hands_dense_problems_to_pivoting(monkeypatch):
 
 def test_box_kernel_stuck_frames_are_finished_by_numpy():
     pytest.importorskip("numba")
-    from faceretarget.numerics._nnls import _compiled_box_qp
+    from faceretarget.numerics._nnls_box_qp import _compiled_box_qp
 
     K, F, ub = bounded_rom_problem(100, 53)
     G, B = K.T @ K, F @ K
@@ -475,7 +476,7 @@ def test_box_kernel_stuck_frames_are_finished_by_numpy():
 
 
 def test_blocked_products_equal_matmul():
-    from faceretarget.numerics._nnls import _mm
+    from faceretarget.numerics._nnls_linalg import _mm
 
     rng = np.random.default_rng(54)
     for n, m, k in [(1, 204, 40), (31, 204, 40), (1000, 204, 40), (999, 30, 7), (50, 3000, 100)]:

@@ -1,14 +1,14 @@
 """Evaluation metrics of the protocols in ``EVALUATION.md``.
 
 ================================ ================================================================
-:mod:`._p1`                      P1 (and P3): ``rel_motion_pct``, Pyun's Eq. 12 ``err_pct`` and per
+:mod:`._animation_errors`        P1 (and P3): ``rel_motion_pct``, Pyun's Eq. 12 ``err_pct`` and per
                                  axis, vertex and lip errors, the key-blend oracle
-:mod:`._p5`                      P5 head motion: angular speed, motion beats, pitch accents, beat
+:mod:`._head_motion`             P5 head motion: angular speed, motion beats, pitch accents, beat
                                  alignment, the smooth-noise baseline
 ================================ ================================================================
 """
 
-from ._p1 import (
+from ._animation_errors import (
     LIP_LANDMARKS,
     err_pct,
     err_pct_axis,
@@ -21,7 +21,7 @@ from ._p1 import (
     oracle_rel_motion_pct,
     rel_motion_pct,
 )
-from ._p5 import (
+from ._head_motion import (
     accent_onsets,
     angular_speed,
     beat_alignment,

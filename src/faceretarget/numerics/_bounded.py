@@ -9,7 +9,7 @@ composed emotion x viseme sets), so the range is part of the solve, not a clip a
 
     min_w  1/2 ||K w - f_t||^2    subject to    lo <= w <= hi        (every frame t)
 
-solved for a whole take at once by :func:`~._nnls.solve_nnls` after the shift ``w = lo + v``
+solved for a whole take at once by :func:`~._nnls_solve.solve_nnls` after the shift ``w = lo + v``
 (``0 <= v <= hi - lo``).
 
 :func:`weight_range` reads a range given as ``None`` (unconstrained), a pair, or ``"lo,hi"`` text.
@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import InvalidDataError
 from ..names import is_arkit, normalize_name
-from ._nnls import solve_nnls
+from ._nnls_solve import solve_nnls
 
 __all__ = ["solve_bounded", "solve_inequality", "range_metric", "weight_range", "auto_weight_range", "WeightRange", "FACS_RANGE", "EXAMPLE_RANGE"]
 
@@ -118,7 +118,7 @@ def solve_bounded(K: np.ndarray, F: np.ndarray, lower, upper, *, smooth: float =
     lower, upper : float or (N,) float
         The range; ``lower`` finite, ``upper`` finite or ``inf``.
     smooth, mask, tol, backend
-        As :func:`~._nnls.solve_nnls`.
+        As :func:`~._nnls_solve.solve_nnls`.
 
     Returns
     -------
@@ -129,7 +129,7 @@ def solve_bounded(K: np.ndarray, F: np.ndarray, lower, upper, *, smooth: float =
     Raises
     ------
     InvalidDataError
-        A lower bound that is not finite, ``lower >= upper``, or :func:`~._nnls.solve_nnls`'s input errors.
+        A lower bound that is not finite, ``lower >= upper``, or :func:`~._nnls_solve.solve_nnls`'s input errors.
 
     Examples
     --------

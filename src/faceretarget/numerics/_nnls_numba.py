@@ -1,7 +1,7 @@
 """Compiled box-constrained least squares over the frames of a take (optional: used when ``numba`` is installed).
 
 Keyshape weights of consecutive frames share most of their active set, and a take's frames are
-small problems (tens of keys): the vectorised active-set methods of :mod:`._nnls` pay NumPy's
+small problems (tens of keys): the vectorised active-set methods of :mod:`._nnls_active_set` pay NumPy's
 per-call overhead on every one of their small steps, ``scipy.optimize.nnls`` /
 ``scipy.optimize.lsq_linear`` pay Python's per frame.  This kernel runs the bounded Lawson-Hanson
 method (BVLS; Lawson & Hanson 1974, Stark & Parker 1995) on the Gram form::
@@ -24,7 +24,7 @@ frame after frame in compiled code:
   is checked against the exact KKT conditions; a frame that fails is finished in exact mode (every
   solve refined, every gradient exact), so forming ``G = R'R`` costs no accuracy.
 
-Install with ``make fast`` (or ``pip install 'numba>=0.60'``); without numba the NumPy path of :mod:`._nnls`
+Install with ``make fast`` (or ``pip install 'numba>=0.60'``); without numba the NumPy path of :mod:`._nnls_box_qp`
 is used and the results are the same to rounding.
 """
 

@@ -47,7 +47,7 @@ import numpy as np
 from scipy.optimize import nnls as _scipy_nnls
 
 from ..errors import FitWarning, InvalidDataError
-from ._nnls import solve_nnls
+from ._nnls_solve import solve_nnls
 
 __all__ = [
     "pca_extrema",
