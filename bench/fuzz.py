@@ -476,11 +476,20 @@ def _read_npz_rig(path):
     return read_rig_npz(path)
 
 
+def _glb_rig(path):
+    """``read_glb_rig`` without its DeprecationWarning (any warning but a FaceRetargetWarning is a finding)."""
+    from faceretarget.io import read_glb_rig
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "read_glb_rig is deprecated", DeprecationWarning)
+        return read_glb_rig(path)
+
+
 def _read_glb(path):
-    from faceretarget.io import read_glb_rig, read_glb_weights, read_gltf_character, read_head_motion
+    from faceretarget.io import read_glb_weights, read_gltf_character, read_head_motion
 
     out = []
-    for f in (read_head_motion, read_glb_weights, read_glb_rig, read_gltf_character):
+    for f in (read_head_motion, read_glb_weights, _glb_rig, read_gltf_character):
         try:
             out.append(f(path))
         except FaceRetargetError as e:

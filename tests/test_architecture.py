@@ -255,3 +255,36 @@ def test_each_character_format_is_one_declaration_that_answers_everything():
     assert io.SHAPES_WRITE is io.WRITE_BACK                        # was a second, hand-kept copy
     assert formats.character_format_of(SRC) is formats.CHARACTER_FORMATS["obj"]     # a folder
     assert formats.character_format_of("take.csv") is None
+
+
+def test_io_all_is_what_a_user_calls():
+    """``faceretarget.io.__all__`` (the API page lists exactly it) holds at most 60 names: the readers and
+    writers of each format, the data classes they return and the format lists.  Every name exists and is
+    documented (a docstring of its own; a format list in the package docstring), and none is a helper of the
+    Blender extension's scene steps, the extension registry, the glTF document or a re-export of
+    ``faceretarget.files`` (those stay importable as ``faceretarget.io.name``, outside ``__all__``)."""
+    import inspect
+
+    import faceretarget.io as io
+
+    names = io.__all__
+    assert len(names) <= 60, f"{len(names)} names in faceretarget.io.__all__"
+    assert len(set(names)) == len(names)
+    undocumented = []
+    for n in names:
+        obj = getattr(io, n)
+        if callable(obj):
+            doc = inspect.getdoc(obj) or ""
+            own = obj.__doc__ is not None and not doc.startswith(f"{n}(")   # not a dataclass's generated signature
+            if not (doc.strip() and own):
+                undocumented.append(n)
+        elif f"``{n}``" not in io.__doc__:
+            undocumented.append(n)
+    assert undocumented == []
+    internal = {"scene_character_steps", "scene_action_steps", "character_objects", "run_steps", "head_bones", "HeadBone",
+                "read_blender_scene_character", "GltfDocument", "READERS", "WRITERS", "register_reader",
+                "register_writer", "read_glb_rig"}
+    assert internal.isdisjoint(names)
+    assert all(hasattr(io, n) for n in internal)                           # still importable for the other packages
+    home = {n: getattr(getattr(io, n), "__module__", None) for n in names}
+    assert [n for n, m in home.items() if m in ("faceretarget.io._blender_scene", "faceretarget.files")] == []

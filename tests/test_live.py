@@ -421,7 +421,8 @@ def test_character_glb_holds_the_shapes_and_a_head_node(arkit_rig, tmp_path):
     data = character_glb(arkit_rig)
     p = tmp_path / "c.glb"
     p.write_bytes(data)
-    rig = read_glb_rig(p)
+    with pytest.warns(DeprecationWarning, match="read_character"):
+        rig = read_glb_rig(p)
     assert rig.n_shapes == arkit_rig.n_shapes and sorted(rig.names) == sorted(arkit_rig.names)
     assert rig.neutral.n_vertices >= arkit_rig.neutral.n_vertices
     doc = json.loads(data[20:20 + struct.unpack_from("<I", data, 12)[0]])

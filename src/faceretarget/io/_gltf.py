@@ -38,6 +38,7 @@ import functools
 import json
 import os
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +48,7 @@ from ..files import atomic_path, check_output_path
 from ..headpose import HeadPose
 from ..mesh import Mesh
 from ..rig import Rig
+from ._gltf_scene import read_gltf_character
 
 __all__ = ["write_glb", "read_glb_weights", "read_glb_rig", "glb_vertex_order", "write_glb_head",
            "read_glb_head"]
@@ -559,41 +561,76 @@ def read_glb_weights(path: str | os.PathLike) -> tuple[list[str], np.ndarray, np
     raise InputFileError(f"{path}: no morph-target weight animation found")
 
 
-@_glb_reader
-def read_glb_rig(path: str | os.PathLike) -> Rig:
-    """Read the first mesh of a ``.glb`` with its morph targets as a :class:`Rig` (unit ``"m"``).
+#: What :func:`read_glb_rig` warns (it is kept for old callers).
+_GLB_RIG_DEPRECATED = ("read_glb_rig is deprecated: call faceretarget.io.read_character(path) and use its primary "
+                       "face mesh, character.meshes[character.primary] (faceretarget.character.face_rig(character) "
+                       "gives the rig the solvers use); read_glb_rig returns that mesh as a Rig")
 
-    Vertices are the glTF vertices (seam-split, see the module docstring); UVs are per vertex and
-    flipped back to OBJ's bottom-left origin.
+
+def read_glb_rig(path: str | os.PathLike) -> Rig:
+    """The face mesh of a ``.glb`` with its morph targets as a :class:`Rig` (unit ``"m"``).  Deprecated:
+    call :func:`~faceretarget.io.read_character` (this warns a ``DeprecationWarning`` saying so).
+
+    A thin call of the character reader (:func:`~faceretarget.io.read_character`'s glTF route): the
+    character's primary face mesh (:attr:`Character.primary <faceretarget.character.Character.primary>`,
+    the mesh whose shapes move the face most; without face shapes, :meth:`Character.head_mesh
+    <faceretarget.character.Character.head_mesh>`), its primitives joined, at rest in the file's world
+    frame in metres, with every morph target of that mesh under its exact name (``keep_names``; a
+    repeated name gets ``.2``, ``.3`` ...), UVs flipped back to OBJ's bottom-left origin.  Compressed and
+    quantized files are decoded as :func:`~faceretarget.io.read_gltf_character` decodes them.
+
+    A file :func:`write_glb` wrote reads back with its vertices in the file's order (the rig's, seams
+    split: :func:`glb_vertex_order`) and its shapes in the rig's order.  A file whose meshes are all
+    point sets (the ``POINTS`` primitive :func:`write_glb` writes for marker keys, which the character
+    reader leaves out) gives its first mesh's points, without faces.
     """
+    warnings.warn(_GLB_RIG_DEPRECATED, DeprecationWarning, stacklevel=2)
     path = Path(path)
+    character = read_gltf_character(path)
+    if not character.meshes:
+        return _read_point_set(path)
+    face = character.meshes[character.head_mesh()]
+    m = face.mesh
+    uvs = None if m.uvs is None else np.stack([m.uvs[:, 0], 1.0 - m.uvs[:, 1]], axis=1)
+    mesh = Mesh(m.vertices, m.face_counts, m.face_indices, uvs, m.face_uv_indices if uvs is not None else None,
+                name=face.name)
+    names = _unique(face.shape_names)
+    return Rig(mesh, names, face.deltas.astype(np.float64), unit="m", source_names=list(face.shape_names),
+               name=face.name, keep_names=True)
+
+
+def _unique(names: list[str]) -> list[str]:
+    """``names`` with a repeated one suffixed ``.2``, ``.3`` ... (a :class:`Rig` keeps unique names)."""
+    seen: set[str] = set()
+    out = []
+    for n in names:
+        base, k = n, 2
+        while n in seen:
+            n = f"{base}.{k}"
+            k += 1
+        seen.add(n)
+        out.append(n)
+    return out
+
+
+@_glb_reader
+def _read_point_set(path: Path) -> Rig:
+    """The first mesh's first primitive of a ``.glb`` whose meshes are all point sets (glTF mode 0), as a
+    :class:`Rig` without faces (unit ``"m"``, vertices and targets as stored)."""
     gltf, binchunk = _load_glb(path)
     if not gltf.get("meshes"):
         raise InputFileError(f"{path}: no mesh")
     m = gltf["meshes"][0]
     prim = m["primitives"][0]
     mode = prim.get("mode", 4)
-    if mode not in (0, 4):
-        raise InputFileError(f"{path}: only triangle meshes and point sets are supported (primitive mode {mode})")
+    if mode != 0:
+        raise InputFileError(f"{path}: no triangle mesh or point set (the first primitive has mode {mode})")
     pos = _accessor(path, gltf, binchunk, prim["attributes"]["POSITION"]).astype(np.float64)
-    if mode == 0:                                       # a point set: vertices without faces
-        idx = np.zeros((0, 3), dtype=np.int64)
-    elif "indices" in prim:
-        idx = _accessor(path, gltf, binchunk, prim["indices"])
-        if idx.dtype.kind not in "iu":
-            raise InputFileError(f"{path}: triangle indices are {idx.dtype}, not integers")
-        idx = idx.astype(np.int64).reshape(-1, 3)
-    else:
-        idx = np.arange(len(pos)).reshape(-1, 3)
-    uvs = fuv = None
-    if "TEXCOORD_0" in prim["attributes"]:
-        uv = _accessor(path, gltf, binchunk, prim["attributes"]["TEXCOORD_0"]).astype(np.float64)
-        uvs = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
-        fuv = idx.reshape(-1) if len(idx) else None
-        uvs = uvs if len(idx) else None
-    mesh = Mesh(pos, np.full(len(idx), 3), idx.reshape(-1), uvs, fuv, name=path.name)
+    mesh = Mesh(pos, name=path.name)
     targets = prim.get("targets", [])
     names = m.get("extras", {}).get("targetNames") or [f"target{k}" for k in range(len(targets))]
+    if not isinstance(names, list) or len(names) != len(targets):
+        raise InputFileError(f"{path}: mesh.extras.targetNames does not name the {len(targets)} morph targets")
     deltas = np.stack([_accessor(path, gltf, binchunk, tg["POSITION"]).astype(np.float64)
                        for tg in targets]) if targets else np.zeros((0, len(pos), 3))
     return Rig(mesh, list(names), deltas, unit="m", name=m.get("name", path.stem))
