@@ -288,3 +288,30 @@ def test_io_all_is_what_a_user_calls():
     assert all(hasattr(io, n) for n in internal)                           # still importable for the other packages
     home = {n: getattr(getattr(io, n), "__module__", None) for n in names}
     assert [n for n, m in home.items() if m in ("faceretarget.io._blender_scene", "faceretarget.files")] == []
+
+
+def long_functions(src: Path = SRC, limit: int = 150) -> list[str]:
+    """Functions longer than ``limit`` lines whose docstring does not say why (a sentence with "Long because")."""
+    out = []
+    for path in sorted(src.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = node.end_lineno - node.lineno + 1
+                if n > limit and "Long because" not in (ast.get_docstring(node) or ""):
+                    out.append(f"{path.relative_to(src)}:{node.lineno} {node.name} ({n} lines)")
+    return out
+
+
+def test_no_function_over_150_lines_without_a_reason(tmp_path):
+    """Issue 33: ``animate`` and ``generate_shapes`` read as short stories; a long function says why."""
+    assert long_functions() == []
+    body = "\n".join(f"    x{i} = {i}" for i in range(160))
+    (tmp_path / "m.py").write_text(f"def f():\n{body}\n")
+    assert long_functions(tmp_path) == ["m.py:1 f (161 lines)"]
+    import faceretarget.characters._generate as gen
+    import faceretarget.pipelines._animate as an
+
+    for mod, name, most in ((an, "animate", 60), (gen, "generate_shapes", 60)):
+        tree = ast.parse(Path(mod.__file__).read_text(encoding="utf-8"))
+        fn = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == name)
+        assert fn.end_lineno - fn.lineno + 1 <= most, name

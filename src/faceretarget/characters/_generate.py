@@ -194,6 +194,12 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
                     symmetric: bool = True, log=None) -> GeneratedShapes:
     """Generate a character's expression shapes from a template's by deformation transfer.
 
+    The story (each step one method of :class:`_Transfer`): read the character and the template, find the
+    face's skin, register the template onto it and find each face vertex's corresponding template point,
+    factorise the deformation-transfer system once, transfer every shape (lids and lips pinned, folds
+    untangled), make a symmetric face's shapes mirror images, and move the other parts (eyes, teeth, the
+    rest of the head) with the skin.
+
     Parameters
     ----------
     character : path-like or Character
@@ -220,71 +226,119 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     -------
     GeneratedShapes
     """
-    from scipy.sparse import csr_matrix, diags
-    from scipy.spatial import cKDTree
-
-    from ._load import load_character
-
     say = progress or log or (lambda *_: None)
     if method not in METHODS:
         raise InvalidDataError(f"method must be one of {', '.join(METHODS)}, not '{method}'")
-    t_all = time.perf_counter()
-    timings = {}
-    t0 = time.perf_counter()
-    ch = load_character(character, landmarks=landmarks, mesh=mesh, need_shapes=False, log=say)
-    if ch.landmarks is None:
-        raise InvalidDataError(f"{ch.name}: no landmarks")
-    timings["landmarks"] = time.perf_counter() - t0
-    tmpl = load_template(template, log=say)
-    wanted = _wanted(shapes, tmpl)
-    have = {normalize_name(n) for m in ch.meshes for n in m.shape_names}
-    skipped = [a for a in wanted if a in have and not replace]
-    todo = [a for a in wanted if a not in skipped]
-    notes = list(tmpl.notes)
-    if skipped:
-        notes.append(f"kept the character's own {', '.join(skipped)} (replace=True to generate them)")
-    head = ch.landmarks.mesh
-    hm = ch.meshes[head]
-    V = hm.mesh.vertices.astype(np.float64)
-    T = hm.mesh.triangles().astype(np.int64)
-    lm = ch.landmark_positions()
-    F = character_frame(ch)
-    size = float(np.linalg.norm(lm[36] - lm[45]))
-    centre = lm[17:68].mean(axis=0)
-    # the face's skin: the head mesh's piece that holds the landmarks, near the face
+    job = _Transfer(character, template, shapes, replace, mesh, landmarks, method, say)
+    job.find_skin()
+    job.register()
+    job.prepare_lips_and_mirror(symmetric)
+    job.factorise()
+    job.transfer_shapes()
+    if job.mirror is not None:
+        job.symmetrise()
+    return job.result()
 
-    lab = components(len(V), T)
-    skin_label = np.bincount(lab[ch.landmarks.triangles.ravel()]).argmax()
-    near = np.linalg.norm(V - centre, axis=1) < 1.8 * size
-    skin = (lab == skin_label)
-    region = skin & near
-    rt = T[region[T].all(axis=1)]
-    snapped = _onto_skin(ch, V, rt, region)
-    if snapped:
-        notes.append(f"landmarks {', '.join(map(str, snapped))} were on another piece of '{hm.name}' (an eyeball, "
-                     "teeth): put on the nearest point of the face's skin")
-        lm = ch.landmark_positions()
-    t0 = time.perf_counter()
-    say(f"registering the template {tmpl.name} ({len(tmpl.vertices)} vertices) onto '{hm.name}' "
-        f"({int(region.sum())} face vertices)")
-    reg, info = register_template(tmpl.vertices, tmpl.triangles, (tmpl.lm_triangles, tmpl.lm_bary), V, rt, lm,
-                                  log=say)
-    timings["register"] = time.perf_counter() - t0
-    s, R = info["s"], info["R"]
-    # correspondence: each face vertex's closest compatible point on the registered template
-    tt = tmpl.triangles
-    tn = np.cross(reg[tt[:, 1]] - reg[tt[:, 0]], reg[tt[:, 2]] - reg[tt[:, 0]])
-    tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-30)
-    vn = vertex_normals(V, T)
-    ridx = np.flatnonzero(region)
-    t_lm_reg = np.einsum("pk,pkd->pd", tmpl.lm_bary, reg[tmpl.lm_triangles])
-    t_side = _mouth_side(reg, t_lm_reg, F, size)
-    t_tri_side = np.sign(t_side[tt].sum(axis=1))
-    c_side = _mouth_side(V, lm, F, size)
 
-    def corr(P, normals, side):
+class _Transfer:
+    """The state of one :func:`generate_shapes` run, one method per step of its story."""
+
+    def __init__(self, character, template, shapes, replace: bool, mesh, landmarks, method: str, say):
+        from ._load import load_character
+
+        self.say, self.method, self.replace = say, method, replace
+        self.t_all = time.perf_counter()
+        self.timings = {}
+        t0 = time.perf_counter()
+        ch = load_character(character, landmarks=landmarks, mesh=mesh, need_shapes=False, log=say)
+        if ch.landmarks is None:
+            raise InvalidDataError(f"{ch.name}: no landmarks")
+        self.timings["landmarks"] = time.perf_counter() - t0
+        self.ch = ch
+        self.tmpl = tmpl = load_template(template, log=say)
+        wanted = _wanted(shapes, tmpl)
+        have = {normalize_name(n) for m in ch.meshes for n in m.shape_names}
+        self.skipped = [a for a in wanted if a in have and not replace]
+        self.todo = [a for a in wanted if a not in self.skipped]
+        self.notes = list(tmpl.notes)
+        if self.skipped:
+            self.notes.append(f"kept the character's own {', '.join(self.skipped)} (replace=True to generate them)")
+        self.head = ch.landmarks.mesh
+        self.hm = ch.meshes[self.head]
+        self.V = self.hm.mesh.vertices.astype(np.float64)
+        self.T = self.hm.mesh.triangles().astype(np.int64)
+        self.lm = ch.landmark_positions()
+        self.F = character_frame(ch)
+        self.size = float(np.linalg.norm(self.lm[36] - self.lm[45]))
+
+    def find_skin(self) -> None:
+        """The face's skin: the head mesh's piece that holds the landmarks, near the face; landmarks that
+        landed on another piece (an eyeball, teeth) put on it."""
+        ch, V, T = self.ch, self.V, self.T
+        centre = self.lm[17:68].mean(axis=0)
+        lab = components(len(V), T)
+        skin_label = np.bincount(lab[ch.landmarks.triangles.ravel()]).argmax()
+        near = np.linalg.norm(V - centre, axis=1) < 1.8 * self.size
+        self.skin = (lab == skin_label)
+        self.region = self.skin & near
+        self.rt = T[self.region[T].all(axis=1)]
+        snapped = _onto_skin(ch, V, self.rt, self.region)
+        if snapped:
+            self.notes.append(f"landmarks {', '.join(map(str, snapped))} were on another piece of '{self.hm.name}' "
+                              "(an eyeball, teeth): put on the nearest point of the face's skin")
+            self.lm = ch.landmark_positions()
+
+    def register(self) -> None:
+        """The template registered onto the skin; each face vertex's closest compatible template point and its
+        coverage (1 on the template, fading off it and towards its outer border)."""
+        from scipy.spatial import cKDTree
+
+        tmpl, V, size = self.tmpl, self.V, self.size
+        t0 = time.perf_counter()
+        self.say(f"registering the template {tmpl.name} ({len(tmpl.vertices)} vertices) onto '{self.hm.name}' "
+                 f"({int(self.region.sum())} face vertices)")
+        reg, info = register_template(tmpl.vertices, tmpl.triangles, (tmpl.lm_triangles, tmpl.lm_bary), V, self.rt,
+                                      self.lm, log=self.say)
+        self.timings["register"] = time.perf_counter() - t0
+        self.reg, self.info = reg, info
+        self.sR = (info["s"] * info["R"]).T
+        tt = self.tt = tmpl.triangles
+        tn = np.cross(reg[tt[:, 1]] - reg[tt[:, 0]], reg[tt[:, 2]] - reg[tt[:, 0]])
+        self.tn = tn / np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-30)
+        vn = vertex_normals(V, self.T)
+        self.ridx = ridx = np.flatnonzero(self.region)
+        t_lm_reg = np.einsum("pk,pkd->pd", tmpl.lm_bary, reg[tmpl.lm_triangles])
+        t_side = _mouth_side(reg, t_lm_reg, self.F, size)
+        self.t_tri_side = np.sign(t_side[tt].sum(axis=1))
+        self.c_side = _mouth_side(V, self.lm, self.F, size)
+        self.ctri, self.cbar, cdist = self.corr(V[ridx], vn[ridx], self.c_side[ridx])
+        te = np.concatenate([tt[:, [0, 1]], tt[:, [1, 2]], tt[:, [2, 0]]])
+        te.sort(axis=1)
+        ue, cnt = np.unique(te, axis=0, return_counts=True)
+        bverts = np.unique(ue[cnt == 1].ravel())
+        blab = components(len(reg), np.c_[ue[cnt == 1], ue[cnt == 1][:, :1]]) if len(bverts) else None
+        if blab is not None:
+            sizes = np.bincount(blab[bverts])
+            outer = bverts[blab[bverts] == sizes.argmax()]
+            dborder = cKDTree(reg[outer]).query(reg)[0] / size
+        else:
+            dborder = np.full(len(reg), np.inf)
+        inner_w = np.clip(dborder / 0.25, 0.0, 1.0)
+        inner_w = inner_w * inner_w * (3 - 2 * inner_w)
+        w_t = np.einsum("nk,nk->n", self.cbar, inner_w[tt[self.ctri]])
+        f = np.clip(1.0 - (cdist / size - 0.03) / 0.17, 0.0, 1.0)
+        self.w = w = np.zeros(len(V))
+        w[ridx] = w_t * f * f * (3 - 2 * f)
+        info["coverage_vertices"] = int((w > 0.5).sum())
+        self.free = np.flatnonzero(w > 1e-3)
+        if len(self.free) < 20:
+            raise InvalidDataError(f"{self.ch.name}: the template covers no part of '{self.hm.name}' "
+                                   "(registration failed)")
+
+    def corr(self, P, normals, side):
         """Closest compatible template point: a point of the character's upper lip only on the template's
         upper lip, of the lower only on the lower (closed lips touch: nearness alone mixes them)."""
+        tt = self.tt
         tri = np.zeros(len(P), np.int64)
         bar = np.zeros((len(P), 3))
         dist = np.zeros(len(P))
@@ -292,232 +346,249 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
             sel = np.flatnonzero(side == sd)
             if not len(sel):
                 continue
-            allowed = np.flatnonzero(t_tri_side != -sd) if sd else np.arange(len(tt))
+            allowed = np.flatnonzero(self.t_tri_side != -sd) if sd else np.arange(len(tt))
             sub = tt[allowed]
-            t_, b_, d_ = closest_points(reg, sub, P[sel], k=8, normals=tn[allowed], point_normals=normals[sel],
-                                        min_cos=0.3)
+            t_, b_, d_ = closest_points(self.reg, sub, P[sel], k=8, normals=self.tn[allowed],
+                                        point_normals=normals[sel], min_cos=0.3)
             tri[sel], bar[sel], dist[sel] = allowed[t_], b_, d_
         return tri, bar, dist
 
-    ctri, cbar, cdist = corr(V[ridx], vn[ridx], c_side[ridx])
-    # coverage: 1 on the template, fading to 0 within a fifth of the eye-corner distance off it, and
-    # towards the template's own outer border
-    te = np.concatenate([tt[:, [0, 1]], tt[:, [1, 2]], tt[:, [2, 0]]])
-    te.sort(axis=1)
-    ue, cnt = np.unique(te, axis=0, return_counts=True)
-    bverts = np.unique(ue[cnt == 1].ravel())
-    blab = components(len(reg), np.c_[ue[cnt == 1], ue[cnt == 1][:, :1]]) if len(bverts) else None
-    if blab is not None:
-        sizes = np.bincount(blab[bverts])
-        outer = bverts[blab[bverts] == sizes.argmax()]
-        dborder = cKDTree(reg[outer]).query(reg)[0] / size
-    else:
-        dborder = np.full(len(reg), np.inf)
-    inner_w = np.clip(dborder / 0.25, 0.0, 1.0)
-    inner_w = inner_w * inner_w * (3 - 2 * inner_w)
-    w_t = np.einsum("nk,nk->n", cbar, inner_w[tt[ctri]])
-    f = np.clip(1.0 - (cdist / size - 0.03) / 0.17, 0.0, 1.0)
-    w = np.zeros(len(V))
-    w[ridx] = w_t * f * f * (3 - 2 * f)
-    info["coverage_vertices"] = int((w > 0.5).sum())
-    free = np.flatnonzero(w > 1e-3)
-    if len(free) < 20:
-        raise InvalidDataError(f"{ch.name}: the template covers no part of '{hm.name}' (registration failed)")
-    if "jawOpen" in tmpl.shapes:
-        d_jaw = tmpl.shapes["jawOpen"] @ (s * R).T
-        ub_jaw = np.zeros((len(V), 3))
-        ub_jaw[ridx] = np.einsum("nk,nkd->nd", cbar, d_jaw[tt[ctri]]) * w[ridx, None]
-        moved = _separate_lips(ch, V, ub_jaw, size)
-        if moved:
-            notes.append(f"inner-lip landmarks {', '.join(map(str, moved))} moved onto the lip that opens with the jaw")
-    mirror = _mirror_map(V, lm, F, skin, size) if symmetric else None
-    if mirror is not None:                  # a symmetric face: its lid points made mirror images too
-        _mirror_landmarks(ch, V, rt, F, mirror[2])
-        lm = ch.landmark_positions()
-    # the system: gradients of the free vertices' motion on the triangles that touch them
-    ft = T[(w[T] > 1e-3).any(axis=1)]
-    Gfull = gradient_operator(V, ft)
-    col = np.full(len(V), -1)
-    col[free] = np.arange(len(free))
-    keep_cols = free
-    G = Gfull[:, keep_cols]
-    area = triangle_areas(V, ft)
-    Aw = diags(np.repeat(area, 3))
-    varea = np.zeros(len(V))
-    for k in range(3):
-        np.add.at(varea, ft[:, k], area / 3.0)
-    lam = _ANCHOR / size ** 2
-    # lid and lip landmark rows (points on triangles; fixed vertices dropped)
-    pin_ids = sorted({i for p in LID_PAIRS + LIP_PAIRS for i in p})
-    ltri, lbar = ch.landmarks.triangles[pin_ids], ch.landmarks.bary[pin_ids]
-    rows, cols, vals = [], [], []
-    for r, (tv, bv) in enumerate(zip(ltri, lbar, strict=True)):
-        for v, b in zip(tv, bv, strict=True):
-            if col[v] >= 0 and b != 0:
-                rows.append(r)
-                cols.append(col[v])
-                vals.append(b)
-    Cm = csr_matrix((vals, (rows, cols)), shape=(len(pin_ids), len(free)))
-    mu = _PIN * float(varea[free].mean()) / size ** 2
-    t0 = time.perf_counter()
-    K = (G.T @ Aw @ G + lam * diags(varea[free]) + mu * (Cm.T @ Cm)).tocsc()
-    try:
-        from sksparse.cholmod import cholesky  # optional: faster when installed
+    def template_motion(self, a: str) -> np.ndarray:
+        """The template's motion of shape ``a`` in the character's frame."""
+        return self.tmpl.shapes[a] @ self.sR
 
-        solve = cholesky(K)
-    except ImportError:
-        from scipy.sparse.linalg import factorized
+    def carried(self, d_t: np.ndarray) -> np.ndarray:
+        """A template motion carried to the face vertices at their corresponding points, times coverage."""
+        ub = np.zeros((len(self.V), 3))
+        ub[self.ridx] = np.einsum("nk,nkd->nd", self.cbar, d_t[self.tt[self.ctri]]) * self.w[self.ridx, None]
+        return ub
 
-        solve = factorized(K)
-    # the lid rims (eye openings of the face mesh): a blink pins all of each rim shut, solved with its own
-    # factorisation (the rims' rows added), made when a blink needs it
-    margins = [m for m in lid_margins(V, rt, lm, F) if (col[m.vertices] >= 0).all()] \
-        if method != "barycentric" else []
-    margin_solvers: dict = {}
+    def prepare_lips_and_mirror(self, symmetric: bool) -> None:
+        """Inner-lip landmarks on the lip that opens with the jaw; a symmetric face's mirror map (its lid
+        points made mirror images too)."""
+        if "jawOpen" in self.tmpl.shapes:
+            moved = _separate_lips(self.ch, self.V, self.carried(self.template_motion("jawOpen")), self.size)
+            if moved:
+                self.notes.append(f"inner-lip landmarks {', '.join(map(str, moved))} moved onto the lip that opens "
+                                  "with the jaw")
+        self.mirror = _mirror_map(self.V, self.lm, self.F, self.skin, self.size) if symmetric else None
+        if self.mirror is not None:
+            _mirror_landmarks(self.ch, self.V, self.rt, self.F, self.mirror[2])
+            self.lm = self.ch.landmark_positions()
 
-    def margin_solve(sel: tuple[int, ...]):
-        if sel not in margin_solvers:
-            idx = np.concatenate([col[margins[i].vertices] for i in sel])
-            Cb = csr_matrix((np.ones(len(idx)), (np.arange(len(idx)), idx)), shape=(len(idx), len(free)))
-            Kb = (K + mu * (Cb.T @ Cb)).tocsc()
-            try:
-                from sksparse.cholmod import cholesky
+    def factorise(self) -> None:
+        """The system, factorised once: gradients of the free vertices' motion on the triangles that touch
+        them, a positional anchor, and the lid and lip landmark rows (points on triangles)."""
+        from scipy.sparse import csr_matrix, diags
 
-                margin_solvers[sel] = (Cb, cholesky(Kb))
-            except ImportError:
-                from scipy.sparse.linalg import factorized
+        V, w, free, size, ch = self.V, self.w, self.free, self.size, self.ch
+        self.ft = ft = self.T[(w[self.T] > 1e-3).any(axis=1)]
+        self.Gfull = gradient_operator(V, ft)
+        self.col = col = np.full(len(V), -1)
+        col[free] = np.arange(len(free))
+        self.G = self.Gfull[:, free]
+        area = triangle_areas(V, ft)
+        self.Aw = diags(np.repeat(area, 3))
+        self.varea = np.zeros(len(V))
+        for k in range(3):
+            np.add.at(self.varea, ft[:, k], area / 3.0)
+        self.lam = _ANCHOR / size ** 2
+        self.pin_ids = pin_ids = sorted({i for p in LID_PAIRS + LIP_PAIRS for i in p})
+        ltri, lbar = ch.landmarks.triangles[pin_ids], ch.landmarks.bary[pin_ids]
+        rows, cols, vals = [], [], []
+        for r, (tv, bv) in enumerate(zip(ltri, lbar, strict=True)):
+            for v, b in zip(tv, bv, strict=True):
+                if col[v] >= 0 and b != 0:
+                    rows.append(r)
+                    cols.append(col[v])
+                    vals.append(b)
+        self.Cm = csr_matrix((vals, (rows, cols)), shape=(len(pin_ids), len(free)))
+        self.mu = _PIN * float(self.varea[free].mean()) / size ** 2
+        t0 = time.perf_counter()
+        self.K = (self.G.T @ self.Aw @ self.G + self.lam * diags(self.varea[free])
+                  + self.mu * (self.Cm.T @ self.Cm)).tocsc()
+        self.solve = _factorized(self.K)
+        # the lid rims (eye openings of the face mesh): a blink pins all of each rim shut, solved with its own
+        # factorisation (the rims' rows added), made when a blink needs it
+        self.margins = [m for m in lid_margins(V, self.rt, self.lm, self.F) if (col[m.vertices] >= 0).all()] \
+            if self.method != "barycentric" else []
+        self.margin_solvers: dict = {}
+        self.timings["factor"] = time.perf_counter() - t0
+        self.say(f"factorised the {len(free)}-vertex system in {self.timings['factor']:.2f} s"
+                 + (f"; the lid rims of {len(self.margins)} eye opening(s) found" if self.margins else ""))
 
-                margin_solvers[sel] = (Cb, factorized(Kb))
-        return margin_solvers[sel]
+    def margin_solve(self, sel: tuple[int, ...]):
+        from scipy.sparse import csr_matrix
 
-    def solve_shape(a: str, rhs: np.ndarray, d_t: np.ndarray) -> np.ndarray:
+        if sel not in self.margin_solvers:
+            idx = np.concatenate([self.col[self.margins[i].vertices] for i in sel])
+            Cb = csr_matrix((np.ones(len(idx)), (np.arange(len(idx)), idx)), shape=(len(idx), len(self.free)))
+            self.margin_solvers[sel] = (Cb, _factorized((self.K + self.mu * (Cb.T @ Cb)).tocsc()))
+        return self.margin_solvers[sel]
+
+    def solve_shape(self, a: str, rhs: np.ndarray, d_t: np.ndarray) -> np.ndarray:
         """The free vertices' motion: with the closing lids' rims pinned for a blink."""
-        solver = solve
+        solver, margins = self.solve, self.margins
         if margins and a.startswith("eyeBlink"):
-            mt = _margin_targets(a, margins, V, eyes, tmpl, d_t, size)
+            mt = _margin_targets(a, margins, self.V, self.eyes, self.tmpl, d_t, self.size)
             if mt is not None:
                 starts = np.cumsum([0] + [len(m.vertices) for m in margins])
                 sel = tuple(i for i in range(len(margins)) if not np.isnan(mt[starts[i]:starts[i + 1]]).any())
                 if sel:
-                    Cb, solver = margin_solve(sel)
+                    Cb, solver = self.margin_solve(sel)
                     rows = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in sel])
-                    rhs = rhs + mu * (Cb.T @ mt[rows])
+                    rhs = rhs + self.mu * (Cb.T @ mt[rows])
         return np.column_stack([solver(rhs[:, c]) for c in range(3)])
 
-    timings["factor"] = time.perf_counter() - t0
-    say(f"factorised the {len(free)}-vertex system in {timings['factor']:.2f} s"
-        + (f"; the lid rims of {len(margins)} eye opening(s) found" if margins else ""))
-    # per character triangle: the template triangle under its centroid; per vertex: coverage
-    fnrm = np.cross(V[ft[:, 1]] - V[ft[:, 0]], V[ft[:, 2]] - V[ft[:, 0]])
-    fnrm /= np.maximum(np.linalg.norm(fnrm, axis=1, keepdims=True), 1e-30)
-    ttri_c, _, _ = corr(V[ft].mean(axis=1), fnrm, np.sign(c_side[ft].sum(axis=1)))
-    wt = w[ft].mean(axis=1)
-    grad0 = (Gfull @ V).reshape(-1, 3, 3)                # per triangle: rows d/dk of x_c -> J[k, c]
-    parts = find_parts(ch, head, skin, lm, F, size)
-    info["parts"] = [(ch.meshes[p.mesh].name, p.role, p.side, len(p.vertices)) for p in parts]
-    eyes = [p for p in parts if p.role == "eye"]
-    skin_idx = np.flatnonzero(skin)
-    skin_tree = cKDTree(V[skin_idx])
-    # the skin the lower teeth keep their place behind: the lower lip (outer and inner landmarks) and the chin's
-    # middle.  Fitted to the chin alone, the teeth went down with the skin's stretch and came out through the
-    # lower lip on jawOpen (1,829 pixels of teeth showing outside the mouth on a VALID avatar, 0 now)
-    jaw_ids = [7, 8, 9, 55, 56, 57, 58, 59, 65, 66, 67]
-    chin = skin_idx[np.min(np.linalg.norm(V[skin_idx][:, None] - lm[None, jaw_ids], axis=2), axis=1) < 0.08 * size]
-    lm_pos = lambda D: ch.landmarks.positions(V + D)[pin_ids]            # noqa: E731
-    pair_rows = {i: r for r, i in enumerate(pin_ids)}
-    added: dict[str, np.ndarray] = {}
-    shape_notes = {}
-    smooth_op = _neighbour_mean(len(V), ft)
+    def lm_pos(self, D: np.ndarray) -> np.ndarray:
+        return self.ch.landmarks.positions(self.V + D)[self.pin_ids]
 
-    def outside(x):
-        return _outside_eyes(x, V, eyes, size)
-    keep = np.zeros(len(V), bool)                     # the pinned lid and lip points are not smoothed
-    keep[ch.landmarks.triangles[pin_ids].ravel()] = True
-    keep[w <= 1e-3] = True
-    keep_rims = keep.copy()                           # a blink's pinned rims are not smoothed open again
-    for m in margins:
-        keep_rims[m.vertices] = True
+    def outside(self, x: np.ndarray) -> np.ndarray:
+        return _outside_eyes(x, self.V, self.eyes, self.size)
 
-    def kept(a: str) -> np.ndarray:
-        return keep_rims if a.startswith("eyeBlink") else keep
-    t0 = time.perf_counter()
-    order = sorted(todo, key=lambda a: (a == "mouthClose", a))           # mouthClose after jawOpen
-    for k, a in enumerate(order):
-        d_t = tmpl.shapes[a] @ (s * R).T                                 # the template's motion, character frame
-        ub = np.zeros((len(V), 3))
-        ub[ridx] = np.einsum("nk,nkd->nd", cbar, d_t[tt[ctri]]) * w[ridx, None]
-        if method == "barycentric":
-            u = ub
-        else:
-            Q = _deformation_gradients(reg, tt, d_t)[ttri_c]
-            Q = np.eye(3) + wt[:, None, None] * (Q - np.eye(3))
-            target = np.einsum("fkc,fdc->fkd", grad0, Q) - grad0        # J Q^T - J: the gradient of the motion
-            pins = ch.landmarks.positions(ub)[pin_ids]
-            note = _pin_targets(a, pins, lm_pos, pair_rows, ch, V, added, eyes, tmpl, d_t, size)
-            if note:
-                shape_notes[a] = note
-            rhs = G.T @ (Aw @ target.reshape(-1, 3)) + lam * varea[free, None] * ub[free] + mu * (Cm.T @ pins)
-            u = np.zeros((len(V), 3))
-            u[free] = solve_shape(a, rhs, d_t)
-        u = _untangle(_outside_eyes(u, V, eyes, size), V, ft, smooth_op, kept(a), project=outside)
-        added[a] = u
-        say(f"shape {k + 1}/{len(order)} {a}")
-    if "jawOpen" in added and method != "barycentric":  # a mouth shape played on the open jaw folds nothing either
-        jo = added["jawOpen"]
-        for a in added:
-            if a.startswith("mouth"):
-                added[a] = _untangle(jo + added[a], V, ft, smooth_op, keep, project=outside) - jo
-    if mirror is not None:
-        _symmetrise(added, mirror, F)
-        for a in order:                                   # the lids and lips closed again where averaging opened them
-            u_s = added[a]
-            if method != "barycentric":
-                pins = Cm @ u_s[free]
-                _pin_targets(a, pins, lm_pos, pair_rows, ch, V, added, eyes, tmpl,
-                             tmpl.shapes[a] @ (s * R).T, size)
-                rhs = G.T @ (Aw @ (Gfull @ u_s)) + lam * varea[free, None] * u_s[free] + mu * (Cm.T @ pins)
-                u_s = u_s.copy()
-                u_s[free] = solve_shape(a, rhs, tmpl.shapes[a] @ (s * R).T)
-            added[a] = _untangle(_outside_eyes(u_s, V, eyes, size), V, ft, smooth_op, kept(a), project=outside)
-        notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
-    timings["shapes"] = time.perf_counter() - t0
-    out: dict[str, dict[str, np.ndarray]] = {hm.name: {a: added[a].astype(np.float32) for a in todo}}
-    # the other parts: eyes turn, the lower teeth and tongue ride the jaw, the rest follows the skin
-    for p in parts:
-        m = ch.meshes[p.mesh]
-        P = m.mesh.vertices[p.vertices].astype(np.float64)
-        if p.role == "follow":
-            dist, nn = skin_tree.query(P)
-            fade = np.clip(1.0 - (dist / size - 0.03) / 0.07, 0.0, 1.0)
-            if not (fade > 0).any():
-                continue
-        dst = out.setdefault(m.name, {})
-        for a in todo:
-            d = dst.get(a)
-            if d is None:
-                d = np.zeros((m.mesh.n_vertices, 3), np.float32)
-            if p.role == "eye":
-                Rh = _eye_turn(a, p.side)
-                if Rh is None:
-                    continue
-                Rw = F.T @ Rh @ F
-                d[p.vertices] = (P - p.centre) @ Rw.T + p.centre - P
-            elif p.role == "lower":
-                if len(chin) < 3:
-                    continue
-                Rj, tj = _kabsch(V[chin], V[chin] + added[a][chin])
-                d[p.vertices] = P @ Rj.T + tj - P
-            elif p.role == "follow":
-                d[p.vertices] = added[a][skin_idx[nn]] * fade[:, None]
+    def kept(self, a: str) -> np.ndarray:
+        """Vertices a shape's untangling leaves alone: the pinned lid and lip points, the uncovered ones, and for
+        a blink the pinned rims (else smoothed open again)."""
+        return self.keep_rims if a.startswith("eyeBlink") else self.keep
+
+    def transfer_shapes(self) -> None:
+        """Every shape: the template's deformation gradients under each character triangle, solved for the free
+        vertices with the lids and lips pinned, then pushed out of the eyeballs and untangled."""
+        from scipy.spatial import cKDTree
+
+        ch, V, ft, size = self.ch, self.V, self.ft, self.size
+        # per character triangle: the template triangle under its centroid; per vertex: coverage
+        fnrm = np.cross(V[ft[:, 1]] - V[ft[:, 0]], V[ft[:, 2]] - V[ft[:, 0]])
+        fnrm /= np.maximum(np.linalg.norm(fnrm, axis=1, keepdims=True), 1e-30)
+        ttri_c, _, _ = self.corr(V[ft].mean(axis=1), fnrm, np.sign(self.c_side[ft].sum(axis=1)))
+        wt = self.w[ft].mean(axis=1)
+        grad0 = (self.Gfull @ V).reshape(-1, 3, 3)                # per triangle: rows d/dk of x_c -> J[k, c]
+        self.parts = find_parts(ch, self.head, self.skin, self.lm, self.F, size)
+        self.info["parts"] = [(ch.meshes[p.mesh].name, p.role, p.side, len(p.vertices)) for p in self.parts]
+        self.eyes = [p for p in self.parts if p.role == "eye"]
+        self.skin_idx = skin_idx = np.flatnonzero(self.skin)
+        self.skin_tree = cKDTree(V[skin_idx])
+        # the skin the lower teeth keep their place behind: the lower lip (outer and inner landmarks) and the
+        # chin's middle.  Fitted to the chin alone, the teeth went down with the skin's stretch and came out
+        # through the lower lip on jawOpen (1,829 pixels of teeth showing outside the mouth on a VALID avatar,
+        # 0 now)
+        jaw_ids = [7, 8, 9, 55, 56, 57, 58, 59, 65, 66, 67]
+        self.chin = skin_idx[np.min(np.linalg.norm(V[skin_idx][:, None] - self.lm[None, jaw_ids], axis=2),
+                                    axis=1) < 0.08 * size]
+        self.pair_rows = {i: r for r, i in enumerate(self.pin_ids)}
+        self.added: dict[str, np.ndarray] = {}
+        self.shape_notes = {}
+        self.smooth_op = _neighbour_mean(len(V), ft)
+        self.keep = keep = np.zeros(len(V), bool)         # the pinned lid and lip points are not smoothed
+        keep[ch.landmarks.triangles[self.pin_ids].ravel()] = True
+        keep[self.w <= 1e-3] = True
+        self.keep_rims = keep.copy()                      # a blink's pinned rims are not smoothed open again
+        for m in self.margins:
+            self.keep_rims[m.vertices] = True
+        t0 = time.perf_counter()
+        self.order = sorted(self.todo, key=lambda a: (a == "mouthClose", a))           # mouthClose after jawOpen
+        free = self.free
+        for k, a in enumerate(self.order):
+            d_t = self.template_motion(a)                                # the template's motion, character frame
+            ub = self.carried(d_t)
+            if self.method == "barycentric":
+                u = ub
             else:
-                continue
-            dst[a] = d
-    out = {mn: {a: d for a, d in sd.items() if np.abs(d).max() > 0} for mn, sd in out.items()}
-    out = {mn: sd for mn, sd in out.items() if sd}
-    timings["total"] = time.perf_counter() - t_all
-    info["coverage"] = w
-    say(f"generated {len(todo)} shapes on {len(out)} mesh(es) in {timings['total']:.1f} s")
-    return GeneratedShapes(ch, out, skipped, notes, shape_notes, timings, tmpl.name, info, replace)
+                Q = _deformation_gradients(self.reg, self.tt, d_t)[ttri_c]
+                Q = np.eye(3) + wt[:, None, None] * (Q - np.eye(3))
+                target = np.einsum("fkc,fdc->fkd", grad0, Q) - grad0    # J Q^T - J: the gradient of the motion
+                pins = ch.landmarks.positions(ub)[self.pin_ids]
+                note = _pin_targets(a, pins, self.lm_pos, self.pair_rows, ch, V, self.added, self.eyes, self.tmpl,
+                                    d_t, size)
+                if note:
+                    self.shape_notes[a] = note
+                rhs = (self.G.T @ (self.Aw @ target.reshape(-1, 3)) + self.lam * self.varea[free, None] * ub[free]
+                       + self.mu * (self.Cm.T @ pins))
+                u = np.zeros((len(V), 3))
+                u[free] = self.solve_shape(a, rhs, d_t)
+            u = _untangle(self.outside(u), V, ft, self.smooth_op, self.kept(a), project=self.outside)
+            self.added[a] = u
+            self.say(f"shape {k + 1}/{len(self.order)} {a}")
+        if "jawOpen" in self.added and self.method != "barycentric":  # a mouth shape on the open jaw folds nothing
+            jo = self.added["jawOpen"]
+            for a in self.added:
+                if a.startswith("mouth"):
+                    self.added[a] = _untangle(jo + self.added[a], V, ft, self.smooth_op, keep,
+                                              project=self.outside) - jo
+        self.t_shapes = t0
+
+    def symmetrise(self) -> None:
+        """A symmetric face: left/right shapes made mirror images and the others symmetric, then the lids and lips
+        closed again where averaging opened them."""
+        V, ft, free, added = self.V, self.ft, self.free, self.added
+        _symmetrise(added, self.mirror, self.F)
+        for a in self.order:
+            u_s = added[a]
+            if self.method != "barycentric":
+                pins = self.Cm @ u_s[free]
+                _pin_targets(a, pins, self.lm_pos, self.pair_rows, self.ch, V, added, self.eyes, self.tmpl,
+                             self.template_motion(a), self.size)
+                rhs = (self.G.T @ (self.Aw @ (self.Gfull @ u_s)) + self.lam * self.varea[free, None] * u_s[free]
+                       + self.mu * (self.Cm.T @ pins))
+                u_s = u_s.copy()
+                u_s[free] = self.solve_shape(a, rhs, self.template_motion(a))
+            added[a] = _untangle(self.outside(u_s), V, ft, self.smooth_op, self.kept(a), project=self.outside)
+        self.notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
+
+    def result(self) -> GeneratedShapes:
+        """The shapes of every mesh: the face's, and the other parts': eyes turn, the lower teeth and tongue ride
+        the jaw, the rest follows the skin."""
+        self.timings["shapes"] = time.perf_counter() - self.t_shapes
+        ch, todo, added, size = self.ch, self.todo, self.added, self.size
+        out: dict[str, dict[str, np.ndarray]] = {self.hm.name: {a: added[a].astype(np.float32) for a in todo}}
+        for p in self.parts:
+            m = ch.meshes[p.mesh]
+            P = m.mesh.vertices[p.vertices].astype(np.float64)
+            if p.role == "follow":
+                dist, nn = self.skin_tree.query(P)
+                fade = np.clip(1.0 - (dist / size - 0.03) / 0.07, 0.0, 1.0)
+                if not (fade > 0).any():
+                    continue
+            dst = out.setdefault(m.name, {})
+            for a in todo:
+                d = dst.get(a)
+                if d is None:
+                    d = np.zeros((m.mesh.n_vertices, 3), np.float32)
+                if p.role == "eye":
+                    Rh = _eye_turn(a, p.side)
+                    if Rh is None:
+                        continue
+                    Rw = self.F.T @ Rh @ self.F
+                    d[p.vertices] = (P - p.centre) @ Rw.T + p.centre - P
+                elif p.role == "lower":
+                    if len(self.chin) < 3:
+                        continue
+                    Rj, tj = _kabsch(self.V[self.chin], self.V[self.chin] + added[a][self.chin])
+                    d[p.vertices] = P @ Rj.T + tj - P
+                elif p.role == "follow":
+                    d[p.vertices] = added[a][self.skin_idx[nn]] * fade[:, None]
+                else:
+                    continue
+                dst[a] = d
+        out = {mn: {a: d for a, d in sd.items() if np.abs(d).max() > 0} for mn, sd in out.items()}
+        out = {mn: sd for mn, sd in out.items() if sd}
+        self.timings["total"] = time.perf_counter() - self.t_all
+        self.info["coverage"] = self.w
+        self.say(f"generated {len(todo)} shapes on {len(out)} mesh(es) in {self.timings['total']:.1f} s")
+        return GeneratedShapes(ch, out, self.skipped, self.notes, self.shape_notes, self.timings, self.tmpl.name,
+                               self.info, self.replace)
+
+
+def _factorized(K):
+    """A solve of the sparse SPD system ``K`` (CHOLMOD when scikit-sparse is installed: faster)."""
+    try:
+        from sksparse.cholmod import cholesky
+
+        return cholesky(K)
+    except ImportError:
+        from scipy.sparse.linalg import factorized
+
+        return factorized(K)
 
 
 def _pin_targets(a, pins, lm_pos, rows, ch, V, added, eyes, tmpl, d_t, size) -> str:

@@ -440,6 +440,10 @@ class _Face:
 
 # ---------------------------------------------------------------------- shapes
 def _shapes(f: _Face) -> dict[str, np.ndarray]:
+    """The demo face's 52 ARKit shapes, each a few lines of displacement field over the same face regions.
+
+    Long because it is a table: one short block per ARKit shape, in ARKit's order, sharing the regions set up
+    at the top; split by shape group it would pass the same dozen locals to every piece."""
     s = f.s
     V = f.V
     X, Y = V[:, 0], V[:, 1]
