@@ -226,6 +226,26 @@ def test_animate_options_object_and_keywords_give_the_same_animation(arkit, aoc_
         animate(aoc_capture, arkit, head_amp=0.5)
 
 
+def test_silent_new_speech_is_refused_before_any_work(arkit, tmp_path, capsys):
+    """Issue 34: ``--speech`` with a silent WAV exited 0 with an animation re-timed to nothing."""
+    from scipy.io import wavfile
+
+    from faceretarget.cli import main
+    from faceretarget.errors import InputFileError
+    from faceretarget.pipelines import animate
+
+    silent = tmp_path / "silent.wav"
+    wavfile.write(silent, 16000, np.zeros(16000, np.int16))
+    video = _need(DATA / "video" / "WDA_AOC_000.mp4")
+    with pytest.raises(InputFileError, match=r"silent\.wav: the audio is silent"):
+        animate(video, arkit, speech=silent)
+    out = tmp_path / "a.glb"
+    rc = main(["animate", str(video), "--character", str(DATA / "arkit-face"), "--speech", str(silent), "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "silent.wav: the audio is silent" in err[0], err
+    assert not out.exists()
+
+
 def test_moved_character_names_still_work_with_a_deprecation_warning():
     import faceretarget.characters as characters
     import faceretarget.pipelines as pipelines

@@ -384,6 +384,20 @@ def test_unreachable_scheduler_is_one_line_and_nothing_runs(data_dir, takes, tmp
     assert not (tmp_path / "out").exists()
 
 
+def test_an_output_under_a_regular_file_is_refused_before_anything_runs(data_dir, takes, tmp_path, capsys):
+    """Issue 34: was exit 1 (the job failed with NotADirectoryError after the cluster started), now 2."""
+    from faceretarget.cli import main
+
+    (tmp_path / "out").write_text("a file where the output folder goes")
+    path = tmp_path / "jobs.toml"
+    path.write_text(_jobs_text(data_dir, takes))
+    rc = main(["batch", str(path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert "key 'out'" in err[0] and "is a file, not a folder" in err[0] and str(tmp_path / "out") in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["jobs.toml", "out"]     # no manifest, nothing run
+
+
 def test_missing_distributed_names_the_extra(monkeypatch, data_dir, takes, tmp_path):
     from faceretarget.errors import MissingDependencyError
     from faceretarget.pipelines import run_batch

@@ -297,6 +297,23 @@ def test_preview_shares_the_videos_clock(clip, arkit_rig, tmp_path):
             assert err_want < 0.5 * err_other, k
 
 
+def test_preview_ends_with_the_animation_not_the_video(clip, take, arkit_rig, tmp_path):
+    """Issue 34: a take of the video's first second (``--max-frames``) previews one second, not the whole
+    video with the last pose held (was: 50 frames, 2 s of audio)."""
+    from faceretarget.io import probe_video
+    from faceretarget.pipelines import write_animation_preview
+
+    W, times, head = take
+    n = int(np.searchsorted(times, 1.0))                 # 31 take frames: 0 .. 0.9999 s
+    out = tmp_path / "short.mp4"
+    info = write_animation_preview(out, clip, arkit_rig, W[:n], times[:n], None, size=128, backend="numpy",
+                                   log=lambda *_: None)
+    got = probe_video(out)
+    # video frames at 0 .. 1.0 s (25 fps; a frame within half a frame of the take's end shows it)
+    assert info["frames"] == len(_decode(out)) == 26
+    assert got.duration == pytest.approx(1.04, abs=0.1)
+
+
 def test_take_sampler_interpolates_and_holds(arkit_rig):
     from faceretarget.pipelines import TakeSampler
 

@@ -63,7 +63,7 @@ def cmd_headmotion_synth(args, log) -> int:
         raise InvalidDataError("--no-rotation and --no-translation together leave nothing to write")
     log(f"synthesizing head motion for {args.audio} from {args.db}")
     db = HeadMotionDatabase.load(args.db)
-    audio, rate = read_audio(args.audio)
+    audio, rate = read_audio(args.audio, speech=True)
     try:
         res = db.transform(audio, rate, amplitude=args.amplitude, rotation=not args.no_rotation,
                            translation=not args.no_translation, seed=args.seed, fps=args.fps,

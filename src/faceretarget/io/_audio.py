@@ -23,13 +23,16 @@ from ..formats import WAV
 __all__ = ["read_audio", "checked_audio", "write_wav", "write_audio"]
 
 
-def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
+def read_audio(path: str | os.PathLike, *, speech: bool = False) -> tuple[np.ndarray, float]:
     """Read the audio of a file: ``.wav`` with SciPy, anything else with PyAV.
 
     Parameters
     ----------
     path : path-like
         A RIFF/WAVE file (PCM or IEEE float).
+    speech : bool
+        The audio is the speech a job follows (new speech to re-time to, speech that drives head motion):
+        silence is an error, not a warning.
 
     Returns
     -------
@@ -42,8 +45,8 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
     ------
     InputFileError
         Missing file, a file that is not a WAV (no RIFF/WAVE header or data chunk, or an unsupported
-        WAV encoding), one without samples or with NaN / infinite float samples; the message names
-        the file.
+        WAV encoding), one without samples or with NaN / infinite float samples; with ``speech``, a
+        silent one (peak under :data:`SILENCE_DBFS`); the message names the file.
 
     Warns
     -----
@@ -61,7 +64,7 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
         got = read_video_audio(path)
         if got is None:
             raise InputFileError(f"{path}: no audio stream could be decoded")
-        _check_heard(path, got[0], float(got[1]))
+        _check_heard(path, got[0], float(got[1]), speech)
         return got[0], float(got[1])
     source = _wav_source(path)
     try:
@@ -96,7 +99,7 @@ def read_audio(path: str | os.PathLike) -> tuple[np.ndarray, float]:
         raise InputFileError(f"{path}: the WAV file holds non-finite samples")
     if not rate or rate <= 0:
         raise InputFileError(f"{path}: invalid sampling rate {rate}")
-    _check_heard(path, x, float(rate))
+    _check_heard(path, x, float(rate), speech)
     return x, float(rate)
 
 
@@ -112,9 +115,13 @@ def _dbfs(x: np.ndarray) -> float:
     return 20.0 * np.log10(peak) if peak > 0 else -np.inf
 
 
-def _check_heard(path: Path, x: np.ndarray, rate: float) -> None:
-    """One warning line when the audio holds nothing a speech method can use: silence, or a rate below speech's."""
+def _check_heard(path: Path, x: np.ndarray, rate: float, speech: bool = False) -> None:
+    """One warning line when the audio holds nothing a speech method can use: silence, or a rate below speech's
+    (``speech``: silence is an :class:`~faceretarget.errors.InputFileError`)."""
     level = _dbfs(x)
+    if speech and level < SILENCE_DBFS:
+        raise InputFileError(f"{path}: the audio is silent (peak {level:.0f} dBFS, under {SILENCE_DBFS:.0f}): there is no "
+                             "speech to follow; give a recording of the speech")
     if level < SILENCE_DBFS:
         warnings.warn(f"{path}: the audio is silent (peak {level:.0f} dBFS, under {SILENCE_DBFS:.0f}): no speech to "
                       "drive head motion or emotion", DataWarning, stacklevel=3)

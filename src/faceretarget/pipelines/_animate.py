@@ -539,14 +539,14 @@ def animate(video: str | os.PathLike | Capture, character, options: AnimateOptio
     o = dataclasses.replace(options or AnimateOptions(), **kwargs).check()
     timings: dict[str, float] = {}
     clock = _Clock(timings)
+    speech_audio = None
+    if o.speech is not None:                      # new speech: a silent file is refused before any work
+        from ..io import read_audio
+
+        speech_audio = read_audio(o.speech, speech=True)
     character, drive = _drive(character, o, clock, log)
     by_landmarks = _check_drivable(character, o)
     style_model, keys = _emotion_keys(o)
-    speech_audio = None
-    if o.speech is not None:
-        from ..io import read_audio
-
-        speech_audio = read_audio(o.speech)
     with clock("capture"):
         cap, take = _capture(video, o, log)
     with clock("solve"):

@@ -482,6 +482,14 @@ def _input_exts(op: str) -> tuple[str, ...]:
     return (WAV,)
 
 
+def _file_in_the_way(out: Path) -> Path | None:
+    """The nearest existing ancestor of ``out`` when it is a regular file (no folder can be made there)."""
+    for anc in out.parents:
+        if anc.exists():
+            return None if anc.is_dir() else anc
+    return None
+
+
 def _writes_back(rig: Path, out: Path) -> bool:
     from ..io import is_character_file, writes_back
 
@@ -632,6 +640,10 @@ def read_jobs(path: str | os.PathLike) -> BatchSpec:
                     raise InvalidDataError(f"{where}, key 'out': {out}: {op} writes {', '.join(exts)}")
                 if rig is not None and out.resolve() == rig.resolve():
                     raise InvalidDataError(f"{where}, key 'out': {out} is the character's own file")
+                blocker = _file_in_the_way(out)
+                if blocker is not None:
+                    raise InvalidDataError(f"{where}, key 'out': {out} cannot be written: '{blocker}' is a file, "
+                                           "not a folder")
                 job = Job(f"{name}:{c}:{shown}", name, op, c, source, f, out, fit, apply)
                 if out in outputs:
                     o = outputs[out]

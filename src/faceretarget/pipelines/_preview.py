@@ -249,7 +249,9 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
         its median, see :class:`TakeSampler`).
     frame_times : (N,) float, optional
         The take time (seconds, the clock of ``times``) to show at each video frame; when given, only
-        the first ``N`` video frames are written.  By default the take and the video share one clock:
+        the first ``N`` video frames are written.  By default the preview ends with the take (video frames up
+        to half a frame past its last time; a take of the first seconds previews those seconds), and the take
+        and the video share one clock:
         a video frame ``s`` seconds after the video's first frame shows the take at time ``s`` (a take
         captured from this video, even one whose first frames had no face and start later, lines up).
     size : int
@@ -302,6 +304,11 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
     info = probe_video(video)
     fps = info.fps
     audio_s = len(ft) / fps if ft is not None else (info.duration or None)
+    t_end = float(np.max(times)) if np.size(times) else 0.0
+    if ft is None and fps and (info.n_frames or 0) > int(np.floor(t_end * fps + 0.5)) + 1:
+        # the video runs past the animation (a take of its first frames): the preview ends with the animation
+        max_frames = int(np.floor(t_end * fps + 0.5)) + 1
+        audio_s = max_frames / fps
     extra = {} if colors is None else {"color": colors}
     with MeshRenderer(rig.neutral, (size, size), backend=backend, mm_per_unit=rig.mm_per_unit, pivot=pivot,
                       **extra) as renderer:
