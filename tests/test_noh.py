@@ -64,6 +64,32 @@ def test_closest_points_match_brute_force():
     np.testing.assert_allclose(dist, d_all, atol=1e-12)
 
 
+def test_closest_points_answer_every_query():
+    """Issue 34: a query whose nearest vertex is in no triangle (a stray vertex, an eyeball's centre) had no
+    candidate triangle and was dropped (369 queries, 367 answers); now every query is answered, exactly."""
+    mesh = _bumpy_grid()
+    tri = mesh.triangles()
+    stray = np.array([[0.0, 0.0, 30.0], [25.0, 0.0, 0.0]])                  # in no triangle, far from the grid
+    V = np.vstack([mesh.vertices, stray])
+    q = np.vstack([stray + [0.0, 0.0, 0.01], [[0.3, -0.2, 1.0]]])
+    t, bary, dist = closest_points_on_mesh(q, V, tri)
+    assert len(t) == len(bary) == len(dist) == len(q)
+    with pytest.raises(InvalidDataError, match="no triangles"):
+        closest_points_on_mesh(q, V, tri[:0])
+    with pytest.raises(InvalidDataError, match="query 1 is not finite"):
+        closest_points_on_mesh(np.array([[0.0, 0, 0], [np.nan, 0, 0]]), V, tri)
+    ok = np.isfinite(dist)
+    assert ok.all()
+    c = V[tri]
+    Q, F = int(ok.sum()), len(tri)
+    b_all = noh._closest_on_triangles(np.repeat(q[ok], F, 0), *(np.tile(c[:, k], (Q, 1)) for k in range(3)))
+    d_all = np.linalg.norm(np.einsum("nk,nkj->nj", b_all, np.tile(c, (Q, 1, 1))) - np.repeat(q[ok], F, 0),
+                           axis=1).reshape(Q, F).min(1)
+    np.testing.assert_allclose(dist[ok], d_all, atol=1e-12)                  # the true closest points
+    cp = np.einsum("nk,nkj->nj", bary[ok], V[tri[t[ok]]])
+    np.testing.assert_allclose(np.linalg.norm(cp - q[ok], axis=1), dist[ok], atol=1e-12)
+
+
 def test_closest_point_regions():
     a, b, c = np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
     pts = np.array([[0.2, 0.2, 1.0], [-1, -1, 0.5], [2, -0.1, 0], [0.5, -1, 0], [1, 1, 0], [-1, 0.5, 0]])

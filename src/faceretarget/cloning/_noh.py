@@ -138,6 +138,9 @@ def closest_points_on_mesh(points: np.ndarray, vertices: np.ndarray, triangles: 
     min_cos : float
         Cosine of the largest admissible angle between query normal and triangle normal.
 
+    Every query gets an answer (a query whose bound finds no triangle, e.g. one near a vertex that is in no
+    triangle, is answered over every triangle); a non-finite query is an error naming it.
+
     Returns
     -------
     triangle : (Q,) int
@@ -155,12 +158,19 @@ def closest_points_on_mesh(points: np.ndarray, vertices: np.ndarray, triangles: 
     rad = np.linalg.norm(corners - cen[:, None], axis=-1).max(axis=1)
     slack = 1e-9 * (1.0 + float(np.abs(v).max()))
     fn = _unit(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
+    if not len(tri):
+        raise InvalidDataError(f"closest_points_on_mesh: the mesh has no triangles ({len(v)} vertices)")
+    bad = ~np.isfinite(p).all(axis=1)
+    if bad.any():
+        raise InvalidDataError(f"closest_points_on_mesh: query {int(np.flatnonzero(bad)[0])} is not finite "
+                               f"({int(bad.sum())} of {Q})")
     ctree = cKDTree(cen)
+    used = v[np.unique(tri)]                 # a vertex in no triangle bounds nothing: it is not on the surface
     if point_normals is None:
         unconstrained = np.ones(Q, bool)
-        d0, _ = cKDTree(v).query(p)
+        d0, _ = cKDTree(used).query(p)
     else:
-        d0, unconstrained = _compatible_bound(p, v, corners, fn, ctree, point_normals, min_cos)
+        d0, unconstrained = _compatible_bound(p, used, corners, fn, ctree, point_normals, min_cos)
     q, t = _candidate_pairs(p, cen, rad, ctree, d0, slack)
     bary, dist = _triangle_distances(p, corners, fn, q, t, point_normals, min_cos, unconstrained)
     # per query the candidate with the smallest distance
@@ -168,7 +178,28 @@ def closest_points_on_mesh(points: np.ndarray, vertices: np.ndarray, triangles: 
     first = np.ones(order.size, bool)
     first[1:] = q[order][1:] != q[order][:-1]
     best = order[first]
-    return t[best], bary[best], dist[best]
+    out_t, out_b, out_d = np.zeros(Q, np.int64), np.zeros((Q, 3)), np.full(Q, np.inf)
+    out_t[q[best]], out_b[q[best]], out_d[q[best]] = t[best], bary[best], dist[best]
+    miss = np.setdiff1d(np.arange(Q), q[best])
+    if len(miss):      # no candidate within the bound (degenerate triangles about it): every triangle
+        _all_triangles(p, corners, fn, miss, out_t, out_b, out_d)
+    return out_t, out_b, out_d
+
+
+def _all_triangles(p: np.ndarray, corners: np.ndarray, fn: np.ndarray, queries: np.ndarray, out_t: np.ndarray,
+                   out_b: np.ndarray, out_d: np.ndarray, chunk: int = 4_000_000) -> None:
+    """The closest point of each of ``queries`` over every triangle (unconstrained), in place."""
+    F = len(corners)
+    step = max(1, chunk // F)
+    for i in range(0, len(queries), step):
+        qs = queries[i:i + step]
+        q = np.repeat(qs, F)
+        t = np.tile(np.arange(F), len(qs))
+        bary, dist = _triangle_distances(p, corners, fn, q, t, None, 0.0, np.ones(len(p), bool))
+        d = dist.reshape(len(qs), F)
+        k = np.argmin(np.where(np.isfinite(d), d, np.inf), axis=1)
+        rows = np.arange(len(qs)) * F + k
+        out_t[qs], out_b[qs], out_d[qs] = k, bary[rows], dist[rows]
 
 
 def _triangle_distances(p: np.ndarray, corners: np.ndarray, fn: np.ndarray, q: np.ndarray, t: np.ndarray,
