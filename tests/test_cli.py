@@ -122,9 +122,19 @@ def test_errors_are_one_line_and_nonzero(files, capsys, tmp_path):
 
 
 def test_demo_command(tmp_path, capsys):
+    from faceretarget.metrics import FIGURES
+
     assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
     out = capsys.readouterr().out
-    assert "temporal" in out and "rel_motion" in out
+    assert "temporal" in out and "motion error" in out
+    # issue 34: every figure says what it means and what is good; advice only where it is not good
+    for what in ("motion error", "lip error", "mouth correlation"):
+        line = next(x for x in out.splitlines() if x.strip().startswith(what))
+        assert ": " in line and ("good under" in line or "good over" in line), line
+        f = next(f for f in FIGURES.values() if f.what == what)
+        value = float(line.strip()[len(what):].split()[0].rstrip(":"))
+        assert ("so not good:" in line) == (not f.good(value)), line
+    assert "(not good)" in next(x for x in out.splitlines() if x.strip().startswith("pyun"))
     import json
 
     m = json.loads((tmp_path / "demo" / "metrics.json").read_text())

@@ -209,3 +209,20 @@ def test_arkit_pairing_on_real_rigs(data_dir, ict_rig, arkit_rig):
     assert m["rel_motion_pct"] == 0.0 and m["lve_mm"] == 0.0
     swapped = pair.swapped()
     assert swapped.source is arkit_rig and swapped.target is ict_rig
+
+
+def test_a_printed_figure_says_what_it_means_what_is_good_and_what_to_do():
+    """Issue 34: one style for every number a command prints."""
+    from faceretarget.metrics import FIGURES, figure_line
+
+    ok = figure_line("rel_motion", 12.0)
+    assert ok == ("motion error 12.0 %: the share of the true motion that is wrong (0 is perfect, 100 as far off as "
+                  "a face that does not move); good under 30 %")
+    bad = figure_line("rel_motion", 45.0, "add key-models")
+    assert bad.endswith("good under 30 %, so not good: add key-models")
+    assert "so not good: check the character's landmarks" in figure_line("mouth_corr", 0.5)
+    assert "so not good" not in figure_line("mouth_corr", 0.95)                 # higher is better there
+    for f in FIGURES.values():
+        assert f.meaning and f.advice and np.isfinite(f.bound)
+        line = f.line(f.bound)
+        assert "\n" not in line and "so not good" not in line                  # the bound itself is good

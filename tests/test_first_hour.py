@@ -51,7 +51,7 @@ def test_keys_select_error_is_a_share_of_the_motion_and_a_length_in_mm(unit, sca
     assert sel.rms_error == pytest.approx(rms, rel=1e-9) and sel.unit == unit
     assert sel.error == pytest.approx(rms / motion, rel=1e-9) and 0 < sel.error < 1
     line = next(m for m in lines if "reconstruction error" in m)
-    pct, mm = re.search(r"error of the take: ([\d.]+) % of its RMS motion \(([\d.]+) mm RMS\)", line).groups()
+    pct, mm = re.search(r"^reconstruction error ([\d.]+) %: .*good under 20 %.* \(([\d.]+) mm RMS\)$", line).groups()
     assert float(pct) == pytest.approx(100 * sel.error, abs=0.06)
     assert float(mm) == pytest.approx(rms / scale, rel=1e-2)         # the same millimetres in mm and in cm
 

@@ -232,8 +232,8 @@ class Rig:
         unknown = [names[j] for j in np.flatnonzero(~used)]
         if unknown and warn:
             warnings.warn(
-                f"{source}: {len(unknown)} channel(s) have no shape in rig '{self.name}' and are "
-                f"ignored: {', '.join(unknown)}",
+                f"{source}: {', '.join(unknown)} ({len(unknown)} channel(s)) move nothing on rig '{self.name}', which "
+                "has no shape of that name; to play them, give the rig a shape named so",
                 DataWarning,
                 stacklevel=2,
             )

@@ -5,6 +5,8 @@
                                  axis, vertex and lip errors, the key-blend oracle
 :mod:`._head_motion`             P5 head motion: angular speed, motion beats, pitch accents, beat
                                  alignment, the smooth-noise baseline
+:mod:`._figures`                 how a command prints a number: meaning, what is good, advice
+                                 (``figure_line``)
 ================================ ================================================================
 """
 
@@ -21,6 +23,7 @@ from ._animation_errors import (
     oracle_rel_motion_pct,
     rel_motion_pct,
 )
+from ._figures import FIGURES, Figure, figure_line
 from ._head_motion import (
     accent_onsets,
     angular_speed,
@@ -35,5 +38,5 @@ __all__ = [
     "rel_motion_pct", "err_pct", "err_pct_axis", "mve_mm", "mve_pct_diag", "lve_mm", "lip_vertices",
     "oracle_blend", "oracle_rel_motion_pct", "metrics", "LIP_LANDMARKS",
     "angular_speed", "motion_beats", "accent_onsets", "pitch_peaks", "beat_alignment", "perlin_noise",
-    "summarize_alignment",
+    "summarize_alignment", "Figure", "FIGURES", "figure_line",
 ]

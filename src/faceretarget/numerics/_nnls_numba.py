@@ -45,7 +45,7 @@ try:  # pragma: no cover - depends on the environment
 except MissingDependencyError:  # pragma: no cover
     numba = None
 
-__all__ = ["available", "box_frames", "compile_kernels", "COMPILE_NOTICE_AFTER"]
+__all__ = ["available", "box_frames", "compile_kernels", "COMPILE_NOTICE_AFTER", "COMPILE_SECONDS"]
 
 #: Seconds a first call may spend compiling before a terminal is told why it waits.
 COMPILE_NOTICE_AFTER = 1.5
@@ -422,8 +422,17 @@ def box_frames(G: np.ndarray, B: np.ndarray, ub: np.ndarray | None = None, *, ex
         notice.cancel()
 
 
+#: How long compiling the kernel takes, for the notices (25 s measured on 2 cores, up to a minute on slower ones).
+COMPILE_SECONDS = "about 30 s"
+_announced = False
+
+
 def _compile_notice() -> None:
-    sys.stderr.write("faceretarget: compiling the NNLS solver kernel with numba (first use only: about 15 s, "
+    global _announced
+    if _announced:                                    # compile_kernels(verbose=True) said it already
+        return
+    _announced = True
+    sys.stderr.write(f"faceretarget: compiling the NNLS solver kernel with numba (first use only: {COMPILE_SECONDS}, "
                      "cached afterwards)\n")
     sys.stderr.flush()
 
@@ -431,15 +440,22 @@ def _compile_notice() -> None:
 def compile_kernels(verbose: bool = False) -> float:
     """Compile the kernel now (or load it from numba's on-disk cache) and return the seconds it took.
 
-    The first solve on a machine otherwise waits about 15 s for it; ``make demo`` calls this once,
-    with ``verbose``, so the wait is announced.  Without numba, nothing happens (0 s).
+    The first solve on a machine otherwise waits for it (:data:`COMPILE_SECONDS`); ``make demo`` calls this
+    once, with ``verbose``, so the wait is announced once and its length printed after.  Without numba,
+    nothing happens (0 s).
     """
+    global _announced
     if numba is None:
         return 0.0
     t0 = time.perf_counter()
-    if verbose and not _box_frames.signatures:
-        print("compiling the NNLS solver kernel with numba (once: about 15 s, cached afterwards)", flush=True)
+    fresh = verbose and not _box_frames.signatures
+    if fresh:
+        print(f"compiling the NNLS solver kernel with numba (once: {COMPILE_SECONDS}, cached afterwards)", flush=True)
+        _announced = True
     G = np.eye(2)
     box_frames(G, np.ones((2, 2)), np.ones(2))
     box_frames(G, np.ones((2, 2)), None, exact=(np.eye(2), np.ones((2, 2)), 0.0, 0.0))
-    return time.perf_counter() - t0
+    seconds = time.perf_counter() - t0
+    if fresh:
+        print(f"compiled in {seconds:.0f} s (or loaded from numba's cache); later runs start at once", flush=True)
+    return seconds

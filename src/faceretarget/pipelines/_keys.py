@@ -13,6 +13,7 @@ import numpy as np
 from ..cloning import EMOTIONS, VISEMES, build_key_models, weight_vector
 from ..errors import DataWarning, InvalidDataError
 from ..mesh import Mesh
+from ..metrics import figure_line
 from ..names import ARKIT_NAMES, normalize_name
 from ..numerics import (
     SELECTION_METHODS,
@@ -242,9 +243,9 @@ def select_keys(take: Performance, k: int, method: str = "pivoted-qr", *, source
     motion = float(np.sqrt(np.mean(X**2)))                                # the take's RMS motion
     err = rms / motion if motion > 0 else 0.0
     unit = source_rig.unit if take.kind == "weights" and source_rig is not None else take.unit
-    log(f"selected {len(frames)} keyshapes with {method} in {time.perf_counter() - t0:.2f} s; "
-        f"non-negative reconstruction error of the take: {100 * err:.1f} % of its RMS motion "
-        f"({_length(rms, unit)} RMS)")
+    log(f"selected {len(frames)} keyshapes with {method} in {time.perf_counter() - t0:.2f} s")
+    log(figure_line("key_reconstruction", 100 * err, f"choose more keyshapes (--k, now {len(frames)}), or select "
+                    "them from a take with every expression the performance uses") + f" ({_length(rms, unit)} RMS)")
     chosen = sorted(frames.tolist())
     basis = basis_names = None
     if take.kind == "weights":

@@ -132,9 +132,9 @@ class ControlTarget(Target):
                 raise InvalidDataError(f"{table.source}: no control drives a shape of the rig '{rig.name}' ('{dead[0]}', "
                                        "...); name the columns like the rig's shapes")
             if dead:
-                warnings.warn(f"{table.source}: control(s) {', '.join(dead[:8])} drive no shape of the rig '{rig.name}': "
-                              "the rig's shapes do not show them (control curves, .csv / .json, still hold them)",
-                              DataWarning, stacklevel=2)
+                warnings.warn(f"{table.source}: control(s) {', '.join(dead[:8])} move no shape of the rig '{rig.name}', "
+                              "so its previews and mesh outputs do not show them; the control curves written "
+                              "(.csv / .json) keep their values", DataWarning, stacklevel=2)
             self._drive = drive
             shapes = drive @ rig.deltas.reshape(rig.n_shapes, -1)                   # (M, 3V) per control
             rest = rig.evaluate(table.neutral @ drive)
