@@ -210,6 +210,17 @@ def test_cli_keys_select_and_retarget_markers(data_dir, tmp_path):
     assert rc == 0
     assert len(list(keys.glob("frame_*.obj"))) == 8
     assert (keys / "neutral.obj").is_file() and (keys / "markers.txt").is_file() and (keys / "contact_sheet.png").is_file()
+    # issue 34: each tile shows its key's motion from the neutral (it showed the same cloud of dots in every tile)
+    from PIL import Image
+
+    with Image.open(keys / "contact_sheet.png") as im:
+        sheet = np.asarray(im.convert("RGB")).astype(np.int16)
+    cell = sheet.shape[1] // 5
+    tiles = [sheet[r * (sheet.shape[0] // 2) + 20:(r + 1) * (sheet.shape[0] // 2) - 12, c * cell:(c + 1) * cell]
+             for r in range(2) for c in range(min(4, 8 - 5 * r) if r else 5)]
+    diffs = [np.abs(a - b).mean() for i, a in enumerate(tiles) for b in tiles[i + 1:] if a.shape == b.shape]
+    red = [int(((t[..., 0] > 150) & (t[..., 2] < 120)).sum()) for t in tiles]          # long arrows are red
+    assert min(diffs) > 0.05 and max(red) > 20, (min(diffs), red)
     sk = read_keyshapes(keys)
     assert sk.n_shapes == 8
     out = tmp_path / "self.npz"

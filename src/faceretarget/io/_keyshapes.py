@@ -68,30 +68,63 @@ def _frames(frames, T: int) -> list[int]:
     return out
 
 
-def _scatter_sheet(points: np.ndarray, frames: list[int], labels: list[str], cell: int) -> np.ndarray:
-    """Front-view scatter plots of the points ``(n, P, 3)`` with one shared camera, tiled."""
+def _scatter_sheet(points: np.ndarray, frames: list[int], labels: list[str], cell: int,
+                   neutral: np.ndarray | None = None, unit: str | None = None) -> np.ndarray:
+    """Front-view pictures of marker keyshapes ``(n, P, 3)`` as an artist reads them, tiled: the neutral's
+    markers joined into a light face mesh (a Delaunay triangulation of their front view), and each key's
+    displacement from the neutral as arrows magnified by one shared factor (so that the largest motion of any
+    key spans 15 % of a tile; written on the sheet), coloured by length; each tile names its frame and its
+    largest marker motion.  Without a neutral, the mean of the keys is the reference."""
     from PIL import Image, ImageDraw
+    from scipy.spatial import Delaunay
 
     from ..render import fit_camera, render_grid
 
-    cam = fit_camera(points, (cell, cell), "front", margin=0.08)
-    # a light reference: the mean of the exported frames, so each frame's displacement shows
-    ref = cam.project(points.mean(axis=0))
-    r = max(2, cell // 90)
-    imgs = []
-    for p in points:
+    ref3 = np.asarray(neutral, np.float64) if neutral is not None else points.mean(axis=0)
+    cam = fit_camera(np.concatenate([points, ref3[None]]), (cell, cell), "front", margin=0.12)
+    ref = cam.project(ref3)[:, :2]
+    disp = points - ref3[None]                                   # (n, P, 3) in the take's unit
+    proj = np.stack([cam.project(p)[:, :2] for p in points])                          # (n, P, 2) pixels
+    moved = np.linalg.norm(proj - ref[None], axis=2)                                  # pixels, unmagnified
+    biggest = float(moved.max()) if moved.size else 0.0
+    gain = max(1.0, 0.15 * cell / biggest) if biggest > 0 else 1.0
+    try:
+        edges = {tuple(sorted((a, b))) for t in Delaunay(ref).simplices for a, b in ((t[0], t[1]), (t[1], t[2]),
+                                                                                   (t[2], t[0]))}
+        span = np.median([np.linalg.norm(ref[a] - ref[b]) for a, b in edges]) * 2.5
+        edges = [e for e in edges if np.linalg.norm(ref[e[0]] - ref[e[1]]) <= span]   # no hull-spanning edges
+    except Exception:  # noqa: BLE001 - fewer than 3 markers or all on a line: no face mesh, markers only
+        edges = []
+    r = max(2, cell // 100)
+    from ..units import mm_per_unit
+
+    try:
+        to_mm = mm_per_unit(unit)
+    except Exception:  # noqa: BLE001 - a take without a length unit: lengths as they are
+        to_mm = None
+    imgs, text = [], []
+    for k, q in enumerate(proj):
         im = Image.new("RGB", (cell, cell), (250, 250, 250))
         d = ImageDraw.Draw(im)
-        q = cam.project(p)
-        for (x0, y0, _), (x1, y1, _) in zip(ref, q, strict=True):
-            d.line([(x0, y0), (x1, y1)], fill=(170, 190, 220), width=1)
-        for x, y, _ in ref:
-            d.ellipse([x - r + 1, y - r + 1, x + r - 1, y + r - 1], fill=(200, 200, 200))
-        for x, y, _ in q:
-            d.ellipse([x - r, y - r, x + r, y + r], fill=(20, 60, 150))
+        for a, b in edges:
+            d.line([tuple(ref[a]), tuple(ref[b])], fill=(215, 215, 220), width=1)
+        length = moved[k] / biggest if biggest > 0 else moved[k]
+        for (x0, y0), (x1, y1), f in zip(ref, ref + gain * (q - ref), length, strict=True):
+            d.ellipse([x0 - r, y0 - r, x0 + r, y0 + r], fill=(150, 150, 160))
+            if f > 0.05:
+                col = (int(40 + 200 * f), int(90 * (1 - f)), int(200 * (1 - f)))
+                d.line([(x0, y0), (x1, y1)], fill=col, width=2)
+                d.ellipse([x1 - r, y1 - r, x1 + r, y1 + r], fill=col)
         imgs.append(np.asarray(im))
-    text = [f"frame {f}" + (f" {lab}" if lab != f"frame {f}" else "") for f, lab in zip(frames, labels, strict=True)]
-    return render_grid(imgs, text, background=(255, 255, 255), text_color=(20, 20, 20))
+        most = float(np.linalg.norm(disp[k], axis=1).max())
+        size = f"{most * to_mm:.1f} mm" if to_mm is not None else f"{most:.3g} {unit or 'units'}"
+        lab = labels[k]
+        text.append(f"frame {frames[k]}" + (f" {lab}" if lab != f"frame {frames[k]}" else "") + f", up to {size}")
+    sheet = render_grid(imgs, text, background=(255, 255, 255), text_color=(20, 20, 20))
+    im = Image.fromarray(sheet)
+    ImageDraw.Draw(im).text((4, sheet.shape[0] - 12), f"arrows: motion from the neutral x{gain:.0f}",
+                            fill=(90, 90, 90))
+    return np.asarray(im)
 
 
 def _mesh_sheet(vertices: np.ndarray, mesh: Mesh, frames: list[int], labels: list[str], cell: int,
@@ -186,7 +219,7 @@ def write_keyshapes(perf_or_vertices: Performance | np.ndarray, frames: Sequence
         if neutral is not None:
             _write_source_neutral(tmp, neutral, P, mesh, unit, source)
         if contact_sheet:
-            _write_contact_sheet(tmp, pts, fr, labs, mesh, cell, bar.update)
+            _write_contact_sheet(tmp, pts, fr, labs, mesh, cell, bar.update, neutral, unit)
     return out
 
 
@@ -281,11 +314,13 @@ def _write_source_neutral(tmp: Path, neutral: np.ndarray, P: int, mesh: Mesh | N
 
 
 def _write_contact_sheet(tmp: Path, pts: np.ndarray, fr: list[int], labs: list[str], mesh: Mesh | None,
-                         cell: int, step=lambda n=1: None) -> None:
-    """Write ``tmp/contact_sheet.png``: the markers' scatter plots or the mesh renders (``step`` after each)."""
+                         cell: int, step=lambda n=1: None, neutral: np.ndarray | None = None,
+                         unit: str | None = None) -> None:
+    """Write ``tmp/contact_sheet.png``: the markers' motion pictures or the mesh renders (``step`` after each)."""
     from ..render import save_png
 
-    sheet = _scatter_sheet(pts, fr, labs, cell) if mesh is None else _mesh_sheet(pts, mesh, fr, labs, cell, step)
+    sheet = (_scatter_sheet(pts, fr, labs, cell, neutral, unit) if mesh is None
+             else _mesh_sheet(pts, mesh, fr, labs, cell, step))
     save_png(tmp / CONTACT_SHEET, sheet)
 
 
