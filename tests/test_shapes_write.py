@@ -237,6 +237,11 @@ def test_blender_shape_keys_fbx_and_blend(tmp_path, chars):
         old = [k for k, n in enumerate(sm2.shape_names) if n not in added[sm.name]]
         assert len(old) >= sm.n_shapes
     print(f"Blender shape keys: max error {res}")
+    # issue 34: the .fbx copy keeps the file's own shape names (Blender's importer had dropped the deformer part,
+    # 'blendShape1.AA_VI_00_Sil' came back as 'AA_VI_00_Sil'): read by ufbx, as an engine reads it
+    back = read_character(tmp_path / "rb.fbx")
+    names = [n for m in back.meshes for n in m.shape_names]
+    assert set(sm.shape_names) <= set(names) and set(added[sm.name]) <= set(names), sorted(set(sm.shape_names) - set(names))[:3]
     blend = tmp_path / "rb.blend"
     ch2 = read_character(blend)
     sm2 = ch2.meshes[0]

@@ -477,6 +477,7 @@ def write_scene_copy(character: Character, out: Path, edit: Callable, *, fbx_opt
     try:
         with _blender_output():
             _open(bpy, Path(character.path))
+            _file_shape_names(bpy, character)
             value = edit(bpy, scratch, msgs)
             tmp_out = scratch / out.name
             if out.suffix.lower() == BLEND:
@@ -496,6 +497,28 @@ def write_scene_copy(character: Character, out: Path, edit: Callable, *, fbx_opt
         with contextlib.suppress(Exception):
             bpy.ops.wm.read_factory_settings(use_empty=True)
     return value, msgs
+
+
+def _file_shape_names(bpy, character: Character) -> None:
+    """Give Blender's shape keys the names the file itself holds: Blender's FBX importer drops the deformer
+    part of a channel name (``blendShape1.AA_VI_00_Sil`` becomes ``AA_VI_00_Sil``), so its exporter would
+    write the copy's shapes under other names than the user's file (an engine's curves and retargeting
+    presets bind by name).  A key is renamed only when exactly one of the file's names matches it."""
+    for sm in character.meshes:
+        obj = bpy.data.objects.get(sm.ref) or bpy.data.objects.get(sm.name)
+        keys = obj.data.shape_keys if obj is not None and obj.type == "MESH" else None
+        if keys is None:
+            continue
+        by_key: dict[str, list[str]] = {}
+        for n in sm.shape_names:
+            by_key.setdefault(shape_key(n), []).append(n)
+        have = {kb.name for kb in keys.key_blocks}
+        for kb in list(keys.key_blocks)[1:]:
+            cands = by_key.get(shape_key(kb.name), [])
+            if len(cands) == 1 and cands[0] != kb.name and cands[0] not in have:
+                have.discard(kb.name)
+                kb.name = cands[0]
+                have.add(kb.name)
 
 
 def write_blender_animation(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray,
