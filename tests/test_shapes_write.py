@@ -60,6 +60,22 @@ def _glb_parts(path: Path) -> tuple[dict, bytes]:
     return json.loads(data[20:20 + n]), data[20 + n + 8:]
 
 
+def _without_new_expressions(ext1, ext0):
+    """``ext1`` with the VRM expressions ``ext0`` does not have taken out (VRM 1.0 custom, 0.x groups)."""
+    if not isinstance(ext1, dict) or not isinstance(ext0, dict):
+        return ext1
+    out = json.loads(json.dumps(ext1))
+    if "VRMC_vrm" in out:
+        e1, e0 = out["VRMC_vrm"].get("expressions", {}), ext0["VRMC_vrm"].get("expressions", {})
+        e1["custom"] = {k: v for k, v in e1.get("custom", {}).items() if k in e0.get("custom", {})}
+        if not e1["custom"] and "custom" not in e0:
+            del e1["custom"]
+    if "VRM" in out:
+        g0 = ext0["VRM"].get("blendShapeMaster", {}).get("blendShapeGroups", [])
+        out["VRM"]["blendShapeMaster"]["blendShapeGroups"] = out["VRM"]["blendShapeMaster"]["blendShapeGroups"][:len(g0)]
+    return out
+
+
 def _check_gltf(src: Path, out: Path, ch, sm, added):
     """Read back: new shapes equal (1e-5 m), old shapes and every mesh unchanged, the validator adds
     nothing, JSON and binary kept apart from the added data (so images are byte-identical)."""
@@ -79,6 +95,8 @@ def _check_gltf(src: Path, out: Path, ch, sm, added):
         if key == "nodes":
             strip = [{k: v for k, v in n.items() if k != "weights"} for n in js1.get(key, [])]
             assert strip == [{k: v for k, v in n.items() if k != "weights"} for n in js0.get(key, [])]
+        elif key == "extensions":                   # a VRM's expressions gain the new shapes', nothing else changes
+            assert _without_new_expressions(js1.get(key), js0.get(key)) == js0.get(key), key
         else:
             assert js1.get(key) == js0.get(key), key
     assert js1["accessors"][:len(js0["accessors"])] == js0["accessors"]
@@ -167,7 +185,15 @@ def test_vrm_stays_a_vrm_with_its_expressions(tmp_path, chars, version):
     sm, added = _added(ch, ARKIT[:3])
     out = write_character_shapes(tmp_path / f"o{version}.vrm", ch, added)
     ch2, err = _check_gltf(src, out, ch, sm, added)
-    assert ch2.format == f"vrm{version}" and ch2.expressions == ch.expressions
+    assert ch2.format == f"vrm{version}"
+    assert {k: v for k, v in ch2.expressions.items() if k in ch.expressions} == ch.expressions   # kept as they were
+    # issue 34: each new shape is bound to an expression of its name, so a VRM player (which sets expressions,
+    # not morph targets) plays it: a custom expression (1.0) / blend shape group (0.x) at full weight
+    new = {k: v for k, v in ch2.expressions.items() if k not in ch.expressions}
+    assert set(new) == set(added[sm.name]), sorted(new)
+    mi = next(i for i, m in enumerate(ch2.meshes) if m.name == sm.name)
+    for name, e in new.items():
+        assert not e["preset"] and e["binds"] == [(mi, ch2.meshes[mi].shape_names.index(name), 1.0)], (name, e)
     print(f"VRM {version}: max error {err:.2e} m")
 
 

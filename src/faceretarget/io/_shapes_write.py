@@ -318,6 +318,10 @@ def _write_gltf(out: Path, character: Character, shapes: dict, replace: bool, lo
             if "weights" in nodes[i]:
                 nodes[i]["weights"] = list(nodes[i]["weights"]) + [0.0] * (Knew - len(nodes[i]["weights"]))
         _widen_weight_animations(doc, js, set(users_all), K, Knew, add, log)
+    bound = _bind_vrm_expressions(js, character, shapes)
+    if bound:
+        log(f"bound {bound} new shape(s) to VRM expressions of the same name (custom expressions, what a VRM "
+            "player sets)")
     if extension(out) in (GLB, VRM):
         _write_glb(out, js, _attach_glb_buffer(js, doc, bytes(new)))
     else:
@@ -325,6 +329,43 @@ def _write_gltf(out: Path, character: Character, shapes: dict, replace: bool, lo
     log(f"wrote {out} ({total} shape(s) on {len(shapes)} mesh(es); everything else of "
         f"{Path(character.path).name} kept)")
     return out
+
+
+def _bind_vrm_expressions(js: dict, character: Character, shapes: dict) -> int:
+    """A VRM's new shapes bound to expressions of their own name, so that a VRM player (three-vrm, VSeeFace, a
+    game's VRM importer), which sets expressions and not morph targets, can play them: VRM 1.0 custom
+    expressions (``VRMC_vrm.expressions.custom``, ``morphTargetBinds`` by node) and VRM 0.x blend shape groups
+    (``blendShapeMaster.blendShapeGroups``, ``binds`` by mesh, weight 100), one bind for every mesh the shape
+    was added to (face, teeth, eyes), the "perfect sync" convention of naming them after the ARKit shapes.
+    A name the file already has an expression for keeps that expression.  Returns how many were bound."""
+    ext = js.get("extensions", {})
+    v1, v0 = ext.get("VRMC_vrm"), ext.get("VRM")
+    if not isinstance(v1, dict) and not isinstance(v0, dict):
+        return 0
+    known = {n.lower() for n in character.expressions}
+    binds: dict[str, list[tuple[int, int, int]]] = {}
+    for mi, items in shapes.items():
+        node_i = int(character.meshes[mi].ref.split(":")[1])
+        gmi = int(js["nodes"][node_i]["mesh"])
+        names = js["meshes"][gmi].get("extras", {}).get("targetNames", [])
+        for name, _ in items:
+            if name in names and name.lower() not in known:
+                binds.setdefault(name, []).append((node_i, gmi, names.index(name)))
+    if isinstance(v1, dict):
+        exprs = v1.setdefault("expressions", {})
+        preset = {n.lower() for n in exprs.get("preset", {})}
+        custom = exprs.setdefault("custom", {})
+        for name, bs in binds.items():
+            if name.lower() not in preset:
+                custom[name] = {"morphTargetBinds": [{"node": nd, "index": k, "weight": 1.0} for nd, _, k in bs],
+                                "isBinary": False, "overrideBlink": "none", "overrideLookAt": "none",
+                                "overrideMouth": "none"}
+    else:
+        groups = v0.setdefault("blendShapeMaster", {}).setdefault("blendShapeGroups", [])
+        for name, bs in binds.items():
+            groups.append({"name": name, "presetName": "unknown", "isBinary": False, "materialValues": [],
+                           "binds": [{"mesh": gm, "index": k, "weight": 100.0} for _, gm, k in bs]})
+    return len(binds)
 
 
 def _widen_weight_animations(doc, js: dict, users: set[int], K: int, Knew: int, add, log) -> None:
