@@ -1,7 +1,7 @@
 """The jobs a user runs, as library functions (the command line is a thin shell over these).
 
 ================================ ================================================================
-:mod:`._transfer`                :func:`clone_take`, :func:`retarget_take`, :func:`write_result`:
+:mod:`._clone_retarget`          :func:`clone_take`, :func:`retarget_take`, :func:`write_result`:
                                  a take onto a character, memory bounded by its weights; the head
                                  written with it (:func:`result_head`), ARKit curves for a Live
                                  Link Face CSV (:func:`arkit_curves`)
@@ -65,6 +65,23 @@ from ._capture import (
     fit_appearance,
     tracked_videos,
 )
+from ._clone_retarget import (
+    CHUNK_FRAMES,
+    HEAD_CHOICES,
+    MAX_TEMPORAL,
+    Transfer,
+    arkit_curves,
+    blender_timeline_note,
+    check_result_path,
+    clone_take,
+    face_and_head_formats,
+    keep_arkit_range,
+    result_head,
+    retarget_take,
+    source_geometry,
+    target_weights,
+    write_result,
+)
 from ._demo import run_demo
 from ._head import build_head_database
 from ._jobs import JOB_OPTIONS, OPERATIONS, BatchSpec, Job, read_jobs
@@ -93,23 +110,6 @@ from ._restyle_video import (
 )
 from ._sheet import shape_sheet
 from ._style import fit_speaker_style, fit_style, read_style_take
-from ._transfer import (
-    CHUNK_FRAMES,
-    HEAD_CHOICES,
-    MAX_TEMPORAL,
-    Transfer,
-    arkit_curves,
-    blender_timeline_note,
-    check_result_path,
-    clone_take,
-    face_and_head_formats,
-    keep_arkit_range,
-    result_head,
-    retarget_take,
-    source_geometry,
-    target_weights,
-    write_result,
-)
 from ._worker import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_path, serve_jobs
 
 __all__ = [

@@ -470,7 +470,7 @@ def _fit_model(m: _Model, *rigs) -> _Fitted:
 
 def _transfer(job: Job, f: _Fitted) -> int:
     from ..io import read_performance
-    from ._transfer import Transfer, _apply, write_result
+    from ._clone_retarget import Transfer, _apply, write_result
 
     take = read_performance(job.input)
     t0 = time.perf_counter()
