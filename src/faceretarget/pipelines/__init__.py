@@ -18,9 +18,9 @@
                                  emotion, solve, head, write, preview
 :mod:`._preview`                 :func:`write_animation_preview`: the video beside the animated
                                  character, with its audio (OpenGL through EGL, or NumPy)
-:mod:`._live`                    :func:`run_live`, :class:`LiveSession`: a camera or video frame by
-                                 frame onto a character in a local three.js page (``live``)
-:mod:`._liveserver`              :class:`LiveServer`: the page's HTTP server and WebSocket (stdlib)
+:mod:`.live`                     :func:`run_live`, :class:`LiveSession`: a camera or video frame by
+                                 frame onto a character in a local three.js page (``live``);
+                                 :class:`LiveServer`: the page's HTTP server and WebSocket (stdlib)
 :mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
 :mod:`._batch`, :mod:`._jobs`     :func:`run_batch`: a jobs file (:func:`read_jobs`) of takes x characters on
                                  Dask, each model fitted once, resumable from its manifest (``batch``)
@@ -95,8 +95,6 @@ from ._keys import (
     key_geometry,
     select_keys,
 )
-from ._live import LIVE_LIMITS, LiveFrame, LiveSession, LiveStats, character_glb, run_live
-from ._liveserver import LiveServer
 from ._preview import TakeSampler, write_animation_preview
 from ._restyle_video import (
     AppearanceStyleModel,
@@ -111,6 +109,7 @@ from ._restyle_video import (
 from ._sheet import shape_sheet
 from ._style import fit_speaker_style, fit_style, read_style_take
 from ._worker import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_path, serve_jobs
+from .live import LIVE_LIMITS, LiveFrame, LiveServer, LiveSession, LiveStats, character_glb, run_live
 
 __all__ = [
     "gaze_rotations",

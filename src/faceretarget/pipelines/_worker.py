@@ -324,7 +324,7 @@ class _Job:
         from scipy.spatial.transform import Rotation
 
         from ..characters import drive_rig
-        from ._live import LiveSession
+        from .live import LiveSession
 
         p = self.params
         ch, found = self.character()
