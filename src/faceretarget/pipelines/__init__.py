@@ -22,7 +22,7 @@
                                  frame onto a character in a local three.js page (``live``);
                                  :class:`LiveServer`: the page's HTTP server and WebSocket (stdlib)
 :mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
-:mod:`._batch`, :mod:`._jobs`     :func:`run_batch`: a jobs file (:func:`read_jobs`) of takes x characters on
+:mod:`.batch`                    :func:`run_batch`: a jobs file (:func:`read_jobs`) of takes x characters on
                                  Dask, each model fitted once, resumable from its manifest (``batch``)
 :mod:`._apply`                   :func:`apply_take`: a take file onto a character's own shapes by the clone,
                                  retarget or landmark route (the Blender extension's *Apply a take*)
@@ -48,15 +48,6 @@ from ._animate import (
     video_solver,
 )
 from ._apply import TAKE_ROUTES, AppliedTake, apply_take, landmark_points
-from ._batch import (
-    CONNECT_TIMEOUT,
-    BatchSummary,
-    ClusterError,
-    JobOutcome,
-    local_cluster,
-    read_manifest,
-    run_batch,
-)
 from ._capture import (
     APPEARANCE_BYTES,
     appearance_memory,
@@ -84,7 +75,6 @@ from ._clone_retarget import (
 )
 from ._demo import run_demo
 from ._head import build_head_database
-from ._jobs import JOB_OPTIONS, OPERATIONS, BatchSpec, Job, read_jobs
 from ._keys import (
     SELECTION_ALIASES,
     KeyGeometry,
@@ -109,6 +99,20 @@ from ._restyle_video import (
 from ._sheet import shape_sheet
 from ._style import fit_speaker_style, fit_style, read_style_take
 from ._worker import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_path, serve_jobs
+from .batch import (
+    CONNECT_TIMEOUT,
+    JOB_OPTIONS,
+    OPERATIONS,
+    BatchSpec,
+    BatchSummary,
+    ClusterError,
+    Job,
+    JobOutcome,
+    local_cluster,
+    read_jobs,
+    read_manifest,
+    run_batch,
+)
 from .live import LIVE_LIMITS, LiveFrame, LiveServer, LiveSession, LiveStats, character_glb, run_live
 
 __all__ = [
