@@ -26,7 +26,7 @@
                                  Dask, each model fitted once, resumable from its manifest (``batch``)
 :mod:`._apply`                   :func:`apply_take`: a take file onto a character's own shapes by the clone,
                                  retarget or landmark route (the Blender extension's *Apply a take*)
-:mod:`._worker`                  :func:`serve_jobs`: the worker process a host UI (the Blender extension)
+:mod:`.worker`                   :func:`serve_jobs`: the worker process a host UI (the Blender extension)
                                  runs the long jobs in, JSON lines in and out; :func:`cached_capture`
 ================================ ================================================================
 """
@@ -98,7 +98,6 @@ from ._restyle_video import (
 )
 from ._sheet import shape_sheet
 from ._style import fit_speaker_style, fit_style, read_style_take
-from ._worker import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_path, serve_jobs
 from .batch import (
     CONNECT_TIMEOUT,
     JOB_OPTIONS,
@@ -114,6 +113,7 @@ from .batch import (
     run_batch,
 )
 from .live import LIVE_LIMITS, LiveFrame, LiveServer, LiveSession, LiveStats, character_glb, run_live
+from .worker import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_path, serve_jobs
 
 __all__ = [
     "gaze_rotations",
