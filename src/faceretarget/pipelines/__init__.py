@@ -1,31 +1,39 @@
 """The jobs a user runs, as library functions (the command line is a thin shell over these).
 
+Four parts, by what each is: the offline jobs, a take or a video in and files out, in this package's own
+modules; :mod:`.live`, a camera or video solved frame by frame into a web page; :mod:`.batch`, a jobs file
+of takes x characters on Dask; and :mod:`.worker`, the process the Blender extension runs its long jobs in.
+The three subpackages import the offline jobs they run from here (never the other way round), and every
+public name of theirs is exported here too.
+
 ================================ ================================================================
+:mod:`._animate`                 :func:`animate`: a video onto a character in one call (Ch. 5): capture,
+                                 emotion, solve, head, write, preview
 :mod:`._clone_retarget`          :func:`clone_take`, :func:`retarget_take`, :func:`write_result`:
                                  a take onto a character, memory bounded by its weights; the head
                                  written with it (:func:`result_head`), ARKit curves for a Live
                                  Link Face CSV (:func:`arkit_curves`)
+:mod:`._apply`                   :func:`apply_take`: a take file onto a character's own shapes by the clone,
+                                 retarget or landmark route (the Blender extension's *Apply a take*)
 :mod:`._keys`                    :func:`select_keys` (keyshapes for an artist), :func:`compose_keys`
                                  (emotion x viseme key-models)
 :mod:`._capture`                 :func:`capture_take`, :func:`fit_appearance`, :func:`encode_appearance`
 :mod:`._style`                   :func:`fit_style`, :func:`fit_speaker_style`, :func:`read_style_take`:
                                  emotion models from takes (one actor, or several speakers)
-:mod:`._restyle_video`          :class:`AppearanceStyleModel`, :func:`fit_appearance_style`,
+:mod:`._restyle_video`           :class:`AppearanceStyleModel`, :func:`fit_appearance_style`,
                                  :func:`restyle_video`: the emotion of a face in video changed through
                                  the appearance model and rendered back into the frames (Fig. 2.6)
 :mod:`._head`                    :func:`build_head_database`: a head-motion database from file pairs
-:mod:`._animate`                 :func:`animate`: a video onto a character in one call (Ch. 5): capture,
-                                 emotion, solve, head, write, preview
 :mod:`._preview`                 :func:`write_animation_preview`: the video beside the animated
                                  character, with its audio (OpenGL through EGL, or NumPy)
+:mod:`._sheet`                   :func:`shape_sheet`: a contact sheet of a character's shapes
+:mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
+:mod:`._progress`                the progress indicators of long steps (shared by the jobs and batch)
 :mod:`.live`                     :func:`run_live`, :class:`LiveSession`: a camera or video frame by
                                  frame onto a character in a local three.js page (``live``);
                                  :class:`LiveServer`: the page's HTTP server and WebSocket (stdlib)
-:mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
 :mod:`.batch`                    :func:`run_batch`: a jobs file (:func:`read_jobs`) of takes x characters on
                                  Dask, each model fitted once, resumable from its manifest (``batch``)
-:mod:`._apply`                   :func:`apply_take`: a take file onto a character's own shapes by the clone,
-                                 retarget or landmark route (the Blender extension's *Apply a take*)
 :mod:`.worker`                   :func:`serve_jobs`: the worker process a host UI (the Blender extension)
                                  runs the long jobs in, JSON lines in and out; :func:`cached_capture`
 ================================ ================================================================
