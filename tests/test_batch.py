@@ -171,14 +171,15 @@ def test_read_jobs_errors_name_the_file_and_key(data_dir, takes, tmp_path, name,
 
 # ---------------------------------------------------------------------------------------- running
 def test_small_batch_equals_the_library_and_fits_each_model_once(data_dir, takes, tmp_path, client, monkeypatch):
-    from faceretarget.pipelines import _batch, read_manifest, run_batch
+    from faceretarget.pipelines import read_manifest, run_batch
+    from faceretarget.pipelines.batch import _run
 
     fits, reads = [], []
     for op in ("clone", "retarget"):
-        fn = _batch._FITTERS[op]
-        monkeypatch.setitem(_batch._FITTERS, op, lambda m, f, r, fn=fn: (fits.append(m.character.name), fn(m, f, r))[1])
-    load = _batch._load_rig
-    monkeypatch.setattr(_batch, "_load_rig", lambda c: (reads.append(c.name), load(c))[1])
+        fn = _run._FITTERS[op]
+        monkeypatch.setitem(_run._FITTERS, op, lambda m, f, r, fn=fn: (fits.append(m.character.name), fn(m, f, r))[1])
+    load = _run._load_rig
+    monkeypatch.setattr(_run, "_load_rig", lambda c: (reads.append(c.name), load(c))[1])
     path = tmp_path / "jobs.toml"
     path.write_text(_jobs_text(data_dir, takes))
     s = run_batch(path, client=client)

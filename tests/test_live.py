@@ -85,7 +85,7 @@ def test_streaming_one_euro_equals_the_batch_filter():
 
 # ---------------------------------------------------------------------- WebSocket and server
 def test_websocket_handshake_and_frames_follow_rfc6455():
-    from faceretarget.pipelines._liveserver import (
+    from faceretarget.pipelines.live._server import (
         WebSocketError,
         encode_ws_frame,
         read_ws_frame,
@@ -118,7 +118,7 @@ class _WsClient:
     """A minimal WebSocket client over a raw socket (what a browser does, for the server test)."""
 
     def __init__(self, port: int, origin: str | None = None):
-        from faceretarget.pipelines._liveserver import websocket_accept
+        from faceretarget.pipelines.live._server import websocket_accept
 
         self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
         key = base64.b64encode(os.urandom(16)).decode()
@@ -136,12 +136,12 @@ class _WsClient:
         self.accept_ok = headers.get("sec-websocket-accept") == websocket_accept(key)
 
     def send(self, payload, opcode=1):
-        from faceretarget.pipelines._liveserver import encode_ws_frame
+        from faceretarget.pipelines.live._server import encode_ws_frame
 
         self.sock.sendall(encode_ws_frame(payload, opcode, mask=os.urandom(4)))
 
     def recv(self):
-        from faceretarget.pipelines._liveserver import read_ws_frame
+        from faceretarget.pipelines.live._server import read_ws_frame
 
         return read_ws_frame(self.rfile, require_mask=False, limit=1 << 24)
 

@@ -133,7 +133,7 @@ def test_control_table_two_spellings_of_one_control_and_unknown_json_keys(tmp_pa
 
 # ------------------------------------------------------------------------------------------- jobs files
 def test_jobs_file_keys_that_apply_to_nothing(tmp_path):
-    from faceretarget.pipelines._jobs import read_jobs
+    from faceretarget.pipelines.batch._jobs import read_jobs
 
     (tmp_path / "takes").mkdir()
     (tmp_path / "takes" / "a.csv").write_text("x")

@@ -1,32 +1,40 @@
 """The jobs a user runs, as library functions (the command line is a thin shell over these).
 
+Four parts, by what each is: the offline jobs, a take or a video in and files out, in this package's own
+modules; :mod:`.live`, a camera or video solved frame by frame into a web page; :mod:`.batch`, a jobs file
+of takes x characters on Dask; and :mod:`.worker`, the process the Blender extension runs its long jobs in.
+The three subpackages import the offline jobs they run from here (never the other way round), and every
+public name of theirs is exported here too.
+
 ================================ ================================================================
-:mod:`._transfer`                :func:`clone_take`, :func:`retarget_take`, :func:`write_result`:
+:mod:`._animate`                 :func:`animate`: a video onto a character in one call (Ch. 5): capture,
+                                 emotion, solve, head, write, preview
+:mod:`._clone_retarget`          :func:`clone_take`, :func:`retarget_take`, :func:`write_result`:
                                  a take onto a character, memory bounded by its weights; the head
                                  written with it (:func:`result_head`), ARKit curves for a Live
                                  Link Face CSV (:func:`arkit_curves`)
+:mod:`._apply`                   :func:`apply_take`: a take file onto a character's own shapes by the clone,
+                                 retarget or landmark route (the Blender extension's *Apply a take*)
 :mod:`._keys`                    :func:`select_keys` (keyshapes for an artist), :func:`compose_keys`
                                  (emotion x viseme key-models)
 :mod:`._capture`                 :func:`capture_take`, :func:`fit_appearance`, :func:`encode_appearance`
 :mod:`._style`                   :func:`fit_style`, :func:`fit_speaker_style`, :func:`read_style_take`:
                                  emotion models from takes (one actor, or several speakers)
-:mod:`._restyle_video`          :class:`AppearanceStyleModel`, :func:`fit_appearance_style`,
+:mod:`._restyle_video`           :class:`AppearanceStyleModel`, :func:`fit_appearance_style`,
                                  :func:`restyle_video`: the emotion of a face in video changed through
                                  the appearance model and rendered back into the frames (Fig. 2.6)
 :mod:`._head`                    :func:`build_head_database`: a head-motion database from file pairs
-:mod:`._animate`                 :func:`animate`: a video onto a character in one call (Ch. 5): capture,
-                                 emotion, solve, head, write, preview
 :mod:`._preview`                 :func:`write_animation_preview`: the video beside the animated
                                  character, with its audio (OpenGL through EGL, or NumPy)
-:mod:`._live`                    :func:`run_live`, :class:`LiveSession`: a camera or video frame by
-                                 frame onto a character in a local three.js page (``live``)
-:mod:`._liveserver`              :class:`LiveServer`: the page's HTTP server and WebSocket (stdlib)
+:mod:`._sheet`                   :func:`shape_sheet`: a contact sheet of a character's shapes
 :mod:`._demo`                    :func:`run_demo`: the main job end to end on embedded characters
-:mod:`._batch`, :mod:`._jobs`     :func:`run_batch`: a jobs file (:func:`read_jobs`) of takes x characters on
+:mod:`._progress`                the progress indicators of long steps (shared by the jobs and batch)
+:mod:`.live`                     :func:`run_live`, :class:`LiveSession`: a camera or video frame by
+                                 frame onto a character in a local three.js page (``live``);
+                                 :class:`LiveServer`: the page's HTTP server and WebSocket (stdlib)
+:mod:`.batch`                    :func:`run_batch`: a jobs file (:func:`read_jobs`) of takes x characters on
                                  Dask, each model fitted once, resumable from its manifest (``batch``)
-:mod:`._apply`                   :func:`apply_take`: a take file onto a character's own shapes by the clone,
-                                 retarget or landmark route (the Blender extension's *Apply a take*)
-:mod:`._worker`                  :func:`serve_jobs`: the worker process a host UI (the Blender extension)
+:mod:`.worker`                   :func:`serve_jobs`: the worker process a host UI (the Blender extension)
                                  runs the long jobs in, JSON lines in and out; :func:`cached_capture`
 ================================ ================================================================
 """
@@ -48,15 +56,6 @@ from ._animate import (
     video_solver,
 )
 from ._apply import TAKE_ROUTES, AppliedTake, apply_take, landmark_points
-from ._batch import (
-    CONNECT_TIMEOUT,
-    BatchSummary,
-    ClusterError,
-    JobOutcome,
-    local_cluster,
-    read_manifest,
-    run_batch,
-)
 from ._capture import (
     APPEARANCE_BYTES,
     appearance_memory,
@@ -65,35 +64,7 @@ from ._capture import (
     fit_appearance,
     tracked_videos,
 )
-from ._demo import run_demo
-from ._head import build_head_database
-from ._jobs import JOB_OPTIONS, OPERATIONS, BatchSpec, Job, read_jobs
-from ._keys import (
-    SELECTION_ALIASES,
-    KeyGeometry,
-    KeySelection,
-    check_face_keys,
-    check_face_take,
-    compose_keys,
-    key_geometry,
-    select_keys,
-)
-from ._live import LIVE_LIMITS, LiveFrame, LiveSession, LiveStats, character_glb, run_live
-from ._liveserver import LiveServer
-from ._preview import TakeSampler, write_animation_preview
-from ._restyle_video import (
-    AppearanceStyleModel,
-    RestyledVideo,
-    align_vector_takes,
-    composited_frames,
-    fit_appearance_style,
-    restyle_video,
-    speaker_edited_landmarks,
-    write_face_video,
-)
-from ._sheet import shape_sheet
-from ._style import fit_speaker_style, fit_style, read_style_take
-from ._transfer import (
+from ._clone_retarget import (
     CHUNK_FRAMES,
     HEAD_CHOICES,
     MAX_TEMPORAL,
@@ -110,7 +81,47 @@ from ._transfer import (
     target_weights,
     write_result,
 )
-from ._worker import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_path, serve_jobs
+from ._demo import run_demo
+from ._head import build_head_database
+from ._keys import (
+    SELECTION_ALIASES,
+    KeyGeometry,
+    KeySelection,
+    check_face_keys,
+    check_face_take,
+    compose_keys,
+    key_geometry,
+    select_keys,
+)
+from ._preview import TakeSampler, write_animation_preview
+from ._restyle_video import (
+    AppearanceStyleModel,
+    RestyledVideo,
+    align_vector_takes,
+    composited_frames,
+    fit_appearance_style,
+    restyle_video,
+    speaker_edited_landmarks,
+    write_face_video,
+)
+from ._sheet import shape_sheet
+from ._style import fit_speaker_style, fit_style, read_style_take
+from .batch import (
+    CONNECT_TIMEOUT,
+    JOB_OPTIONS,
+    OPERATIONS,
+    BatchSpec,
+    BatchSummary,
+    ClusterError,
+    Job,
+    JobOutcome,
+    local_cluster,
+    read_jobs,
+    read_manifest,
+    run_batch,
+)
+from .live import LIVE_LIMITS, LiveFrame, LiveServer, LiveSession, LiveStats, character_glb, run_live
+from .worker import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_path, serve_jobs
 
 __all__ = [
     "gaze_rotations",

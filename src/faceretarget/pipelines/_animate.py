@@ -627,7 +627,7 @@ def _solve(character: Rig, take: Performance, o: AnimateOptions, by_landmarks: b
     or keyshape pairs."""
     ftake = face_take(take)
     if not by_landmarks:
-        from ._transfer import retarget_take
+        from ._clone_retarget import retarget_take
 
         def solve_pairs(points: np.ndarray) -> np.ndarray:
             return retarget_take(ftake.with_points(points), o.source_keys, o.target_keys,
@@ -791,7 +791,7 @@ def _write(out, rig: Rig, res: AnimateResult, bake: bool, log) -> Path:
     if res.head is not None and pose is None:
         log(f"{path.suffix} does not hold head motion: the head is left out")
     if path.suffix.lower() == CSV:
-        from ._transfer import _is_arkit
+        from ._clone_retarget import _is_arkit
 
         if not all(_is_arkit(n) for n in res.names):
             from ..errors import OutputError
@@ -803,7 +803,7 @@ def _write(out, rig: Rig, res: AnimateResult, bake: bool, log) -> Path:
     log(f"wrote {path} ({len(res.times)} frames, {len(res.names)} shapes"
         + (", head" if pose is not None else "") + ")")
     if path.suffix.lower() == GLB:
-        from ._transfer import blender_timeline_note
+        from ._clone_retarget import blender_timeline_note
 
         note = blender_timeline_note(path, res.times)
         if note:

@@ -192,7 +192,7 @@ def _arkit_drive(character: Character):
 
 def _result(transfer, drive, perf: Performance, route: str, log) -> AppliedTake:
     from ..characters import character_weights
-    from ._transfer import arkit_curves
+    from ._clone_retarget import arkit_curves
 
     W, names = arkit_curves(transfer, log=log)
     full = character_weights(drive, W, names)
@@ -203,7 +203,7 @@ def _result(transfer, drive, perf: Performance, route: str, log) -> AppliedTake:
 
 def _by_clone(perf: Performance, character: Character, source_rig, log) -> AppliedTake:
     from ..cloning import keymodel_pair
-    from ._transfer import clone_take
+    from ._clone_retarget import clone_take
 
     drive = _arkit_drive(character)
     src = _source_rig(source_rig)
@@ -216,7 +216,7 @@ def _by_clone(perf: Performance, character: Character, source_rig, log) -> Appli
 def _by_retarget(perf: Performance, character: Character, source_keys, log) -> AppliedTake:
     from ..cloning import keymodel_pair
     from ..io import is_keyshape_folder, read_keys
-    from ._transfer import retarget_take
+    from ._clone_retarget import retarget_take
 
     drive = _arkit_drive(character)
     sk, labels = read_keys(source_keys)

@@ -28,8 +28,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from urllib.parse import urlsplit
 
-from ..errors import InvalidDataError, OutputError
-from ..formats import GLB, JSON
+from ...errors import InvalidDataError, OutputError
+from ...formats import GLB, JSON
 
 __all__ = ["LiveServer", "websocket_accept", "encode_ws_frame", "read_ws_frame", "parse_address", "WebSocketError"]
 

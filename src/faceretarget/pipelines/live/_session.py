@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..capture import (
+from ...capture import (
     DEFAULT_SMOOTH,
     FaceTracker,
     OneEuroFilter,
@@ -48,12 +48,12 @@ from ..capture import (
     neutral_baseline,
     pose_from_matrices,
 )
-from ..errors import InputFileError, InvalidDataError, OutputError
-from ..headpose import HeadPose
-from ..names import normalize_name
-from ..retarget import LandmarkSolver, neutral_face
-from ..rig import Rig
-from ._liveserver import LiveServer, parse_address
+from ...errors import InputFileError, InvalidDataError, OutputError
+from ...headpose import HeadPose
+from ...names import normalize_name
+from ...retarget import LandmarkSolver, neutral_face
+from ...rig import Rig
+from ._server import LiveServer, parse_address
 
 __all__ = ["LiveSession", "LiveStats", "LiveFrame", "run_live", "character_glb", "LIVE_LIMITS"]
 
@@ -255,7 +255,7 @@ class _Mailbox:
 
 
 def _video_frames(path: Path, max_frames: int | None) -> Iterator[_Frame]:
-    from ..io import iter_frames
+    from ...io import iter_frames
 
     it = iter_frames(path, max_frames=max_frames)
     while True:
@@ -289,7 +289,7 @@ def _pump_video(path: Path, max_frames: int | None, box: _Mailbox, stop: threadi
 
 
 def _open_camera(index: int):
-    from ..optional import optional_import
+    from ...optional import optional_import
 
     cv2 = optional_import("cv2", "camera input")
     logging = getattr(getattr(cv2, "utils", None), "logging", None)
@@ -341,7 +341,7 @@ def character_glb(character: Rig) -> bytes:
     """
     import tempfile
 
-    from ..io import write_glb
+    from ...io import write_glb
 
     v = character.neutral.vertices * (character.mm_per_unit / 1000.0)
     lo, hi = v.min(axis=0), v.max(axis=0)
@@ -518,7 +518,7 @@ class LiveSession:
         if self.llf_target is not None:
             import socket
 
-            from ..io import arkit_curve_map
+            from ...io import arkit_curve_map
 
             self._llf_map = arkit_curve_map(self.names, self.character.basis, self.character.basis_names,
                                             source=self.character.name)
@@ -532,7 +532,7 @@ class LiveSession:
             self._llf_device = str(uuid.uuid4()).upper()
             fps = 60.0
             if self.video is not None:
-                from ..io import probe_video
+                from ...io import probe_video
 
                 fps = float(probe_video(self.video).fps or 60.0)
             self._llf_rate = Fraction(fps).limit_denominator(1001)
@@ -774,7 +774,7 @@ class _State:
                    f'"head":{json.dumps(np.round(q, 6).tolist())}}}')
             s.server.broadcast(msg)
         if s._udp is not None and not calibrating:
-            from ..io import livelinkface_packet
+            from ...io import livelinkface_packet
 
             curves = np.clip(W @ s._llf_map, 0.0, 1.0)
             angles = HeadPose(q[None]).to_livelinkface()[0]

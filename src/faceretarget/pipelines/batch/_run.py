@@ -51,13 +51,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from ..errors import DataWarning, FaceRetargetError, InvalidDataError
-from ..files import file_sha256
-from ..formats import NPZ
-from ..optional import VIDEO_NEEDS, has_module, optional_import, output_needs, require
+from ... import __version__
+from ...errors import DataWarning, FaceRetargetError, InvalidDataError
+from ...files import file_sha256
+from ...formats import NPZ
+from ...optional import VIDEO_NEEDS, has_module, optional_import, output_needs, require
+from .._progress import ticking
 from ._jobs import BatchSpec, Character, Job, read_jobs
-from ._progress import ticking
 
 __all__ = ["run_batch", "read_manifest", "local_cluster", "BatchSummary", "JobOutcome", "ClusterError",
            "MANIFEST_FIELDS", "WORKER_CONFIG", "file_sha256", "CONNECT_TIMEOUT"]
@@ -315,8 +315,8 @@ def _load_rig(c: Character):
     """A character's rig: a :class:`~faceretarget.rig.Rig` (OBJ folder, ``.npz``, demo), or for a character
     file (``.glb``, ``.vrm``, ``.fbx``, ``.blend``, ``.usd*``) the :class:`faceretarget.character.Character`
     with its landmarks (found once and cached beside the file or in the user's cache)."""
-    from ..datasets import make_demo_character
-    from ..io import is_character_file, read_rig, read_rig_npz
+    from ...datasets import make_demo_character
+    from ...io import is_character_file, read_rig, read_rig_npz
 
     if c.demo is not None:
         return make_demo_character(c.demo)
@@ -325,7 +325,7 @@ def _load_rig(c: Character):
     if c.rig.suffix.lower() == NPZ:
         return read_rig_npz(c.rig)
     if is_character_file(c.rig):
-        from ..characters import load_character
+        from ...characters import load_character
 
         return load_character(c.rig, landmarks=c.landmarks)
     raise InvalidDataError(f"{c.rig}: a character's rig is a folder of OBJs, a rig .npz or a character file "
@@ -335,10 +335,10 @@ def _load_rig(c: Character):
 def _target_rig(rig, f: _Fitted):
     """The rig the ARKit key sets are built on: a character file's face rig on its ARKit shapes (kept in
     ``f.drive`` so the output is written back into a copy of its file)."""
-    from ..character import Character as FileCharacter
+    from ...character import Character as FileCharacter
 
     if isinstance(rig, FileCharacter):
-        from ..characters import drive_rig
+        from ...characters import drive_rig
 
         f.drive = drive_rig(rig, "arkit", need_landmarks=False)
         return f.drive.rig
@@ -364,8 +364,8 @@ def _read_rig(c: Character):
 
 
 def _fit_clone(m: _Model, f: _Fitted, rigs: dict) -> None:
-    from ..cloning import ExpressionCloner, keymodel_pair
-    from ..io import read_performance, read_rig
+    from ...cloning import ExpressionCloner, keymodel_pair
+    from ...io import read_performance, read_rig
 
     o, c = m.fit, m.character
     src = rigs.get("source")
@@ -383,9 +383,9 @@ def _fit_clone(m: _Model, f: _Fitted, rigs: dict) -> None:
 
 
 def _fit_retarget(m: _Model, f: _Fitted, rigs: dict) -> None:
-    from ..cloning import keymodel_pair
-    from ..io import is_keyshape_folder, read_keys
-    from ..retarget import BlendshapeRetargeter, load_regions
+    from ...cloning import keymodel_pair
+    from ...io import is_keyshape_folder, read_keys
+    from ...retarget import BlendshapeRetargeter, load_regions
 
     o, c = m.fit, m.character
     rig = rigs.get("source")
@@ -409,7 +409,7 @@ def _fit_retarget(m: _Model, f: _Fitted, rigs: dict) -> None:
 
 
 def _fit_animate(m: _Model, f: _Fitted, rigs: dict) -> None:
-    from ..io import read_rig
+    from ...io import read_rig
 
     c = m.character
     f.character = rigs["character"]
@@ -417,19 +417,19 @@ def _fit_animate(m: _Model, f: _Fitted, rigs: dict) -> None:
         f.source_keys = read_rig(c.source_keys, neutral=c.source_neutral, landmarks=c.source_landmarks)
         f.target_keys = read_rig(c.target_keys, neutral=c.target_neutral, landmarks=c.target_landmarks)
     if m.fit["style"] is not None:
-        from ..style import StyleModel
+        from ...style import StyleModel
 
         f.style = StyleModel.load(m.fit["style"])
 
 
 def _fit_headmotion(m: _Model, f: _Fitted, rigs: dict) -> None:
-    from ..headmotion import HeadMotionDatabase
+    from ...headmotion import HeadMotionDatabase
 
     o = m.fit
     if o["db"] is not None:
         f.model = HeadMotionDatabase.load(o["db"])
     else:
-        from ._head import build_head_database
+        from .._head import build_head_database
 
         f.model = build_head_database(o["build"], fps=o["build_fps"], f0_min=o["f0_min"], f0_max=o["f0_max"],
                                       pause=o["pause"], mirror=o["mirror"], allow_mismatch=o["allow_mismatch"])
@@ -469,8 +469,8 @@ def _fit_model(m: _Model, *rigs) -> _Fitted:
 
 
 def _transfer(job: Job, f: _Fitted) -> int:
-    from ..io import read_performance
-    from ._transfer import Transfer, _apply, write_result
+    from ...io import read_performance
+    from .._clone_retarget import Transfer, _apply, write_result
 
     take = read_performance(job.input)
     t0 = time.perf_counter()
@@ -491,14 +491,14 @@ def _is_capture(path: Path) -> bool:
 
 
 def _animate(job: Job, f: _Fitted) -> int:
-    from ..io import read_performance
-    from ._animate import VIDEO_EXTENSIONS, AnimateOptions, animate
+    from ...io import read_performance
+    from .._animate import VIDEO_EXTENSIONS, AnimateOptions, animate
 
     src = job.input
     if src.suffix.lower() in VIDEO_EXTENSIONS:
         video = src
     elif src.suffix.lower() == NPZ and _is_capture(src):
-        from ..capture import Capture
+        from ...capture import Capture
 
         video = Capture.read_npz(src)
     else:
@@ -513,7 +513,7 @@ def _animate(job: Job, f: _Fitted) -> int:
 
 
 def _headmotion(job: Job, f: _Fitted) -> int:
-    from ..io import read_audio, write_head_motion
+    from ...io import read_audio, write_head_motion
 
     o = job.apply
     audio, rate = read_audio(job.input)
@@ -863,7 +863,7 @@ def _require_packages(spec: BatchSpec, *, cluster: bool) -> None:
     """Raise before anything runs when the batch needs an optional package that is not installed: Dask's
     ``distributed`` (``cluster``), and what the jobs' outputs and video inputs need (``.blend`` /
     ``.fbx``: bpy, ``.usd*``: usd-core, videos: MediaPipe, PyAV and the FaceLandmarker model)."""
-    from ._animate import VIDEO_EXTENSIONS
+    from .._animate import VIDEO_EXTENSIONS
 
     if cluster:
         require("faceretarget batch (Dask's distributed scheduler)", "distributed")

@@ -58,8 +58,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FaceRetargetError, FaceRetargetWarning, InvalidDataError
-from ..files import cache_dir, cache_enabled, file_sha256
+from ...errors import FaceRetargetError, FaceRetargetWarning, InvalidDataError
+from ...files import cache_dir, cache_enabled, file_sha256
 
 __all__ = ["serve_jobs", "JOB_KINDS", "capture_cache_path", "cached_capture", "WorkerChannel"]
 
@@ -94,7 +94,7 @@ def _jsonable(x):
 # ------------------------------------------------------------------------------------- caches
 def capture_cache_path(video: str | os.PathLike) -> Path:
     """Where the capture of ``video`` that ``animate`` makes (``neutral_percentile=5``) is cached."""
-    from ..errors import InputFileError
+    from ...errors import InputFileError
 
     p = Path(video)
     if not p.is_file():
@@ -106,8 +106,8 @@ def cached_capture(video: str | os.PathLike, *, progress=None, log: Callable[...
     """The capture :func:`~faceretarget.pipelines.animate` makes of ``video``
     (:func:`~faceretarget.pipelines.capture_take` with ``neutral_percentile=5``), read from the cache when
     it holds it (keyed by the video's SHA-256), else made and cached."""
-    from ..files import atomic_path
-    from ._capture import capture_take
+    from ...files import atomic_path
+    from .._capture import capture_take
 
     path = capture_cache_path(video)
     if cache_enabled() and path.is_file():
@@ -210,7 +210,7 @@ class _Job:
 
     def character(self, *, find: bool = True):
         """The pickled character with its landmarks (the record given, else found on a render)."""
-        from ..characters import apply_landmark_record, load_character
+        from ...characters import apply_landmark_record, load_character
 
         path = Path(self.params["character"])
         data = path.read_bytes()
@@ -238,7 +238,7 @@ class _Job:
                 for c in drive.channels]
 
     def _save(self, **arrays) -> str:
-        from ..files import atomic_path
+        from ...files import atomic_path
 
         out = self.folder / "result.npz"
         with atomic_path(out) as tmp, open(tmp, "wb") as f:
@@ -246,13 +246,13 @@ class _Job:
         return str(out)
 
     def _done(self, ch, found: bool, drive, W, times, head, audio, audio_rate, **extra) -> dict:
-        from ..characters import landmark_record
+        from ...characters import landmark_record
 
         npz = self._save(weights=np.asarray(W, np.float64), times=np.asarray(times, np.float64),
                          head=None if head is None else np.asarray(head.quaternions, np.float64))
         wav = None
         if audio is not None and audio_rate:
-            from ..io import write_audio
+            from ...io import write_audio
 
             wav = str(write_audio(self.folder / "sound.wav", audio, audio_rate))
         return {"result": npz, "channels": self._channels(ch, drive), "wav": wav,
@@ -261,7 +261,7 @@ class _Job:
 
     # ---- jobs
     def animate(self) -> dict:
-        from ._animate import AnimateOptions, animate
+        from .._animate import AnimateOptions, animate
 
         p = self.params
         ch, found = self.character()
@@ -283,7 +283,7 @@ class _Job:
                           emotions=res.emotions)
 
     def take(self) -> dict:
-        from ._apply import apply_take
+        from .._apply import apply_take
 
         p = self.params
         route = p.get("route", "auto")
@@ -296,7 +296,7 @@ class _Job:
                           route=res.route)
 
     def landmarks(self) -> dict:
-        from ..characters import landmark_record, read_landmark_file
+        from ...characters import landmark_record, read_landmark_file
 
         p = self.params
         ch, found = self.character()
@@ -315,7 +315,7 @@ class _Job:
                 "mesh": ch.meshes[ch.landmarks.mesh].ref}
 
     def style_info(self) -> dict:
-        from ..style import StyleModel
+        from ...style import StyleModel
 
         model = StyleModel.load(self.params["style"])
         return {"styles": list(model.styles_)}
@@ -323,8 +323,8 @@ class _Job:
     def live(self) -> dict:
         from scipy.spatial.transform import Rotation
 
-        from ..characters import drive_rig
-        from ._live import LiveSession
+        from ...characters import drive_rig
+        from ..live import LiveSession
 
         p = self.params
         ch, found = self.character()
@@ -347,7 +347,7 @@ class _Job:
         with session:
             stats = session.run()
         self.stop.set()
-        from ..characters import landmark_record
+        from ...characters import landmark_record
 
         stages = {k: round(stats.stage_ms(k), 2) for k in ("decode", "track", "points", "solve", "head", "send")
                   if k in stats.stages and len(stats.stages[k])}

@@ -42,9 +42,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import InputFileError, InvalidDataError
-from ..files import read_text
-from ..formats import BVH, C3D, NPZ, VIDEO_EXTENSIONS, WAV
+from ...errors import InputFileError, InvalidDataError
+from ...files import read_text
+from ...formats import BVH, C3D, NPZ, VIDEO_EXTENSIONS, WAV
 
 __all__ = ["OPERATIONS", "OUTPUT_PLACEHOLDERS", "JOB_OPTIONS", "Character", "Job", "JobGroup", "BatchSpec",
            "read_jobs"]
@@ -367,7 +367,7 @@ def _character(path: Path, root: Path, name: str, table) -> Character:
             p = _resolve(root, v)
             kw[key] = str(p) if p.is_file() else v          # a path, or a file name inside the folder
     if "demo" in table:
-        from ..datasets import DEMO_CHARACTERS
+        from ...datasets import DEMO_CHARACTERS
 
         if table["demo"] not in DEMO_CHARACTERS:
             raise InvalidDataError(f"{where}, key 'demo': expected one of {', '.join(DEMO_CHARACTERS)}, "
@@ -473,7 +473,7 @@ def _expand(path: Path, root: Path, where: str, patterns: tuple[str, ...], exclu
 
 
 def _input_exts(op: str) -> tuple[str, ...]:
-    from ..io import READ_FORMATS
+    from ...io import READ_FORMATS
 
     if op in ("clone", "retarget"):
         return tuple(e for e in READ_FORMATS if e.startswith("."))
@@ -491,13 +491,13 @@ def _file_in_the_way(out: Path) -> Path | None:
 
 
 def _writes_back(rig: Path, out: Path) -> bool:
-    from ..io import is_character_file, writes_back
+    from ...io import is_character_file, writes_back
 
     return is_character_file(rig) and writes_back(rig, out)
 
 
 def _output_exts(op: str) -> tuple[str, ...]:
-    from ..io import HEAD_FORMATS, WRITERS
+    from ...io import HEAD_FORMATS, WRITERS
 
     if op == "headmotion-synth":
         return HEAD_FORMATS
