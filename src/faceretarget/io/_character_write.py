@@ -422,13 +422,18 @@ def write_plain_glb(src: str | os.PathLike, out: str | os.PathLike) -> Path:
         raise OutputError(f"{out}: is the input file; write the plain copy to another name")
     js = copy.deepcopy(doc.json)
     chunk = bytearray()
+    accessors = js.get("accessors", [])
+    vertex = {int(accessors[a]["bufferView"]) for m in js.get("meshes", []) for p in m.get("primitives", [])
+              for group in [p.get("attributes", {}), *p.get("targets", [])] for a in group.values()
+              if "bufferView" in accessors[a]}
     for i, v in enumerate(js.get("bufferViews", [])):
         data = doc.view(i)
         ext = v.pop("extensions", {})
         meshopt = ext.pop("EXT_meshopt_compression", None)
         if ext:
             v["extensions"] = ext
-        if meshopt is not None and meshopt.get("mode", "ATTRIBUTES") == "ATTRIBUTES" and "byteStride" not in v:
+        if (meshopt is not None and meshopt.get("mode", "ATTRIBUTES") == "ATTRIBUTES" and "byteStride" not in v
+                and i in vertex):                           # only vertex data has a stride (not sparse data, IBMs)
             v["byteStride"] = int(meshopt["byteStride"])
         chunk.extend(b"\0" * ((-len(chunk)) % 4))
         v.update(buffer=0, byteOffset=len(chunk), byteLength=len(data))
