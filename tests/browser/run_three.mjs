@@ -29,6 +29,12 @@
 // after each setTime, as an app does, so what the VRM runtime shows is what is read; with --vrma F.vrma it
 // plays that VRM Animation instead of the file's clip (three-vrm-animation's createVRMAnimationClip), the way
 // three-vrm apps animate expressions and the humanoid.
+// Morph target data (a character with new shapes, no animation needed): --morph-data N1,N2 prints instead
+// {three, browser, meshes: [{object, mesh, primitive, count, position: [x,y,z,...], targets: {N: [dx,dy,dz,...]}}]}
+// for every three.js mesh whose morphTargetDictionary has one of the names: the glTF mesh and primitive it
+// came from (parser.associations), its POSITION attribute and each named target's morphAttributes.position
+// as three.js decoded them (sparse, quantized, meshopt- and Draco-compressed data alike: the loader has
+// three.js's MeshoptDecoder and DRACOLoader), in the primitive's own space.
 // Exit status: 0 on success, 2 on bad arguments or missing tools, 3 when loading or playing fails,
 // 4 on timeout (default 60 s).
 import { createServer } from "node:http";
@@ -57,6 +63,7 @@ let morphsAll = false;
 let worldNodes = [];
 let vrm = false;
 let vrma = null;
+let morphData = null;
 for (let i = 0; i < args.length; i++) {
   const a = args[i];
   const next = () => {
@@ -76,6 +83,7 @@ for (let i = 0; i < args.length; i++) {
   else if (a === "--head") headName = next();
   else if (a === "--clip") clipName = next();
   else if (a === "--morphs") morphsAll = next() === "all";
+  else if (a === "--morph-data") morphData = next().split(",").filter((s) => s !== "");
   else if (a === "--world") worldNodes = next().split(",").filter((s) => s !== "");
   else if (a === "--vrm") vrm = true;
   else if (a === "--vrma") { vrm = true; vrma = resolve(next()); }
@@ -119,10 +127,39 @@ const PAGE = `<!doctype html>
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 import { MeshoptDecoder } from "three/addons/libs/meshopt_decoder.module.js";
+import { DRACOLoader } from "three/addons/loaders/DRACOLoader.js";
+
+function attributeArray(a) {
+  const out = new Array(a.count * 3);
+  for (let i = 0; i < a.count; i++) {
+    out[3 * i] = a.getX(i);
+    out[3 * i + 1] = a.getY(i);
+    out[3 * i + 2] = a.getZ(i);
+  }
+  return out;
+}
+
+function morphData(gltf, names) {
+  const meshes = [];
+  gltf.scene.traverse((o) => {
+    if (!o.isMesh || !o.morphTargetDictionary) return;
+    const here = names.filter((n) => n in o.morphTargetDictionary);
+    if (!here.length) return;
+    const assoc = gltf.parser.associations.get(o) || {};
+    const g = o.geometry;
+    const targets = {};
+    for (const n of here) targets[n] = attributeArray(g.morphAttributes.position[o.morphTargetDictionary[n]]);
+    meshes.push({ object: o.name, mesh: assoc.meshes ?? null, primitive: assoc.primitives ?? null,
+      count: g.attributes.position.count, relative: g.morphTargetsRelative,
+      position: attributeArray(g.attributes.position), targets });
+  });
+  return { three: THREE.REVISION, meshes };
+}
 
 window.playGlb = async (url, times, faceName, headName, opts) => {
   const loader = new GLTFLoader();
   loader.setMeshoptDecoder(MeshoptDecoder);
+  loader.setDRACOLoader(new DRACOLoader().setDecoderPath("/three/examples/jsm/libs/draco/gltf/"));
   if (opts.vrm) {
     const { VRMLoaderPlugin } = await import("@pixiv/three-vrm");
     loader.register((parser) => new VRMLoaderPlugin(parser));
@@ -130,6 +167,7 @@ window.playGlb = async (url, times, faceName, headName, opts) => {
   const gltf = await loader.loadAsync(url);
   const scene = gltf.scene;
   const theVrm = gltf.userData.vrm || null;
+  if (opts.morphData) return morphData(gltf, opts.morphData);
   if (!gltf.animations.length) throw new Error(url + ": no animation");
   let clip = opts.clip ? gltf.animations.find((c) => c.name === opts.clip) : gltf.animations[0];
   if (!clip) throw new Error(url + ": no clip named " + opts.clip);
@@ -286,7 +324,7 @@ try {
   await page.goto(`http://127.0.0.1:${port}/`);
   await page.waitForFunction(() => window.threeReady === true);
   const url = `/glb/${encodeURIComponent(basename(glb))}`;
-  const opts = { clip: clipName, morphsAll, world: worldNodes, vrm,
+  const opts = { clip: clipName, morphsAll, world: worldNodes, vrm, morphData,
     vrma: vrma ? `/vrma/${encodeURIComponent(basename(vrma))}` : null };
   const out = await page.evaluate((u, ts, f, h, o) => window.playGlb(u, ts, f, h, o), url, times, faceName,
     headName, opts);

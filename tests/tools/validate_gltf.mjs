@@ -47,7 +47,16 @@ try {
   process.exit(2);
 }
 try {
-  const report = await validator.validateBytes(bytes, { uri: basename(file), maxIssues: 1000 });
+  // a .gltf's buffers and images are read from beside it (data URIs the validator reads itself)
+  const externalResourceFunction = (uri) => new Promise((ok, err) => {
+    try {
+      ok(new Uint8Array(readFileSync(resolve(dirname(resolve(file)), decodeURIComponent(uri)))));
+    } catch (e) {
+      err(e.message);
+    }
+  });
+  const report = await validator.validateBytes(bytes, { uri: basename(file), maxIssues: 1000,
+    externalResourceFunction });
   // exitCode, not exit(): a pipe's writes are asynchronous, and exit() would cut the report at 64-128 KB
   process.stdout.write(JSON.stringify(report, null, 2) + "\n");
   process.exitCode = report.issues.numErrors > 0 ? 1 : 0;

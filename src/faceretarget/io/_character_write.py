@@ -322,7 +322,7 @@ def _attach_glb_buffer(js: dict, doc, new: bytes) -> bytes:
             if v.get("buffer", 0) != -1:
                 v["buffer"] = int(v.get("buffer", 0)) + 1
             ext = v.get("extensions", {}).get("EXT_meshopt_compression")
-            if ext is not None:
+            if ext is not None and ext.get("buffer", 0) != -1:
                 ext["buffer"] = int(ext.get("buffer", 0)) + 1
         buffers.insert(0, {"byteLength": 0})
         base = b""
@@ -330,14 +330,20 @@ def _attach_glb_buffer(js: dict, doc, new: bytes) -> bytes:
             if "uri" in b and not b["uri"].startswith("data:"):
                 b["uri"] = _rebase(b["uri"], doc.folder, None)
     pad = (-len(base)) % 4
-    offset = len(base) + pad
-    for v in js["bufferViews"]:
-        if v.get("buffer") == -1:
-            v["buffer"] = 0
-            v["byteOffset"] = int(v["byteOffset"]) + offset
+    _place_new_views(js, 0, len(base) + pad)
     chunk = base + b"\0" * pad + new
     buffers[0]["byteLength"] = len(chunk)
     return chunk
+
+
+def _place_new_views(js: dict, buffer: int, offset: int) -> None:
+    """Views (and meshopt-compressed views' data) on the new bytes (``buffer`` -1) point into ``buffer`` at
+    ``offset`` onwards."""
+    for v in js.get("bufferViews", []):
+        for part in (v, v.get("extensions", {}).get("EXT_meshopt_compression")):
+            if part is not None and part.get("buffer") == -1:
+                part["buffer"] = buffer
+                part["byteOffset"] = int(part.get("byteOffset", 0)) + offset
 
 
 def _rebase(uri: str, src_folder: Path, dst_folder: Path | None) -> str:
@@ -381,9 +387,7 @@ def _write_gltf_json(out: Path, js: dict, doc, new: bytes, new_name: str | None 
             img["uri"] = _rebase(img["uri"], doc.folder, out.parent)
     anim = out.with_name(new_name or out.stem + ".anim.bin")
     buffers.append({"uri": anim.name, "byteLength": len(new)})
-    for v in js["bufferViews"]:
-        if v.get("buffer") == -1:
-            v["buffer"] = len(buffers) - 1
+    _place_new_views(js, len(buffers) - 1, 0)
     for p, data in extra + [(anim, new)]:
         check_output_path(p)
         with atomic_path(p) as tmp:
@@ -422,13 +426,18 @@ def write_plain_glb(src: str | os.PathLike, out: str | os.PathLike) -> Path:
         raise OutputError(f"{out}: is the input file; write the plain copy to another name")
     js = copy.deepcopy(doc.json)
     chunk = bytearray()
+    accessors = js.get("accessors", [])
+    vertex = {int(accessors[a]["bufferView"]) for m in js.get("meshes", []) for p in m.get("primitives", [])
+              for group in [p.get("attributes", {}), *p.get("targets", [])] for a in group.values()
+              if "bufferView" in accessors[a]}
     for i, v in enumerate(js.get("bufferViews", [])):
         data = doc.view(i)
         ext = v.pop("extensions", {})
         meshopt = ext.pop("EXT_meshopt_compression", None)
         if ext:
             v["extensions"] = ext
-        if meshopt is not None and meshopt.get("mode", "ATTRIBUTES") == "ATTRIBUTES" and "byteStride" not in v:
+        if (meshopt is not None and meshopt.get("mode", "ATTRIBUTES") == "ATTRIBUTES" and "byteStride" not in v
+                and i in vertex):                           # only vertex data has a stride (not sparse data, IBMs)
             v["byteStride"] = int(meshopt["byteStride"])
         chunk.extend(b"\0" * ((-len(chunk)) % 4))
         v.update(buffer=0, byteOffset=len(chunk), byteLength=len(data))
