@@ -697,6 +697,12 @@ def test_cli_build_and_synth(data_dir, tmp_path, capsys):
     b2 = read_bvh(o2)
     assert b2.joints[0].channels == ("Yrotation", "Xrotation", "Zrotation")
     assert not np.allclose(b2.motion, b.motion[:, 3:])
+    # the speaker's range
+    o3 = tmp_path / "h3.bvh"
+    assert _cli(["-q", "headmotion", "synth", "--db", str(db), "--audio", str(new), "--out", str(o3),
+                 "--no-translation", "--motion-range", "20", "10", "8"]) == 0
+    deg = read_bvh(o3).motion
+    np.testing.assert_allclose(np.percentile(deg, 95, axis=0) - np.percentile(deg, 5, axis=0), [20, 10, 8], atol=0.05)
 
 
 def test_cli_errors(data_dir, tmp_path, capsys):
