@@ -227,6 +227,8 @@ CASES: tuple[Case, ...] = (
     _c("build-out-missing-folder", _BUILD + " --out {missing}/db.npz", "missing"),
     _c("synth-amplitude-huge", _SYNTH + " --amplitude 1e30 --out {out}/h.bvh", "--amplitude"),
     _c("synth-amplitude-negative", _SYNTH + " --amplitude -1 --out {out}/h.bvh", "--amplitude"),
+    _c("synth-motion-range-negative", _SYNTH + " --motion-range 20 -1 8 --out {out}/h.bvh", "--motion-range"),
+    _c("synth-motion-range-two", _SYNTH + " --motion-range 20 10 --out {out}/h.bvh", "--motion-range"),
     _c("synth-fps", _SYNTH + " --fps 0 --out {out}/h.bvh", "--fps"),
     _c("synth-seed", _SYNTH + " --seed -3 --out {out}/h.bvh", "--seed"),
     _c("synth-missing-db", "headmotion synth --db {d}/nope.npz --audio {wav} --out {out}/h.bvh", "nope.npz"),

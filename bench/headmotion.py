@@ -8,8 +8,17 @@ Experiments
 * **Leave-one-phrase-out** (LOPO): each phrase (as :func:`segment_speech` cuts it, 0.3 s pauses)
   of at least 1 s, with its following pause, is held out in turn: the database is built from both
   takes (mirrored) without that phrase, and head motion is synthesized for the phrase's audio.
-* **Leave-one-speaker-out** (LOSO): the database is the other speaker's take (mirrored), the input
-  the whole held-out take (about a minute of audio: the speed figure comes from here).
+* **Leave-one-speaker-out** (LOSO): the database is the other speakers' takes (mirrored), the input
+  each whole held-out take (about a minute of audio: the speed figure comes from here).  Per held-out
+  take the bench prints each axis' 5-95 % range of the real, the database's and the synthesized
+  rotation and the ratio synthesized / real (target 0.7-1.3 on every axis), with the take's beat F1.
+  It then synthesizes each half of the take with ``motion_range`` set to the other half's real range
+  (the speaker's range known from another stretch of their own motion) against speech alone on the
+  same half: what a known range gives, and what it costs in beat F1.
+* ``--corpus DIR`` runs the same on any folder of takes: every ``NAME.wav`` with head motion
+  ``NAME.bvh``, ``NAME.npz``, ``NAME_smplx.npz`` or ``NAME.c3d`` beside it (the first found, in that
+  order); ``--speaker REGEX`` names each take's speaker (the first group of a match on the name;
+  default: every take its own speaker), and LOSO leaves out every take of a speaker at once.
 
 Every synthesis is compared, in the same run, with two baselines for the same audio:
 ``random`` (a uniformly random database segment for every input segment, blended the same way)
@@ -33,19 +42,24 @@ Metrics
 * ``velocity_w1``: Wasserstein-1 distance (deg/s) between the angular-speed distributions of the
   synthesized and the real held-out motion (pooled LOPO frames); the same for the baselines.
 * ``range_deg``: mean over held-out phrases of each axis' 5-95 percentile range (yaw, pitch, roll).
+* ``loso_takes``: per held-out take, ``real_deg``, ``db_deg`` (mean over the database's takes of
+  their own range), ``synth_deg``, ``ratio`` = synth / real, ``within_30pct``, ``beat_f1`` and
+  ``real_beat_f1``; ``given_range`` the two half-take runs with ``motion_range``.
+  ``range_target_met``: every axis of every held-out take within 30 %, from speech alone.
 * Speed: pitch extraction and synthesis (everything after pitch) in seconds per minute of audio,
   median of 3 runs on the LOSO inputs, and their ratio.
 
 Usage::
 
-    python bench/headmotion.py [--data ../shared/data] [--json] [--draws 20]
-        [--preview out/headmotion_preview.png] [--plot out/headmotion_speed.png]
+    python bench/headmotion.py [--data ../shared/data] [--corpus DIR] [--speaker REGEX] [--json]
+        [--draws 20] [--preview out/headmotion_preview.png] [--plot out/headmotion_speed.png]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -66,6 +80,42 @@ FPS = 30.0
 MIN_PHRASE = 1.0  # s, shortest held-out phrase (with its pause)
 METHODS = ("synth", "random", "noise", "real", "random_1draw")
 ACCENTS = ("onsets", "peaks")
+MOTION_SUFFIXES = (".bvh", ".npz", "_smplx.npz", ".c3d")  # head motion beside NAME.wav, first found
+RANGE_TOLERANCE = 0.3  # the target: synthesized range within 30 % of the real range on every axis
+
+
+def corpus_takes(folder: Path, names: tuple[str, ...] | None = None) -> list[tuple[Path, Path]]:
+    """(audio, motion) pairs of a folder: each ``NAME.wav`` with the first of ``NAME`` +
+    :data:`MOTION_SUFFIXES` beside it, sorted by name (only ``names``, in that order, when given)."""
+    pairs = {}
+    for wav in sorted(folder.glob("*.wav")):
+        for suf in MOTION_SUFFIXES:
+            m = wav.with_name(wav.stem + suf)
+            if m.is_file():
+                pairs[wav.stem] = (wav, m)
+                break
+    if names is not None:
+        missing = [n for n in names if n not in pairs]
+        if missing:
+            raise SystemExit(f"{folder}: no speech + head motion for {', '.join(missing)}")
+        return [pairs[n] for n in names]
+    return list(pairs.values())
+
+
+def speaker_of(name: str, pattern: str | None) -> str:
+    """The speaker of a take: the first group (or the whole match) of ``pattern`` in its name; the
+    name itself without a pattern or a match."""
+    if pattern:
+        m = re.search(pattern, name)
+        if m:
+            return m.group(1) if m.groups() else m.group(0)
+    return name
+
+
+def rot_range(rot: np.ndarray) -> np.ndarray:
+    """(3,) 5-95 % range (degrees) of (T, 3) Y-X-Z radians, the statistic ``range_deg`` reports."""
+    deg = np.degrees(rot)
+    return np.percentile(deg, 95, axis=0) - np.percentile(deg, 5, axis=0)
 
 
 def angular_speed(rot: np.ndarray, fps: float) -> np.ndarray:
@@ -210,6 +260,78 @@ def run_case(db: HeadMotionDatabase, audio, rate, pitch, real: np.ndarray, pool:
     return perf, info
 
 
+def loso_take(db: HeadMotionDatabase, take, perf, info, real: np.ndarray) -> dict:
+    """Range and beat figures of one held-out take: speech alone over the whole take, then each half
+    synthesized with ``motion_range`` = the other half's real range (and from speech alone, for the
+    beat F1 on the same input)."""
+    syn = _euler(perf)
+    real = real[: len(syn)]
+    acc = accent_onsets(info.segmentation)
+    out = _range_row(rot_range(real), rot_range(syn))
+    out["db_deg"] = np.degrees(db.copy_range_).mean(axis=0).round(2).tolist()
+    out["beat_f1"] = round(beat_alignment(acc, motion_beats(syn, FPS))["f1"], 4)
+    out["real_beat_f1"] = round(beat_alignment(acc, motion_beats(real, FPS))["f1"], 4)
+    half = min(take.audio.size / take.audio_rate, take_duration(take)) / 2
+    spans = [(0.0, half), (half, 2 * half)]
+    reals = [_real_motion(take, t0, int(np.floor((t1 - t0) * FPS + 1e-9)) + 1) for t0, t1 in spans]
+    out["given_range"] = []
+    for k, (t0, t1) in enumerate(spans):
+        given = rot_range(reals[1 - k])
+        audio = take.audio[int(round(t0 * take.audio_rate)):int(round(t1 * take.audio_rate))]
+        pitch = db.pitch(audio, take.audio_rate)
+        row = {"input": f"half {k + 1}", "range_from": f"half {2 - k}", "given_deg": given.round(2).tolist()}
+        for key, mr in (("speech_only", None), ("given", given)):
+            r = db.transform(audio, take.audio_rate, pitch=pitch, fps=FPS, motion_range=mr)
+            s = _euler(r.take)
+            b = beat_alignment(accent_onsets(r.info.segmentation), motion_beats(s, FPS))
+            rr = _range_row(rot_range(reals[k][: len(s)]), rot_range(s))
+            row[key] = {"synth_deg": rr["synth_deg"], "ratio": rr["ratio"], "within_30pct": rr["within_30pct"],
+                        "beat_f1": round(b["f1"], 4),
+                        "beat_counts": [b["accents"], b["beats"], b["accent_hits"], b["beat_hits"]]}
+            row["real_deg"] = rr["real_deg"]
+        out["given_range"].append(row)
+    return out
+
+
+def _range_row(real_deg: np.ndarray, synth_deg: np.ndarray) -> dict:
+    ratio = synth_deg / np.maximum(real_deg, 1e-9)
+    return {"real_deg": real_deg.round(2).tolist(), "synth_deg": synth_deg.round(2).tolist(),
+            "ratio": ratio.round(3).tolist(), "within_30pct": bool((np.abs(ratio - 1) <= RANGE_TOLERANCE).all())}
+
+
+def print_loso_takes(per_take: dict) -> None:
+    """The per-take LOSO range table (:func:`loso_take`)."""
+    def trio(v, fmt="5.1f"):
+        return "/".join(format(x, fmt) for x in v)
+
+    print("LOSO per held-out take: 5-95% range yaw/pitch/roll (deg), synth/real ratio (target 0.70-1.30 on every"
+          " axis), beat F1 (synth, real)")
+    print(f"{'take':26s} {'input':24s} {'real':17s} {'database':17s} {'synth':17s} {'ratio':14s} {'ok':3s} "
+          f"{'F1':>5s} {'F1 real':>7s}")
+    for name, v in per_take.items():
+        print(f"{name[:26]:26s} {'whole, speech only':24s} {trio(v['real_deg']):17s} {trio(v['db_deg']):17s} "
+              f"{trio(v['synth_deg']):17s} {trio(v['ratio'], '4.2f'):14s} {'yes' if v['within_30pct'] else 'no':3s} "
+              f"{v['beat_f1']:5.3f} {v['real_beat_f1']:7.3f}")
+        for g in v["given_range"]:
+            for key, label in (("speech_only", f"{g['input']}, speech only"),
+                               ("given", f"{g['input']}, range of {g['range_from'][-1]}")):
+                r = g[key]
+                print(f"{'':26s} {label:24s} {trio(g['real_deg']):17s} {'':17s} {trio(r['synth_deg']):17s} "
+                      f"{trio(r['ratio'], '4.2f'):14s} {'yes' if r['within_30pct'] else 'no':3s} {r['beat_f1']:5.3f}")
+    pooled = given_range_f1(per_take)
+    print(f"halves, beat F1 pooled over {pooled['n']} runs: speech only {pooled['speech_only']:.3f}, with the other "
+          f"half's range {pooled['given']:.3f}")
+
+
+def given_range_f1(per_take: dict) -> dict:
+    """Beat F1 of the half-take runs (:func:`loso_take`), counts pooled over every take and half."""
+    rows = [g for v in per_take.values() for g in v["given_range"]]
+    out = {"n": len(rows)}
+    for key in ("speech_only", "given"):
+        out[key] = round(summarize_alignment(*np.sum([g[key]["beat_counts"] for g in rows], axis=0).tolist())["f1"], 4)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(REPO.parent / "shared" / "data"))
@@ -218,14 +340,21 @@ def main(argv=None) -> int:
     ap.add_argument("--plot", default=str(REPO / "out" / "headmotion_speed.png"),
                     help="angular speed against accent onsets for one held-out phrase ('' = none)")
     ap.add_argument("--draws", type=int, default=20, help="draws of each baseline per case")
+    ap.add_argument("--corpus", default=None,
+                    help="folder of takes (NAME.wav + NAME.bvh|.npz|_smplx.npz|.c3d) instead of the shared two")
+    ap.add_argument("--speaker", default=None,
+                    help="regular expression whose first group is a take's speaker (default: each take its own)")
     args = ap.parse_args(argv)
-    root = Path(args.data) / "headmotion"
+    root = Path(args.corpus) if args.corpus else Path(args.data) / "headmotion"
     if not root.is_dir():
         print(f"no data at {root}", file=sys.stderr)
         return 2
     rng = np.random.default_rng(0)
     db0 = HeadMotionDatabase(fps=FPS)
-    takes = [read_head_take(root / f"{t}.wav", root / f"{t}.bvh") for t in TAKES]
+    takes = [read_head_take(a, m, name=a.stem) for a, m in corpus_takes(root, None if args.corpus else TAKES)]
+    if len(takes) < 2:
+        print(f"{root}: need at least two takes of speech with head motion, found {len(takes)}", file=sys.stderr)
+        return 2
     pitch_s, audio_min, pitches = [], [], {}
     for tk in takes:
         t0 = time.perf_counter()
@@ -263,12 +392,19 @@ def main(argv=None) -> int:
     loso = Pool()
     speed = []
     last = None
+    per_take = {}
+    speakers = [speaker_of(t.source, args.speaker) for t in takes]
     for i, tk in enumerate(takes):
-        other = [t for j, t in enumerate(takes) if j != i]
+        other = [t for j, t in enumerate(takes) if speakers[j] != speakers[i]]
+        if not other:
+            print(f"LOSO: every take is speaker {speakers[i]!r}: nothing to leave out", file=sys.stderr)
+            return 2
         db = HeadMotionDatabase(fps=FPS).fit(other, pitch=[pitches[t.source] for t in other])
         n = int(np.floor(tk.audio.size / tk.audio_rate * FPS + 1e-9)) + 1
-        perf, info = run_case(db, tk.audio, tk.audio_rate, pitches[tk.source], _real_motion(tk, 0.0, n), loso, rng, jumps,
+        real = _real_motion(tk, 0.0, n)
+        perf, info = run_case(db, tk.audio, tk.audio_rate, pitches[tk.source], real, loso, rng, jumps,
                               args.draws)
+        per_take[tk.source] = loso_take(db, tk, perf, info, real)
         runs = []
         for _ in range(3):
             runs.append(db.transform(tk.audio, tk.audio_rate, pitch=pitches[tk.source], fps=FPS).info.search_seconds)
@@ -320,11 +456,15 @@ def main(argv=None) -> int:
             "velocity_w1_noise": round(loso.w1("noise"), 3),
             "range_deg": {m: loso.range(m) for m in METHODS},
         },
+        "loso_takes": per_take,
+        "range_target_met": bool(all(v["within_30pct"] for v in per_take.values())),
+        "given_range_beat_f1": given_range_f1(per_take),
         "data_p99_deg": [round(float(x), 4) for x in p99],
     }
 
     # ---------------------------------------------------------------- table
-    print(f"P5 head motion from audio: {n_cases} held-out phrases (LOPO), 2 held-out speakers (LOSO)")
+    print(f"P5 head motion from audio: {n_cases} held-out phrases (LOPO), {len(set(speakers))} held-out "
+          f"speakers (LOSO)")
     print("beat F1 (95% bootstrap interval over held-out cases): accents = onsets of accented voiced runs;"
           " 'peaks' = interior pitch peaks")
     print(f"baselines: {args.draws} draws per case, counts pooled over cases and draws; 'random_1draw' = the first"
@@ -345,6 +485,7 @@ def main(argv=None) -> int:
         lo, hi = lopo.beat_ci("synth", minus=m)
         print(f"LOPO synth - {m}: {lopo.beat('synth')['f1'] - lopo.beat(m)['f1']:+.3f} (paired 95% interval "
               f"[{lo:+.3f}, {hi:+.3f}]); one draw of {m} scatters by +-{lopo.draw_spread(m):.3f} (sd)")
+    print_loso_takes(per_take)
     names = ("step", "jump", "velocity jump", "acceleration jump")
     print(f"joins ({n_joins} synthesized): largest / data p99 = "
           + ", ".join(f"{nm} {jm['synth'][k]:.3f}" for k, nm in enumerate(names))

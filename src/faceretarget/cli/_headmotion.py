@@ -4,7 +4,7 @@
 
     faceretarget headmotion build --take A.wav A.bvh --take B.wav B.npz ... --out DB.npz
     faceretarget headmotion synth --db DB.npz --audio NEW.wav --out HEAD.bvh|HEAD.glb|HEAD.csv \\
-        [--amplitude X] [--no-translation] [--no-rotation] [--seed N]
+        [--amplitude X] [--motion-range YAW PITCH ROLL] [--no-translation] [--no-rotation] [--seed N]
 
 :func:`register` adds the ``headmotion`` command to the main parser's subparsers; the handlers
 take ``(args, log)`` and return an exit code, and raise :class:`~faceretarget.errors.FaceRetargetError`
@@ -25,6 +25,7 @@ from ._support import FPS, POSITIVE, Range, check_inputs, check_out, run_alone, 
 
 #: Option ranges (shown in ``--help``).
 AMPLITUDE = Range(0, 10)
+MOTION_RANGE = Range(0, 360)
 PAUSE = Range(0, 5, lo_open=True)
 SEED = Range(0, 2**32 - 1, integer=True)
 
@@ -67,7 +68,7 @@ def cmd_headmotion_synth(args, log) -> int:
     try:
         res = db.transform(audio, rate, amplitude=args.amplitude, rotation=not args.no_rotation,
                            translation=not args.no_translation, seed=args.seed, fps=args.fps,
-                           source=str(args.audio))
+                           source=str(args.audio), motion_range=args.motion_range)
     except InvalidDataError as e:
         raise InvalidDataError(f"{args.audio}: {e}") from e
     perf, info = res.take, res.info
@@ -116,6 +117,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="output .bvh, .glb or .csv")
     s.add_argument("--amplitude", type=AMPLITUDE, default=1.0,
                    help=f"scale of the motion, {AMPLITUDE} (default 1; 0 holds the head still)")
+    s.add_argument("--motion-range", type=MOTION_RANGE, nargs=3, default=None, metavar=("YAW", "PITCH", "ROLL"),
+                   help=f"degrees the head turns, 5-95%% range of each angle, {MOTION_RANGE} (e.g. the speaker's "
+                   "own; default: as much as the database speakers, whoever speaks)")
     s.add_argument("--no-translation", action="store_true", help="rotation only")
     s.add_argument("--no-rotation", action="store_true", help="translation only (rotation zero)")
     s.add_argument("--seed", type=SEED, default=None,

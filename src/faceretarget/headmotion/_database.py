@@ -52,6 +52,15 @@ Synthesize
    much longer than the input segment is cut short, a much shorter one runs on into the motion
    that follows it in its take), chain, drift correction, optional smoothing; then
    ``amplitude`` scales the motion about the database's mean pose.
+6. **Range** (``motion_range``, optional).  Without it the output moves as much as the database
+   speakers whose segments were chosen: a database of one lively speaker turns the head of a calm
+   one as far as its own (leave-one-speaker-out on the shared takes: yaw 52 deg where the held-out
+   speaker's capture spans 22, and 22 where another spans 50).  Nothing in the pitch predicts how far
+   a speaker turns the head (``docs/headmotion.md``), so the range is the caller's to give, e.g.
+   :func:`rotation_range` of the speaker's tracked head.  Given a range, each stored take's rotation is
+   divided by its own per-axis 5-95 % range before blending (segments of a lively and a calm
+   speaker then move alike), and the blended rotation is scaled per axis to span ``motion_range``
+   degrees between its 5th and 95th percentiles.
 
 ``seed=None`` returns the best path; an integer seed perturbs the unary costs with Gumbel noise
 of scale ``temperature`` times their spread and so samples among near-best alternatives.
@@ -61,7 +70,7 @@ of scale ``temperature`` times their spread and so samples among near-best alter
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -77,11 +86,16 @@ from ._pitch import PitchTrack, extract_pitch
 from ._segments import PHRASE_STATS, Segmentation, segment_speech
 from ._viterbi import viterbi
 
-__all__ = ["HeadMotionDatabase", "HeadMotionResult", "PathWeights", "SynthesisInfo", "EULER", "take_duration"]
+__all__ = ["HeadMotionDatabase", "HeadMotionResult", "PathWeights", "SynthesisInfo", "EULER", "take_duration",
+           "rotation_range", "RANGE_PERCENTILES"]
 
 #: The Euler angles the database compares and blends motion in: intrinsic yaw (Y), pitch (X), roll (Z).
 EULER = "YXZ"
 _GAP0 = 0.05  # s, softens the log ratio of short voiceless lengths
+#: Percentiles whose difference is a motion's range (:func:`rotation_range`, ``motion_range``): robust to
+#: a few stray frames, and the statistic the P5 benchmark reports.
+RANGE_PERCENTILES = (5.0, 95.0)
+_MIN_RANGE = 1e-3  # rad, floor of a stored take's range when its motion is divided by it
 
 
 @dataclass
@@ -122,6 +136,35 @@ class PathWeights:
 def take_duration(take: Performance) -> float:
     """Seconds a head-motion take covers with both audio and motion."""
     return min(take.audio.size / take.audio_rate, (take.n_frames - 1) / take.fps)
+
+
+def _range(rot: np.ndarray) -> np.ndarray:
+    """(3,) the :data:`RANGE_PERCENTILES` range of each column of (T, 3) angles (same unit)."""
+    lo, hi = np.percentile(rot, RANGE_PERCENTILES, axis=0)
+    return hi - lo
+
+
+def rotation_range(head: HeadPose | Performance) -> np.ndarray:
+    """(3,) degrees: how far a head turns, the 5-95 % range of its yaw, pitch and roll.
+
+    The angles are the intrinsic Y-X-Z Euler angles the database works in (:data:`EULER`), unwrapped
+    over time; frames without a pose are ignored.  Give it as ``motion_range`` to
+    :meth:`HeadMotionDatabase.transform` to synthesize motion that turns as far as ``head`` does
+    (for example the tracked head of the speaker whose new speech is animated).
+
+    Raises
+    ------
+    InvalidDataError
+        No head pose, or no frame with a pose.
+    """
+    h = head.head if isinstance(head, Performance) else head
+    if not isinstance(h, HeadPose):
+        raise InvalidDataError(f"{getattr(head, 'source', head)}: no head pose to measure a range of")
+    rot = h.to_euler(EULER)
+    rot = rot[np.isfinite(rot).all(axis=1)]
+    if rot.size == 0:
+        raise InvalidDataError(f"{h.source}: no frame with a head pose to measure a range of")
+    return np.degrees(_range(np.unwrap(rot, axis=0)))
 
 
 @dataclass
@@ -271,6 +314,30 @@ def _checked_output(fps: float, amplitude: float) -> float:
     return fps
 
 
+def _checked_range(motion_range) -> np.ndarray | None:
+    """``motion_range`` as (3,) radians (None stays None), after checking it is usable."""
+    if motion_range is None:
+        return None
+    try:
+        r = np.broadcast_to(np.asarray(motion_range, np.float64), (3,))
+    except (TypeError, ValueError) as e:
+        raise InvalidDataError(f"motion_range must be one number or three (yaw, pitch, roll degrees), "
+                               f"got {motion_range!r}") from e
+    if not (np.isfinite(r).all() and (r >= 0).all()):
+        raise InvalidDataError(f"motion_range must be finite and >= 0 degrees, got {r.tolist()}")
+    return np.radians(r)
+
+
+def _scaled_to_range(y: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``y`` (T, 6) with its rotation columns scaled per axis so their :data:`RANGE_PERCENTILES` range is
+    ``target`` (3,) (an axis that does not move stays still), and the (3,) scale applied."""
+    r = _range(y[:, :3])
+    scale = np.where(r > 1e-12, target / np.maximum(r, 1e-12), 0.0)
+    y = y.copy()
+    y[:, :3] *= scale
+    return y, scale
+
+
 class HeadMotionDatabase(Model):
     """Synthesize head motion for new speech from a database of recorded phrases.
 
@@ -332,6 +399,9 @@ class HeadMotionDatabase(Model):
     motion_ : (F, 6) float
         Every stored take's motion as yaw, pitch, roll (rad), x, y, z (m) minus the take's mean, at
         ``fps``, one after another (with the mirrored copies).
+    copy_range_ : (C, 3) float
+        Each stored take's 5-95 % range of yaw, pitch, roll (rad), what its rotation is divided by
+        when :meth:`transform` is given a ``motion_range``.
     """
 
     def __init__(self, *, fps: float = 30.0, f0_min: float = 60.0, f0_max: float = 500.0,
@@ -515,6 +585,8 @@ class HeadMotionDatabase(Model):
         speed = np.r_[np.linalg.norm(np.diff(rot, axis=0), axis=1), 0.0]
         speed[~inner] = np.nan  # no speed across take boundaries
         copy_of_row = np.repeat(np.arange(len(self.take_names_)), np.diff(self.copy_offset_))
+        self._copy_of_row = copy_of_row
+        self.copy_range_ = np.stack([_range(rot[copy_of_row == c]) for c in range(len(self.take_names_))])
         med = np.array([np.nanmedian(speed[copy_of_row == c]) for c in range(len(self.take_names_))])
         csum = np.r_[0.0, np.cumsum(np.nan_to_num(speed))]
         f1 = self.seg_frames_[:, 1]
@@ -655,7 +727,8 @@ class HeadMotionDatabase(Model):
     def transform(self, speech: Performance | np.ndarray, rate: float | None = None, *,
                   amplitude: float = 1.0, rotation: bool = True, translation: bool = True,
                   seed: int | None = None, fps: float | None = None, pitch: PitchTrack | None = None,
-                  source: str | None = None, path: np.ndarray | None = None) -> HeadMotionResult:
+                  source: str | None = None, path: np.ndarray | None = None,
+                  motion_range: float | Sequence[float] | None = None) -> HeadMotionResult:
         """Head motion for new speech (Chuang Ch. 4's synthesis).
 
         Parameters
@@ -679,6 +752,15 @@ class HeadMotionDatabase(Model):
         path : (N,) int, optional
             Skip the search and blend these database segments, one per input segment (for
             baselines and experiments; N must equal the input's segment count).
+        motion_range : float or (3,) float, optional
+            Degrees the head should turn: the 5-95 % range of yaw, pitch and roll over the output
+            (one number for all three), e.g. :func:`rotation_range` of the speaker's own tracked or
+            captured head.  Default None: the motion moves as much as the database speakers whose
+            segments were chosen (a database of one speaker gives that speaker's range, whoever
+            speaks; module docstring, step 6).  Given, every stored take's rotation is divided by
+            its own range (``copy_range_``) before blending and the result scaled per axis to this
+            range; the search is the same.  ``amplitude`` still multiplies the result.  The
+            translation is not changed.  The scale applied is ``info.extra["range_scale"]``.
 
         Returns
         -------
@@ -690,15 +772,19 @@ class HeadMotionDatabase(Model):
         Raises
         ------
         InvalidDataError
-            No voiced speech in the audio, or a database not built.
+            No voiced speech in the audio, a database not built, or a ``motion_range`` that is not
+            one or three finite numbers >= 0.
         """
         self._check_fitted()
         x, rate, source = _speech_samples(speech, rate, source)
         fps = _checked_output(self.fps if fps is None else fps, amplitude)
+        target = _checked_range(motion_range)
         t0 = time.perf_counter()
         track = pitch if pitch is not None else self.pitch(x, rate)
         t1 = time.perf_counter()
-        y, info = self._synthesize_track(track, fps, seed, path)
+        y, info = self._synthesize_track(track, fps, seed, path, normalise=target is not None)
+        if target is not None:
+            y, info.extra["range_scale"] = _scaled_to_range(y, target)
         info.pitch_seconds = t1 - t0
         rot, tr = self._absolute_pose(y, amplitude, rotation, translation)
         info.search_seconds = time.perf_counter() - t1
@@ -720,11 +806,21 @@ class HeadMotionDatabase(Model):
         tr = pose[:, 3:] if translation else None
         return rot, tr
 
+    def _normalised_motion(self) -> np.ndarray:
+        """(F, 6) ``motion_`` with each stored take's rotation divided by its range (``copy_range_``,
+        at least ``_MIN_RANGE``): unitless, every take spanning 1 between its 5th and 95th percentiles."""
+        out = self.motion_.copy()
+        out[:, :3] /= np.maximum(self.copy_range_, _MIN_RANGE)[self._copy_of_row]
+        return out
+
     def _synthesize_track(self, track: PitchTrack, fps: float, seed: int | None,
-                          path: np.ndarray | None = None) -> tuple[np.ndarray, SynthesisInfo]:
+                          path: np.ndarray | None = None, normalise: bool = False
+                          ) -> tuple[np.ndarray, SynthesisInfo]:
         """Deviation trajectory (T, 6) about the mean pose, and what was chosen.
 
-        ``path`` (one database segment per input segment) skips the search (used by baselines).
+        ``path`` (one database segment per input segment) skips the search (used by baselines);
+        ``normalise`` blends :meth:`_normalised_motion` instead of ``motion_`` (the rotation is then
+        unitless).
         """
         seg, a, n_out = self._input_segments(track, fps)
         if seg.n_segments == 0:
@@ -756,7 +852,8 @@ class HeadMotionDatabase(Model):
         f0 = self.seg_frames_[path, 0]
         f1, head = self._warp(path, in_len)[:2]
         step = float(self.fps) / fps  # database frames per output frame
-        y, joins = blend_segments(self.motion_, f0, f1, a, n_out, fps=fps, knots=knots,
+        motion = self._normalised_motion() if normalise else self.motion_
+        y, joins = blend_segments(motion, f0, f1, a, n_out, fps=fps, knots=knots,
                                   tau_velocity=self.tau_velocity, smooth=self.smooth,
                                   head=head / step, step=step, transition=self.transition)
         return y, SynthesisInfo(seg, path, a, joins, knots, float(cost))
