@@ -601,6 +601,7 @@ class LiveSession:
         self.log(f"live: {self.source_name} onto {self.character.name}"
                  + (" in real time" if self.realtime else " as fast as possible")
                  + (f", calibrating on the first {self.calibration:g} s" if self.calibration > 0 else ""))
+        restore = _stop_on_ctrl_c(self._stop, stats)
         try:
             if self.server is not None and self.wait_for_viewer > 0:
                 self.log(f"waiting up to {self.wait_for_viewer:g} s for the page to connect: open {self.server.url}")
@@ -619,6 +620,7 @@ class LiveSession:
         except KeyboardInterrupt:
             stats.interrupted = True
         finally:
+            restore()
             self._stop.set()
             if pump is not None and pump.is_alive():
                 pump.join(5.0)
@@ -629,6 +631,28 @@ class LiveSession:
             self.server.broadcast({"type": "end", "summary": stats.summary()})
         self._stop.clear()
         return stats
+
+
+def _stop_on_ctrl_c(stop: threading.Event, stats: LiveStats) -> Callable[[], None]:
+    """In the main thread, the first Ctrl-C ends the run at the next frame instead of raising KeyboardInterrupt
+    wherever the main thread is: inside MediaPipe's tracker call it left the tracker's native state half-done
+    and its result thread crashed (SIGSEGV, seen under load); a second Ctrl-C interrupts at once.  Returns
+    what puts the previous handler back."""
+    import signal
+
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = signal.getsignal(signal.SIGINT)
+    if previous is not signal.default_int_handler:          # ignored, or an application's own handler: theirs
+        return lambda: None
+
+    def handler(signum, frame):
+        stats.interrupted = True
+        stop.set()
+        signal.signal(signal.SIGINT, previous)                 # the next Ctrl-C raises KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, handler)
+    return lambda: signal.signal(signal.SIGINT, previous)
 
 
 class _State:
