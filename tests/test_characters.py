@@ -476,6 +476,34 @@ def test_rocketbox_lid_landmarks_on_the_lids(chars):
         assert d < 0.15 * eye, (k, d / eye)
 
 
+def test_landmarks_cached_by_an_earlier_search_are_searched_again(tmp_path, data_dir, arkit_rig, monkeypatch):
+    """The cache entry records the search's version (``finder``, format faceretarget.landmarks/1 kept): an
+    entry an earlier search wrote (no ``finder``) is searched again and replaced; the same record given as
+    ``--landmarks FILE.json`` is used as it is."""
+    pytest.importorskip("mediapipe")
+    from faceretarget.capture import FINDER_VERSION
+    from faceretarget.characters import landmark_cache_path
+
+    monkeypatch.setenv("FACERETARGET_CACHE", str(tmp_path / "cache"))
+    p = write_glb(tmp_path / "arkit.glb", arkit_rig, np.zeros((1, arkit_rig.n_shapes)), np.zeros(1))
+    a = load_character(p)
+    entry = landmark_cache_path(p)
+    d = json.loads(entry.read_text())
+    assert d["format"] == "faceretarget.landmarks/1" and d["finder"] == FINDER_VERSION
+    old = dict(d, triangles=[d["triangles"][0]] * 68, bary=[[1.0, 0.0, 0.0]] * 68)
+    del old["finder"]
+    entry.write_text(json.dumps(old))
+    lines = []
+    b = load_character(p, log=lines.append)
+    assert any("earlier search" in ln for ln in lines), lines
+    np.testing.assert_array_equal(b.landmarks.triangles, a.landmarks.triangles)
+    assert json.loads(entry.read_text())["finder"] == FINDER_VERSION
+    given = tmp_path / "given.json"
+    given.write_text(json.dumps(old))
+    c = load_character(p, landmarks=given)
+    np.testing.assert_array_equal(c.landmarks.triangles, np.asarray(old["triangles"]))
+
+
 # ------------------------------------------------------------------------------------------ the main job
 def test_animate_writes_back_into_the_glb(tmp_path, chars, take):
     src = chars / "valid" / "Black_M_2_Busi.glb"
