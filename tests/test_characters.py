@@ -406,23 +406,6 @@ def test_landmarks_found_near_the_reference_and_cached(tmp_path, data_dir, ict_r
         load_character(p, landmarks=idx)
 
 
-def test_character_points_space_the_jaw_line_evenly():
-    """The jaw line of the 68 found on a render: ends (127, 356) and chin (152) as MediaPipe gives them, 1-7
-    and 9-15 evenly spaced along its face oval between them (issue 34)."""
-    from faceretarget.capture._find_landmarks import CHARACTER_68, JAW_OVAL, character_points
-
-    rng = np.random.default_rng(0)
-    px = rng.uniform(0, 500, (478, 3))
-    t = np.linspace(0.0, np.pi, len(JAW_OVAL)) ** 1.7 / np.pi ** 0.7        # unevenly spaced on a half circle
-    px[JAW_OVAL, 0], px[JAW_OVAL, 1] = 250 - 200 * np.cos(t), 200 + 200 * np.sin(t)
-    P = character_points(px)
-    np.testing.assert_array_equal(P[17:], px[CHARACTER_68[17:]])
-    np.testing.assert_allclose(P[[0, 8, 16]], px[[127, 152, 356]])
-    for half in (P[:9], P[8:17]):
-        gaps = np.linalg.norm(np.diff(half[:, :2], axis=0), axis=1)
-        assert gaps.std() / gaps.mean() < 0.05                 # chords of equal arcs of a polyline
-
-
 def _welded_pieces(V, T):
     """Connected piece of each vertex, vertices at one position (UV seams) counted as one."""
     from scipy.sparse import coo_matrix

@@ -9,11 +9,11 @@ No hand-made landmark file: :func:`find_landmarks`
    the character as it looks (:func:`faceretarget.render.render_scene`: every mesh, textures) and
    keeping the view in which MediaPipe's Face Landmarker finds a face most frontally;
 3. zooms on the face found (a second, larger render centred on it) and runs the landmarker again;
-4. takes the 68 Multi-PIE points of its 478 (:func:`character_points`: :data:`CHARACTER_68`, the jaw line
-   evenly spaced along the landmarker's face oval) and puts each on the face mesh's surface under it (a
-   render of the face mesh alone, so hair or eyeballs of other meshes never get a landmark): a triangle and
-   barycentric coordinates, not a vertex, so a low-poly lip corner lands where the corner is; a point just
-   past the silhouette (the jaw line seen from the front) takes the nearest surface pixel;
+4. takes the 68 Multi-PIE points of its 478 (:data:`CHARACTER_68`) and puts each on the face mesh's
+   surface under it (a render of the face mesh alone, so hair or eyeballs of other meshes never get a
+   landmark): a triangle and barycentric coordinates, not a vertex, so a low-poly lip corner lands where the
+   corner is; a point just past the silhouette (the jaw line seen from the front) takes the nearest surface
+   pixel;
 5. corrects what one frontal pick gets wrong: the inner lips onto the right lip (:func:`_separate_lips`),
    points that fell through a hole of the face onto its front surface (:func:`_front_surface`), the jaw line
    onto the face mesh's own edge when the mesh is cut along it (a mask: :func:`_jaw_onto_edge`), and lid
@@ -37,12 +37,11 @@ from ..errors import FaceNotFoundError
 from ..render import look_at, pick, render_scene
 from ._points import MEDIAPIPE_68
 
-__all__ = ["find_landmarks", "LandmarkSearch", "face_region", "CHARACTER_68", "JAW_OVAL", "character_points",
-           "FINDER_VERSION"]
+__all__ = ["find_landmarks", "LandmarkSearch", "face_region", "CHARACTER_68", "FINDER_VERSION"]
 
 #: The version of what :func:`find_landmarks` does.  The landmark cache searches a character again when its
 #: cached landmarks were found by another version (:mod:`faceretarget.characters`).  2 (issue 34): the jaw
-#: line evenly spaced along the face oval and onto a mask's edge; lid points out of the eye's opening.
+#: line onto a mask's edge, lid points out of the eye's opening onto the lids.
 FINDER_VERSION = 2
 
 
@@ -158,40 +157,6 @@ def _frontal(px: np.ndarray) -> float:
 #: point's motion, a few millimetres between the two conventions at rest do not matter to it.
 CHARACTER_68 = MEDIAPIPE_68.copy()
 CHARACTER_68[[0, 16, 17, 26]] = [127, 356, 70, 300]
-#: MediaPipe's face oval below the eyes, from the jaw line's end on the image's left (127, point 0) over the
-#: chin (152, point 8) to its other end (356, point 16): every oval point in between, in order.
-JAW_OVAL = np.array([127, 234, 93, 132, 58, 172, 136, 150, 149, 176, 148, 152,
-                     377, 400, 378, 379, 365, 397, 288, 361, 323, 454, 356], dtype=np.int64)
-
-
-def character_points(px: np.ndarray) -> np.ndarray:
-    """The 68 points of the landmarker's 478 on a character's render, ``(68, 3)`` (pixels and its depth).
-
-    :data:`CHARACTER_68`, but the jaw line's 1-7 and 9-15 evenly spaced (by length in the image) along
-    MediaPipe's face oval (:data:`JAW_OVAL`) between its ends (0, 16) and the chin (8).  Multi-PIE's contour
-    points are evenly spaced along the face's outline (the hand-made points of ict-face and arkit-face: the
-    gaps' standard deviation 14-17 % of their mean); MediaPipe's fixed indices are not (93 to 58 skips 132: a
-    gap over twice its neighbours').  Evenly spaced, the found jaw line came 0.6-2.4 % of the eye-corner
-    distance nearer the hand-made one on each of arkit-face, ict-face and the two demo faces.
-    """
-    P = np.asarray(px, dtype=np.float64)
-    out = P[CHARACTER_68].copy()
-    oval = P[JAW_OVAL]
-    c = int(np.flatnonzero(JAW_OVAL == 152)[0])
-    out[:9] = _evenly(oval[:c + 1], 9)
-    out[8:17] = _evenly(oval[c:], 9)
-    return out
-
-
-def _evenly(L: np.ndarray, n: int) -> np.ndarray:
-    """``n`` points evenly spaced (by length in x, y) along the polyline ``L``, its ends included."""
-    s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(L[:, :2], axis=0), axis=1))]
-    if s[-1] <= 0.0:
-        return np.repeat(L[:1], n, axis=0)
-    t = np.linspace(0.0, s[-1], n)
-    return np.stack([np.interp(t, s, L[:, d]) for d in range(L.shape[1])], axis=1)
-
-
 #: Inner-lip points on the upper lip and on the lower lip, with the outer-lip middle that tells each lip.
 _UPPER_INNER, _LOWER_INNER, _UPPER_REF, _LOWER_REF = (61, 62, 63), (65, 66, 67), 51, 57
 
@@ -331,10 +296,10 @@ def _jaw_onto_edge(character: Character, prim: int, alone, pts: np.ndarray, tris
     away: the landmarker's point a few pixels inside the outline lands up to 20 % of the eye-corner distance
     forward of the edge (arkit-face: 17.9 % on average, nearly all of it depth).  When the part of the open edge
     on the render's outline lies within 10 % of the eye-corner distance of every one of the 17 jaw points (the
-    landmarker's own error along the contour is up to about that), each goes onto its nearest point of that
-    edge.  A whole head, or a face mesh that goes on past the jaw (a neck, a mask cut well below the chin:
-    the demo faces' edge is 12-16 % from their chin points), is left as picked.  Changes ``tris`` and ``bary``;
-    True when it moved them.
+    landmarker's own error along the contour is up to about that; arkit-face: all within 7.5 %), each goes onto
+    its nearest point of that edge: MediaPipe's own face oval is its canonical mesh's edge.  A whole head, or a
+    face mesh that goes on past the jaw (a neck, a mask cut well below the chin: the demo faces' edge is 20-51 %
+    from their chin points), is left as picked.  Changes ``tris`` and ``bary``; True when it moved them.
     """
     from scipy.ndimage import binary_fill_holes, distance_transform_edt
     from scipy.spatial import cKDTree
@@ -536,8 +501,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
             cam2, img2, px2 = cam, render_scene(character.meshes, cam).image, px
         else:
             px2 = r2[0]
-        p68 = character_points(px2)
-        pts = p68[:, :2]
+        pts = px2[CHARACTER_68, :2]
         alone = render_scene(character.meshes, cam2, only=[prim], textures=False)
         tris, bary, dist = pick(alone, character.meshes, pts, prim, radius=max(6, size // 40))
         _separate_lips(character, prim, alone, pts, tris, bary, radius=max(4, size // 40))
@@ -556,7 +520,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         log(f"landmarks: face found facing {np.round(front, 3).tolist()} (up {np.round(up, 3).tolist()}), "
             f"{len(views)} view(s) tried, {int((dist > 0).sum())} of 68 snapped to the surface")
         return LandmarkSearch(SurfacePoints(prim, tris, bary, "found on a render"), up, front, views, img2, pts,
-                              dist, time.perf_counter() - t0, cam2, p68[:, 2])
+                              dist, time.perf_counter() - t0, cam2, px2[CHARACTER_68, 2])
     finally:
         if own:
             tr.close()
