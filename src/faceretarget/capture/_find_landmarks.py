@@ -281,9 +281,10 @@ def _open_edges(faces: np.ndarray, welded: np.ndarray) -> tuple[np.ndarray, np.n
     """The mesh's open edges (of one triangle only, seams welded): ``(E, 2)`` vertex pairs and the triangle of each."""
     E = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     tri = np.tile(np.arange(len(faces)), 3)
-    key = np.sort(welded[E], axis=1)
-    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    one = (cnt[inv.reshape(-1)] == 1) & (key[:, 0] != key[:, 1])
+    ends = np.sort(welded[E], axis=1)
+    _, inv, cnt = np.unique(ends[:, 0] * (int(welded.max()) + 1) + ends[:, 1], return_inverse=True,
+                            return_counts=True)
+    one = (cnt[inv.reshape(-1)] == 1) & (ends[:, 0] != ends[:, 1])
     return E[one], tri[one]
 
 
@@ -319,7 +320,8 @@ def _jaw_onto_edge(character: Character, prim: int, alone, pts: np.ndarray, tris
         return False
     n = np.clip(np.ceil(np.linalg.norm(b[near] - a[near], axis=1)).astype(np.int64), 1, 256)   # a sample a pixel
     edge = np.repeat(near, n + 1)
-    t = np.concatenate([np.linspace(0.0, 1.0, k + 1) for k in n])
+    first = np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
+    t = (np.arange(len(edge)) - first) / np.repeat(n, n + 1)
     xy = a[edge] + t[:, None] * (b[edge] - a[edge])
     H, W = alone.mesh.shape
     ix, iy = np.round(xy[:, 0]).astype(np.int64), np.round(xy[:, 1]).astype(np.int64)
