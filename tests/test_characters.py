@@ -434,7 +434,7 @@ def test_found_jaw_line_within_10_percent(tmp_path, data_dir, name):
     assert e[:17].mean() <= 0.10 and e[17:].mean() <= 0.05
 
 
-def test_rocketbox_lid_landmarks_on_the_lids(chars):
+def test_rocketbox_lid_landmarks_on_the_lids(tmp_path, chars):
     """Issue 34: Rocketbox's eyeballs are pieces of its one body mesh; the untextured render showed them in the
     eye openings and 7 of the 8 lid points (37, 38, 40, 41, 43, 44, 46, 47) landed on them.  Each is now on the
     face's skin (the piece that holds the nose), on the rim of the opening: nearer its eyeball than the eye's
@@ -457,6 +457,15 @@ def test_rocketbox_lid_landmarks_on_the_lids(chars):
     for k in lids:
         d = min(np.linalg.norm(V[piece == c] - P[k], axis=1).min() for c in balls)
         assert d < 0.15 * eye, (k, d / eye)
+    # the check picture (character inspect --out) marks them where they went, not where the landmarker saw them
+    from PIL import Image
+
+    from faceretarget.characters._load import _check_picture
+
+    img = np.asarray(Image.open(_check_picture(ch, tmp_path / "check.png")))
+    for k in lids:
+        x, y = np.round(ch.search.camera.project(P[k:k + 1])[0, :2]).astype(int)
+        assert tuple(img[y, x]) == (40, 220, 60), (k, img[y, x])
 
 
 def test_landmarks_cached_by_an_earlier_search_are_searched_again(tmp_path, data_dir, arkit_rig, monkeypatch):

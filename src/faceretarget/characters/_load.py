@@ -688,7 +688,10 @@ def _check_picture(ch: Character, out) -> Path:
     out = Path(out)
     res = getattr(ch, "search", None)
     if res is not None and res.image is not None:
-        img, pts = res.image, res.points
+        # the points where they were put on the surface, not where the landmarker saw them: a lid point it saw
+        # in the eye's opening or a jaw point moved onto a mask's edge shows where it went
+        img = res.image
+        pts = res.camera.project(ch.landmark_positions())[:, :2] if res.camera is not None else res.points
     else:
         from ..capture import face_region
         from ..character import character_frame
