@@ -406,6 +406,96 @@ def test_landmarks_found_near_the_reference_and_cached(tmp_path, data_dir, ict_r
         load_character(p, landmarks=idx)
 
 
+def _welded_pieces(V, T):
+    """Connected piece of each vertex, vertices at one position (UV seams) counted as one."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    w = np.unique(np.round(V * 1e7).astype(np.int64), axis=0, return_inverse=True)[1].reshape(-1)
+    e = w[np.concatenate([T[:, [0, 1]], T[:, [1, 2]]])]
+    n = int(w.max()) + 1
+    return connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)[1][w]
+
+
+@pytest.mark.parametrize("name", ["arkit-face", "ict-face"])
+def test_found_jaw_line_within_10_percent(tmp_path, data_dir, name):
+    """Issue 34: the jaw line found on arkit-face (a mask, its hand-made jaw points on its edge; 17.9 % before,
+    the frontal pick landed on the steep strip in front of the edge) and ict-face (a whole head) within 10 % of
+    the eye-corner distance of the hand-made points, the inner points within 5 %."""
+    pytest.importorskip("mediapipe")
+    from faceretarget.io import read_rig
+
+    rig = read_rig(data_dir / name)
+    p = write_glb(tmp_path / f"{name}.glb", rig, np.zeros((1, rig.n_shapes)), np.zeros(1))
+    ch = load_character(p, cache=False)
+    ref = rig.neutral.vertices[rig.landmarks] * rig.mm_per_unit / 1000.0
+    e = np.linalg.norm(ch.landmark_positions() - ref, axis=1) / np.linalg.norm(ref[36] - ref[45])
+    print(f"{name} landmarks: inner {e[17:].mean():.3f}, jaw line {e[:17].mean():.3f}")
+    assert e[:17].mean() <= 0.10 and e[17:].mean() <= 0.05
+
+
+def test_rocketbox_lid_landmarks_on_the_lids(tmp_path, chars):
+    """Issue 34: Rocketbox's eyeballs are pieces of its one body mesh; the untextured render showed them in the
+    eye openings and 7 of the 8 lid points (37, 38, 40, 41, 43, 44, 46, 47) landed on them.  Each is now on the
+    face's skin (the piece that holds the nose), on the rim of the opening: nearer its eyeball than the eye's
+    width (not on the brow or the cheek)."""
+    pytest.importorskip("mediapipe")
+    ch = load_character(chars / "rocketbox" / "Female_Adult_01_facial.fbx", cache=False)
+    lm = ch.landmarks
+    m = ch.meshes[lm.mesh].mesh
+    V, T = m.vertices, m.triangles()
+    piece = _welded_pieces(V, T)
+    skin = piece[lm.triangles[30, 0]]
+    P = ch.landmark_positions()
+    eye = np.linalg.norm(P[36] - P[45])
+    lids = [37, 38, 40, 41, 43, 44, 46, 47]
+    on = piece[lm.triangles[lids, 0]]
+    assert (on == skin).all(), dict(zip(lids, on.tolist(), strict=True))
+    balls = [c for c in np.unique(piece) if c != skin and (np.linalg.norm(V[piece == c] - P[[37, 44]].mean(0),
+                                                                            axis=1) < eye).any()]
+    assert len(balls) == 2                                       # the two eyeballs, in the same mesh
+    for k in lids:
+        d = min(np.linalg.norm(V[piece == c] - P[k], axis=1).min() for c in balls)
+        assert d < 0.15 * eye, (k, d / eye)
+    # the check picture (character inspect --out) marks them where they went, not where the landmarker saw them
+    from PIL import Image
+
+    from faceretarget.characters._load import _check_picture
+
+    img = np.asarray(Image.open(_check_picture(ch, tmp_path / "check.png")))
+    for k in lids:
+        x, y = np.round(ch.search.camera.project(P[k:k + 1])[0, :2]).astype(int)
+        assert tuple(img[y, x]) == (40, 220, 60), (k, img[y, x])
+
+
+def test_landmarks_cached_by_an_earlier_search_are_searched_again(tmp_path, data_dir, arkit_rig, monkeypatch):
+    """The cache entry records the search's version (``finder``, format faceretarget.landmarks/1 kept): an
+    entry an earlier search wrote (no ``finder``) is searched again and replaced; the same record given as
+    ``--landmarks FILE.json`` is used as it is."""
+    pytest.importorskip("mediapipe")
+    from faceretarget.capture import FINDER_VERSION
+    from faceretarget.characters import landmark_cache_path
+
+    monkeypatch.setenv("FACERETARGET_CACHE", str(tmp_path / "cache"))
+    p = write_glb(tmp_path / "arkit.glb", arkit_rig, np.zeros((1, arkit_rig.n_shapes)), np.zeros(1))
+    a = load_character(p)
+    entry = landmark_cache_path(p)
+    d = json.loads(entry.read_text())
+    assert d["format"] == "faceretarget.landmarks/1" and d["finder"] == FINDER_VERSION
+    old = dict(d, triangles=[d["triangles"][0]] * 68, bary=[[1.0, 0.0, 0.0]] * 68)
+    del old["finder"]
+    entry.write_text(json.dumps(old))
+    lines = []
+    b = load_character(p, log=lines.append)
+    assert any("earlier search" in ln for ln in lines), lines
+    np.testing.assert_array_equal(b.landmarks.triangles, a.landmarks.triangles)
+    assert json.loads(entry.read_text())["finder"] == FINDER_VERSION
+    given = tmp_path / "given.json"
+    given.write_text(json.dumps(old))
+    c = load_character(p, landmarks=given)
+    np.testing.assert_array_equal(c.landmarks.triangles, np.asarray(old["triangles"]))
+
+
 # ------------------------------------------------------------------------------------------ the main job
 def test_animate_writes_back_into_the_glb(tmp_path, chars, take):
     src = chars / "valid" / "Black_M_2_Busi.glb"

@@ -9,11 +9,16 @@ No hand-made landmark file: :func:`find_landmarks`
    the character as it looks (:func:`faceretarget.render.render_scene`: every mesh, textures) and
    keeping the view in which MediaPipe's Face Landmarker finds a face most frontally;
 3. zooms on the face found (a second, larger render centred on it) and runs the landmarker again;
-4. takes the 68 Multi-PIE points of its 478 (:data:`CHARACTER_68`) and puts each
-   on the face mesh's surface under it (a render of the face mesh alone, so hair or eyeballs never get
-   a landmark): a triangle and barycentric coordinates, not a vertex, so a low-poly lip corner lands
-   where the corner is; a point just past the silhouette (the jaw line seen from the front) takes the
-   nearest surface pixel.
+4. takes the 68 Multi-PIE points of its 478 (:data:`CHARACTER_68`) and puts each on the face mesh's
+   surface under it (a render of the face mesh alone, so hair or eyeballs of other meshes never get a
+   landmark): a triangle and barycentric coordinates, not a vertex, so a low-poly lip corner lands where the
+   corner is; a point just past the silhouette (the jaw line seen from the front) takes the nearest surface
+   pixel;
+5. corrects what one frontal pick gets wrong: the inner lips onto the right lip (:func:`_separate_lips`),
+   points that fell through a hole of the face onto its front surface (:func:`_front_surface`), the jaw line
+   onto the face mesh's own edge when the mesh is cut along it (a mask: :func:`_jaw_onto_edge`), and lid
+   points that fell into the eye's opening (onto an eyeball of the same mesh, through it, or onto nothing)
+   onto the lid's rim (:func:`_lids_on_rim`).
 
 It returns the points and what it saw (:class:`LandmarkSearch`: the views tried, the chosen front, the
 final render with the 68 points for a check picture).  A face the landmarker cannot find in any view
@@ -32,7 +37,12 @@ from ..errors import FaceNotFoundError
 from ..render import look_at, pick, render_scene
 from ._points import MEDIAPIPE_68
 
-__all__ = ["find_landmarks", "LandmarkSearch", "face_region", "CHARACTER_68"]
+__all__ = ["find_landmarks", "LandmarkSearch", "face_region", "CHARACTER_68", "FINDER_VERSION"]
+
+#: The version of what :func:`find_landmarks` does.  The landmark cache searches a character again when its
+#: cached landmarks were found by another version (:mod:`faceretarget.characters`).  2 (issue 34): the jaw
+#: line onto a mask's edge, lid points out of the eye's opening onto the lids.
+FINDER_VERSION = 2
 
 
 @dataclass(eq=False)
@@ -215,25 +225,22 @@ def _front_surface(character: Character, prim: int, alone, pts: np.ndarray, tris
     and teeth are other meshes: the render of the face mesh alone shows the inside of the back of the head
     there) to the nearest pixel of the face's front surface.  A point is through a hole when it lies
     further behind the others' median depth than half the face's width.  Changes ``tris`` and ``bary``."""
-    ok = tris[:, 0] >= 0
-    if ok.sum() < 20:
+    limit = _front_limit(character, prim, tris, bary, front)
+    if limit is None:
         return
     V = character.meshes[prim].mesh.vertices
     f = np.asarray(front, dtype=np.float64)
-    P = np.einsum("pk,pkd->pd", bary[ok], V[tris[ok]])
+    ok = tris[:, 0] >= 0
     depth = np.full(len(tris), np.nan)
-    depth[ok] = P @ f
-    inner = np.arange(17, 68)
-    med = float(np.nanmedian(depth[inner]))
-    width = float(np.ptp(P, axis=0).max())
-    bad = np.flatnonzero(ok & (depth < med - 0.5 * width))
+    depth[ok] = np.einsum("pk,pkd->pd", bary[ok], V[tris[ok]]) @ f
+    bad = np.flatnonzero(ok & (depth < limit))
     if not len(bad):
         return
     faces = character.meshes[prim].mesh.triangles()
     ys, xs = np.nonzero(alone.mesh == prim)
     tri_at = alone.triangle[ys, xs]
     tdepth = V[faces[tri_at]].mean(axis=1) @ f
-    good_px = tdepth >= med - 0.5 * width
+    good_px = tdepth >= limit
     proj = alone.camera.project(V)
     from ..render import barycentric_2d
 
@@ -247,6 +254,184 @@ def _front_surface(character: Character, prim: int, alone, pts: np.ndarray, tris
         tv = faces[tri_at[j]]
         tris[k] = tv
         bary[k] = barycentric_2d(proj[tv, :2], np.array([xs[j], ys[j]], dtype=np.float64))
+
+
+def _front_limit(character: Character, prim: int, tris: np.ndarray, bary: np.ndarray, front) -> float | None:
+    """The depth (along ``front``) behind which a surface is not the face's front but seen through a hole of it:
+    half the face's width behind the inner points' median depth (None with fewer than 20 points picked)."""
+    ok = tris[:, 0] >= 0
+    if ok.sum() < 20:
+        return None
+    V = character.meshes[prim].mesh.vertices
+    P = np.einsum("pk,pkd->pd", bary[ok], V[tris[ok]])
+    depth = np.full(len(tris), np.nan)
+    depth[ok] = P @ np.asarray(front, dtype=np.float64)
+    return float(np.nanmedian(depth[17:68])) - 0.5 * float(np.ptp(P, axis=0).max())
+
+
+def _welded(V: np.ndarray) -> np.ndarray:
+    """Each vertex's index among the distinct positions: the copies an exporter makes along UV and normal seams
+    (which split one surface into pieces) count as one vertex."""
+    scale = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
+    key = np.round(np.asarray(V, np.float64) / (1e-7 * (scale or 1.0))).astype(np.int64)
+    return np.unique(key, axis=0, return_inverse=True)[1].reshape(-1)
+
+
+def _open_edges(faces: np.ndarray, welded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's open edges (of one triangle only, seams welded): ``(E, 2)`` vertex pairs and the triangle of each."""
+    E = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    tri = np.tile(np.arange(len(faces)), 3)
+    ends = np.sort(welded[E], axis=1)
+    _, inv, cnt = np.unique(ends[:, 0] * (int(welded.max()) + 1) + ends[:, 1], return_inverse=True,
+                            return_counts=True)
+    one = (cnt[inv.reshape(-1)] == 1) & (ends[:, 0] != ends[:, 1])
+    return E[one], tri[one]
+
+
+def _jaw_onto_edge(character: Character, prim: int, alone, pts: np.ndarray, tris: np.ndarray,
+                   bary: np.ndarray) -> bool:
+    """Put the jaw line on the face mesh's own edge when the mesh is cut along it (a mask).
+
+    A face mesh that ends at the face's outline (ARKit's face mesh, MediaPipe's own, a face scan) has its open
+    edge where the Multi-PIE contour is, and a frontal render shows the surface in front of it steeply turned
+    away: the landmarker's point a few pixels inside the outline lands up to 20 % of the eye-corner distance
+    forward of the edge (arkit-face: 17.9 % on average, nearly all of it depth).  When the part of the open edge
+    on the render's outline lies within 10 % of the eye-corner distance of every one of the 17 jaw points (the
+    landmarker's own error along the contour is up to about that; arkit-face: all within 7.5 %), each goes onto
+    its nearest point of that edge: MediaPipe's own face oval is its canonical mesh's edge.  A whole head, or a
+    face mesh that goes on past the jaw (a neck, a mask cut well below the chin: the demo faces' edge is 20-51 %
+    from their chin points), is left as picked.  Changes ``tris`` and ``bary``; True when it moved them.
+    """
+    from scipy.ndimage import binary_fill_holes, distance_transform_edt
+    from scipy.spatial import cKDTree
+
+    m = character.meshes[prim].mesh
+    faces = m.triangles()
+    E, Et = _open_edges(faces, _welded(m.vertices))
+    if not len(E):
+        return False
+    jaw = pts[:17]
+    reach = 0.10 * float(np.linalg.norm(pts[36] - pts[45]))
+    proj = alone.camera.project(m.vertices)[:, :2]
+    a, b = proj[E[:, 0]], proj[E[:, 1]]
+    lo, hi = jaw.min(axis=0) - reach, jaw.max(axis=0) + reach
+    near = np.flatnonzero((np.minimum(a, b) <= hi).all(axis=1) & (np.maximum(a, b) >= lo).all(axis=1))
+    if not len(near):
+        return False
+    n = np.clip(np.ceil(np.linalg.norm(b[near] - a[near], axis=1)).astype(np.int64), 1, 256)   # a sample a pixel
+    edge = np.repeat(near, n + 1)
+    first = np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
+    t = (np.arange(len(edge)) - first) / np.repeat(n, n + 1)
+    xy = a[edge] + t[:, None] * (b[edge] - a[edge])
+    H, W = alone.mesh.shape
+    ix, iy = np.round(xy[:, 0]).astype(np.int64), np.round(xy[:, 1]).astype(np.int64)
+    inside = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+    # the outline: pixels of the face (its holes filled: eyes, mouth) next to the background
+    to_background = distance_transform_edt(binary_fill_holes(alone.mesh == prim))
+    outer = np.zeros(len(xy), bool)
+    outer[inside] = to_background[iy[inside], ix[inside]] <= 1.5
+    if not outer.any():
+        return False
+    edge, t, xy = edge[outer], t[outer], xy[outer]
+    d, j = cKDTree(xy).query(jaw)
+    if not (d <= reach).all():
+        return False
+    for k in range(17):
+        e = edge[j[k]]
+        tv = faces[Et[e]]
+        w = np.zeros(3)
+        w[int(np.flatnonzero(tv == E[e, 0])[0])] += 1.0 - t[j[k]]
+        w[int(np.flatnonzero(tv == E[e, 1])[0])] += t[j[k]]
+        tris[k], bary[k] = tv, w
+    return True
+
+
+#: Per eye: its corners, its upper-lid and its lower-lid points.
+_EYES = ((36, 39, (37, 38), (40, 41)), (42, 45, (43, 44), (46, 47)))
+
+
+def _lids_on_rim(character: Character, prim: int, alone, pts: np.ndarray, tris: np.ndarray, bary: np.ndarray,
+                 front: np.ndarray) -> list[int]:
+    """Put lid points that fell into the eye's opening on the lid's rim.
+
+    The render of the face mesh alone shows, inside an eye's opening, an eyeball that is part of the same mesh
+    (Rocketbox: the eyeballs are pieces of the one body mesh), the inside of the back of the head, or nothing;
+    the landmarker, which on an untextured render sees no iris, may put the lid points well inside the
+    opening.  A lid point whose pixel is not the face's skin (the piece of the mesh, seams welded, that holds
+    most of the brow, nose and outer-lip points) in front (:func:`_front_limit`) goes to the first skin pixel
+    straight across the line of the eye's corners from it, toward the brows for the upper lid and away from
+    them for the lower (within the eye's width): a point nearer the other lid never takes that one, and each
+    upper lid point keeps facing its lower one (37-41, 38-40), which a generated blink pins together (the
+    nearest skin pixel on the lid's side slid them apart along the rim: arkit-face's generated blink then
+    left 11 % of the gap open, 4 % this way, 5 % before).  A corner in the opening goes to the nearest skin
+    pixel.  Changes ``tris`` and ``bary``; returns the points moved.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from ..render import barycentric_2d
+
+    limit = _front_limit(character, prim, tris, bary, front)
+    if limit is None:
+        return []
+    m = character.meshes[prim].mesh
+    faces = m.triangles()
+    w = _welded(m.vertices)
+    nw = int(w.max()) + 1
+    e = w[np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])]
+    piece = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(nw, nw)),
+                                 directed=False)[1][w]
+    held = [k for k in (*range(17, 36), *range(48, 60)) if tris[k, 0] >= 0]
+    if not held:
+        return []
+    skin_piece = np.bincount(piece[tris[held, 0]]).argmax()
+    skin_tri = (piece[faces[:, 0]] == skin_piece) & (m.vertices[faces].mean(axis=1) @ np.asarray(front, float)
+                                                     >= limit)
+    on = alone.mesh == prim
+    skin = np.zeros(on.shape, bool)
+    skin[on] = skin_tri[alone.triangle[on]]
+    H, W = skin.shape
+    proj = alone.camera.project(m.vertices)
+
+    def at(q):
+        ix, iy = int(round(q[0])), int(round(q[1]))
+        return (ix, iy) if 0 <= ix < W and 0 <= iy < H and skin[iy, ix] else None
+
+    def put(k, q, pix):
+        tv = faces[alone.triangle[pix[1], pix[0]]]
+        tris[k], bary[k] = tv, barycentric_2d(proj[tv, :2], np.asarray(q, np.float64))
+
+    moved = []
+    ys, xs = np.nonzero(skin)
+    brows = pts[17:27].mean(axis=0)
+    for c0, c1, upper, lower in _EYES:
+        axis = pts[c1] - pts[c0]
+        width = float(np.linalg.norm(axis))
+        if width < 1.0:
+            continue
+        up = np.array([axis[1], -axis[0]]) / width
+        if (brows - (pts[c0] + pts[c1]) / 2.0) @ up < 0:
+            up = -up
+        steps = np.arange(0.25, width, 0.25)[:, None] * up
+        for group, sign in ((upper, 1.0), (lower, -1.0)):
+            for k in group:
+                if at(pts[k]) is not None:
+                    continue
+                for q in pts[k] + sign * steps:
+                    pix = at(q)
+                    if pix is not None:
+                        put(k, q, pix)
+                        moved.append(k)
+                        break
+        for k in (c0, c1):
+            if at(pts[k]) is not None or not len(xs):
+                continue
+            dd = (xs - pts[k][0]) ** 2 + (ys - pts[k][1]) ** 2
+            j = int(np.argmin(dd))
+            if dd[j] <= (0.25 * width) ** 2:
+                put(k, (xs[j], ys[j]), (xs[j], ys[j]))
+                moved.append(k)
+    return sorted(moved)
 
 
 def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=None) -> LandmarkSearch:
@@ -323,6 +508,11 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         tris, bary, dist = pick(alone, character.meshes, pts, prim, radius=max(6, size // 40))
         _separate_lips(character, prim, alone, pts, tris, bary, radius=max(4, size // 40))
         _front_surface(character, prim, alone, pts, tris, bary, front, radius=max(8, size // 25))
+        if _jaw_onto_edge(character, prim, alone, pts, tris, bary):
+            log("landmarks: the face mesh ends along the jaw line (a mask): the jaw line put on its edge")
+        lids = _lids_on_rim(character, prim, alone, pts, tris, bary, front)
+        if lids:
+            log(f"landmarks: {', '.join(map(str, lids))} fell into the eye's opening: put on the lid's rim")
         if (tris < 0).any():
             bad = np.flatnonzero((tris < 0).any(axis=1))
             raise FaceNotFoundError(

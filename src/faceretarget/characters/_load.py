@@ -18,7 +18,12 @@ or a moved file is found in the cache.  ``faceretarget --no-cache`` (``$FACERETA
 
     {"format": "faceretarget.landmarks/1", "sha256": "...", "mesh": "H_DDS_HighRes", "vertices": 22249,
      "triangles": [[a, b, c], ...68], "bary": [[u, v, w], ...68], "up": [0, 1, 0], "front": [0, 0, 1],
-     "source": "found on a render"}
+     "source": "found on a render", "finder": 2}
+
+``finder`` is the version of the search that found them (:data:`faceretarget.capture.FINDER_VERSION`): an entry
+found by another version (or without one: before issue 34) is searched again and replaced, so an improved search
+reaches characters already cached.  Records given with ``--landmarks`` and those without ``"source": "found on a
+render"`` are used whatever their ``finder``.
 
 The read cache
 --------------
@@ -67,6 +72,16 @@ LANDMARKS_FORMAT = "faceretarget.landmarks/1"
 #: Regions of the 68 points, for grouping shapes by what they move.
 REGIONS = {"jaw line": range(0, 17), "brows": range(17, 27), "nose": range(27, 36), "eyes": range(36, 48),
            "mouth": range(48, 68)}
+
+
+#: The ``source`` of landmarks :func:`faceretarget.capture.find_landmarks` found.
+FOUND_ON_A_RENDER = "found on a render"
+
+
+def _finder_version() -> int:
+    from ..capture import FINDER_VERSION
+
+    return FINDER_VERSION
 
 
 def _quiet(*_a) -> None:
@@ -150,6 +165,9 @@ def _read_cache(character: Character, path: Path, sha: str, log) -> bool:
         return False
     if d.get("format") != LANDMARKS_FORMAT or d.get("sha256") != sha:
         return False
+    if str(d.get("source", "")).startswith(FOUND_ON_A_RENDER) and d.get("finder") != _finder_version():
+        log(f"landmarks: {cand} was found by an earlier search (finder {d.get('finder', 1)}): searched again")
+        return False
     try:
         _apply(character, d, str(cand))
     except (InvalidDataError, InputFileError, KeyError, ValueError, TypeError):
@@ -225,6 +243,8 @@ def _write_cache(character: Character, path: Path, sha: str, log) -> Path | None
     if not cache_enabled():
         return None
     d = landmark_record(character, sha)
+    if str(d.get("source", "")).startswith(FOUND_ON_A_RENDER):
+        d["finder"] = _finder_version()
     cand = landmark_cache_path(path, sha)
     try:
         cand.parent.mkdir(parents=True, exist_ok=True)
@@ -668,7 +688,10 @@ def _check_picture(ch: Character, out) -> Path:
     out = Path(out)
     res = getattr(ch, "search", None)
     if res is not None and res.image is not None:
-        img, pts = res.image, res.points
+        # the points where they were put on the surface, not where the landmarker saw them: a lid point it saw
+        # in the eye's opening or a jaw point moved onto a mask's edge shows where it went
+        img = res.image
+        pts = res.camera.project(ch.landmark_positions())[:, :2] if res.camera is not None else res.points
     else:
         from ..capture import face_region
         from ..character import character_frame
