@@ -474,6 +474,9 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
             v = {"up": up.tolist(), "front": front.tolist(), "found": r is not None,
                  "frontal": None if r is None else _frontal(r[0])}
             views.append(v)
+            log(f"landmarks: view {len(views)} from {np.round(front, 2).tolist()}: "
+                + ("no face" if r is None else f"a face, {v['frontal']:.0%} frontal")
+                + f" ({time.perf_counter() - t0:.1f} s)")
             if r is not None and (best is None or v["frontal"] > best[0]):
                 best = (v["frontal"], up, front, r[0], cam)
             if r is not None and v["frontal"] > (0.6 if character.front is not None
