@@ -229,6 +229,7 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
                             times: np.ndarray, head: HeadPose | None = None, *,
                             frame_times: np.ndarray | None = None, size: int = 512, backend: str = "auto",
                             progress: bool = False, colors: np.ndarray | None = None, pivot: np.ndarray | None = None,
+                            surface=None, fit_to: np.ndarray | None = None,
                             log: Callable[..., None] = print) -> dict:
     """Write an mp4 of ``video`` beside the character playing the take, with the video's audio.
 
@@ -262,9 +263,14 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
     progress : bool
         Show a progress bar.
     colors : (V, 3) float, optional
-        sRGB colour per vertex (a character's textures sampled at its vertices; default grey).
+        sRGB colour per vertex (default clay).
     pivot : (3,) float, optional
         Centre of the head's rotation, rig units (default the neutral's centroid).
+    surface : Surface, optional
+        The character's materials, textures and vertex colours (:class:`~faceretarget.render.Surface`;
+        :func:`~faceretarget.characters.character_look`), drawn as a glTF viewer draws them.
+    fit_to : (N, 3) float, optional
+        The points the camera frames (default the rig's vertices).
     log : callable
         Receives one line naming the renderer in use (and why the fast one is not, if so).
 
@@ -311,7 +317,7 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
         audio_s = max_frames / fps
     extra = {} if colors is None else {"color": colors}
     with MeshRenderer(rig.neutral, (size, size), backend=backend, mm_per_unit=rig.mm_per_unit, pivot=pivot,
-                      **extra) as renderer:
+                      surface=surface, fit_to=fit_to, **extra) as renderer:
         if renderer.reason:
             log(f"preview: rendering with {renderer.backend} (slow), not OpenGL: {renderer.reason}")
         else:
