@@ -12,7 +12,7 @@ the video) writes the animation back into a copy of the character's file; frame 
 and each of ours is compared with three.js by the mean CIE 1976 Delta E over the face, the eyes, the lips
 and the hair (``bench/_look_compare.py``).  The head is off so that the picture compares looks, not head
 motion (the preview turns the whole cropped head about the head joint, the file turns the head joint); the
-gaze the file carries on the eye joints is not shown by the preview (a difference in the eyes region).
+eyes turn with the gaze the file carries on the eye joints (the look of before did not turn them).
 With ``--speed`` it also times the whole preview video of those frames for the character with each look
 (frames per second, the OpenGL renderer).
 
@@ -37,8 +37,6 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _look_compare as lc  # noqa: E402
 
@@ -46,23 +44,26 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("FACERETARGET_DATA", REPO.parent / "shared" / "data"))
 
 
-def _renders(drive, look, w: np.ndarray, size: int) -> tuple[dict, object]:
-    """Our pictures of one frame: the preview (OpenGL, NumPy) and the vertex-colour look, one camera."""
+def _renders(drive, look, res, n: int, size: int) -> tuple[dict, object]:
+    """Our pictures of frame ``n``: the preview (OpenGL, NumPy; its vertices as the preview video takes them,
+    the eyes turned by the gaze the file carries) and the vertex-colour look of before (no gaze), one camera."""
     from faceretarget.characters import look_rig
+    from faceretarget.pipelines import TakeSampler
     from faceretarget.render import MeshRenderer
 
     out = {}
     kw = dict(pivot=look.pivot, mm_per_unit=look.rig.mm_per_unit)
+    v = TakeSampler(look.rig, res.weights, res.times, None, look.eye_turns(res.gaze)).vertices_at(res.times[n])
     with MeshRenderer(look.rig.neutral, (size, size), backend="gl", surface=look.surface, fit_to=look.frame,
                       **kw) as r:
         cam = r.camera
-        out["preview (OpenGL)"] = r.render(look.rig.evaluate(w))
+        out["preview (OpenGL)"] = r.render(v)
     with MeshRenderer(look.rig.neutral, (size, size), backend="numpy", surface=look.surface, camera=cam, **kw) as r:
-        out["preview (NumPy)"] = r.render(look.rig.evaluate(w))
+        out["preview (NumPy)"] = r.render(v)
     old, colors, pivot = look_rig(drive)
     with MeshRenderer(old.neutral, (size, size), backend="gl", color=colors, camera=cam, pivot=pivot,
                       mm_per_unit=old.mm_per_unit) as r:
-        out["vertex colours (before)"] = r.render(old.evaluate(w))
+        out["vertex colours (before)"] = r.render(old.evaluate(res.weights[n]))
     return out, cam
 
 
@@ -74,7 +75,8 @@ def _speed(video: Path, drive, look, res, tmp: Path) -> dict:
     old, colors, pivot = look_rig(drive)
     fps = {}
     for name, rig, kw in (("vertex colours", old, {"colors": colors, "pivot": pivot}),
-                          ("surface", look.rig, {"surface": look.surface, "pivot": look.pivot, "fit_to": look.frame})):
+                          ("surface", look.rig, {"surface": look.surface, "pivot": look.pivot, "fit_to": look.frame,
+                                                 "turns": look.eye_turns(res.gaze)})):
         c0 = time.process_time()
         info = write_animation_preview(tmp / f"speed_{name[0]}.mp4", video, rig, res.weights, res.times, None,
                                        backend="gl", log=lambda *_: None, **kw)
@@ -115,7 +117,7 @@ def main(argv=None) -> int:
         look = character_look(drive)
         n = min(args.frame, len(res.times) - 1)
         w = res.weights[n]
-        ours, cam = _renders(drive, look, w, args.size)
+        ours, cam = _renders(drive, look, res, n, args.size)
         spec = lc.three_spec(cam, character_frame(drive.character), float(res.times[n]))
         t0 = time.perf_counter()
         info = lc.render_three(glb, spec, tmp / "three.png", env)

@@ -535,6 +535,9 @@ class CharacterLook:
     frame : (N, 3) float
         The points the preview's camera frames (the face with a margin about it); the meshes reach further,
         so that the edge where they were cut stays out of the picture.
+    eyes : list of (role, indices, centre)
+        The eyeballs: a mesh that follows an eye joint entirely, its vertices in :attr:`rig` and the joint's
+        position (head frame), for :meth:`eye_turns`.
     """
 
     rig: Rig
@@ -542,6 +545,14 @@ class CharacterLook:
     colors: np.ndarray
     pivot: np.ndarray
     frame: np.ndarray
+    eyes: list = field(default_factory=list)
+
+    def eye_turns(self, gaze: dict | None) -> list:
+        """The eyeballs turning with ``gaze`` (``{"leftEye": Rotation, "rightEye": Rotation}``, head frame,
+        relative to the head: what ``animate`` writes on the eye joints) as
+        :class:`~faceretarget.pipelines.TakeSampler`'s ``turns``."""
+        gaze = gaze or {}
+        return [(idx, centre, gaze[role]) for role, idx, centre in self.eyes if role in gaze]
 
 
 def character_look(drive: DriveRig, *, margin: float = 0.7, reach: float = 1.6,
@@ -561,7 +572,8 @@ def character_look(drive: DriveRig, *, margin: float = 0.7, reach: float = 1.6,
     c = (reg.min(axis=0) + reg.max(axis=0)) / 2.0
     radius = 0.5 * float(np.ptp(reg, axis=0).max()) * (1.0 + margin)
     verts, counts, idx, cols, parts, framed = [], [], [], [], [], []
-    mats, tmat, uvs, vcols = [], [], [], []
+    mats, tmat, uvs, vcols, eyes = [], [], [], [], []
+    eye_joint = {j.name: role for role in ("leftEye", "rightEye") if (j := ch.joint(role)) is not None}
     n = 0
     for mi, m in enumerate(ch.meshes):
         tri = m.mesh.triangles()
@@ -588,6 +600,9 @@ def character_look(drive: DriveRig, *, margin: float = 0.7, reach: float = 1.6,
         else:
             uvs.append(np.zeros((int(keep_t.sum()), 3, 2)))
         vcols.append(m.vertex_colors[used] if m.vertex_colors is not None else np.ones((len(used), 4)))
+        if m.joint in eye_joint:
+            role = eye_joint[m.joint]
+            eyes.append((role, np.arange(len(used)) + n, ch.joint(role).position @ F.T))
         parts.append((mi, used, n))
         n += len(used)
     if not parts:
@@ -609,7 +624,8 @@ def character_look(drive: DriveRig, *, margin: float = 0.7, reach: float = 1.6,
     head = ch.joint("head")
     pivot = (head.position if head is not None and np.linalg.norm(head.position - c) < 2 * radius else c) @ F.T
     frame = np.concatenate(framed) @ F.T
-    return CharacterLook(rig, surface, np.clip(np.concatenate(cols), 0.0, 1.0), pivot, frame if len(frame) else V)
+    return CharacterLook(rig, surface, np.clip(np.concatenate(cols), 0.0, 1.0), pivot, frame if len(frame) else V,
+                         eyes)
 
 
 def look_rig(drive: DriveRig, *, margin: float = 0.7,

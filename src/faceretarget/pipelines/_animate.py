@@ -726,7 +726,8 @@ def _write_preview(res: AnimateResult, video, s: _Solved, drive, o: AnimateOptio
 
         look = character_look(drive)
         res.outputs.append(_preview(o.preview, shown, look.rig, res, o.preview_size, o.preview_backend, o.progress,
-                                    log, surface=look.surface, pivot=look.pivot, fit_to=look.frame))
+                                    log, surface=look.surface, pivot=look.pivot, fit_to=look.frame,
+                                    turns=look.eye_turns(res.gaze)))
     else:
         colors = {} if o.preview_colors is None else {"colors": o.preview_colors}
         res.outputs.append(_preview(o.preview, shown, s.play, res, o.preview_size, o.preview_backend, o.progress,
