@@ -204,6 +204,29 @@ def test_cards_mask_blend_and_cull_as_a_gltf_viewer(cards):
     assert bottom[1] > bottom[2] + 60 and top[2] > top[1] + 60
 
 
+def test_render_scene_draws_alpha_and_sides(cards):
+    """What ``character inspect`` and the landmark search render (render_scene, its own lights): the wall shows
+    through the masked card's transparent stripes, the glass mixes, the quad facing away is culled; only opaque
+    surfaces count as what is at a pixel."""
+    from faceretarget.render import look_at, render_scene
+
+    _, ch, _, _ = cards
+    cam = look_at([0.0, 0.0, 0.0], [0, 0, 1], [0, 1, 0], 2.2, (220, 220))
+    sr = render_scene(ch.meshes, cam)
+    names = [m.name for m in ch.meshes]
+    img = sr.image.astype(int)
+    wall = img[_pixel(cam, 0.9, -0.9, 0.0)]
+    row = _pixel(cam, 0.0, 0.45, 0.3)[0]
+    for k in range(8):
+        y, x = row, _pixel(cam, -0.8 + (k * STRIPES + STRIPES / 2) / 64, 0.45, 0.3)[1]
+        assert names[sr.mesh[y, x]] == ("wall" if k % 2 else "card"), k
+        if k % 2:
+            np.testing.assert_array_equal(img[y, x], wall)
+    glass = img[_pixel(cam, 0.6, -0.6, 0.5)]
+    assert names[sr.mesh[_pixel(cam, 0.6, -0.6, 0.5)]] == "wall" and glass[2] > wall[2] + 40
+    assert names[sr.mesh[_pixel(cam, 0.6, 0.7, 0.7)]] == "wall"                  # the quad facing away
+
+
 def test_cards_gl_matches_numpy(gl, cards):
     """Measured: mean |difference| 0.08 grey levels, none over 1."""
     _, _, mesh, surface = cards

@@ -468,26 +468,36 @@ def _render_surface(verts: np.ndarray, tris: np.ndarray, cam, surface: Surface, 
         out[hit] = _lit(_pixel_normals(verts, tris, t, bary[hit], cam.rotation, shading, vn), base[:, :3], light,
                         ambient, specular)
     blend = np.flatnonzero(shown & (modes == 2))
-    if not blend.size:
-        return out
-    # material by material, the farthest first (mean depth of its triangles' corners; larger is nearer)
-    mats = np.unique(tm[blend])
-    depth_of = {int(k): float(p[tris[blend[tm[blend] == k]], 2].mean()) for k in mats}
+    if blend.size:
+        def shade(tt, B):
+            rgba = surface.base_color(tris, tt, B, lod)
+            n = _pixel_normals(verts, tris, tt, B, cam.rotation, shading, vn)
+            return _lit(n, rgba[:, :3], light, ambient, specular), rgba[:, 3:4]
+
+        _blend_layers(out, zbuf, p, tris, blend, tm[blend], shade, W, H)
+    return out
+
+
+def _blend_layers(out: np.ndarray, zbuf: np.ndarray, p: np.ndarray, tris: np.ndarray, blend: np.ndarray,
+                  groups: np.ndarray, shade, W: int, H: int) -> None:
+    """Draw the blended triangles ``blend`` (indices into ``tris``) over ``out`` (H*W, 3) in place, as WebGL
+    does with depth writes off: group by group (``groups`` (n,), e.g. their materials), the farthest first
+    (mean depth of its triangles' corners; larger is nearer), within one back to front per pixel, each fragment
+    nearer than ``zbuf`` mixed by its alpha: ``a * colour + (1 - a) * below``.  ``shade(tt, B)`` gives the
+    colours (m, 3) and alphas (m, 1) of fragments on triangles ``tt`` at barycentrics ``B``."""
+    ids = np.unique(groups)
+    depth_of = {int(k): float(p[tris[blend[groups == k]], 2].mean()) for k in ids}
     for k in sorted(depth_of, key=depth_of.get):
-        tk = blend[tm[blend] == k]
-        frags = [f for f in _fragments(p, tris[tk], W, H)]
+        tk = blend[groups == k]
+        frags = list(_fragments(p, tris[tk], W, H))
         if not frags:
             continue
         pix, depth, tt, L0, L1, L2 = (np.concatenate(a) for a in zip(*frags, strict=True))
         front = depth > zbuf[pix]                  # depth-tested against the opaque surfaces, not written
         pix, depth, tt = pix[front], depth[front], tk[tt[front]]
-        B = np.stack([L0[front], L1[front], L2[front]], axis=1)
         if not pix.size:
             continue
-        rgba = surface.base_color(tris, tt, B, lod)
-        col = _lit(_pixel_normals(verts, tris, tt, B, cam.rotation, shading, vn), rgba[:, :3], light, ambient,
-                   specular)
-        a = rgba[:, 3:4]
+        col, a = shade(tt, np.stack([L0[front], L1[front], L2[front]], axis=1))
         order = np.lexsort((depth, pix))           # per pixel, the farthest first
         ps = pix[order]
         start = np.r_[0, np.flatnonzero(ps[1:] != ps[:-1]) + 1]
@@ -495,7 +505,6 @@ def _render_surface(verts: np.ndarray, tris: np.ndarray, cam, surface: Surface, 
         for r in range(int(rank.max()) + 1):
             sel = order[rank == r]
             out[pix[sel]] = a[sel] * col[sel] + (1.0 - a[sel]) * out[pix[sel]]
-    return out
 
 
 def render_frames(
