@@ -34,9 +34,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 import _look_compare as lc  # noqa: E402
 
 #: The bounds of the three.js comparison (mean Delta E), about twice what the preview measures on the VALID
-#: avatar's frame below (face 0.45, eyes 1.3, lips 0.7, hair 0.35); the vertex-colour look of before
-#: (no gaze) measured 1.74, 21.7, 1.75 and 4.0, over each.
-BOUND = {"face": 1.0, "eyes": 3.0, "lips": 1.2, "hair": 1.0}
+#: avatar's frame below (face 0.49, eyes 1.6, lips 0.77, hair 0.64: most of it texture filtering, one mip level
+#: where three.js blends two); the vertex-colour look of before (no gaze) measured 1.74, 21.7, 1.75 and 4.0.
+BOUND = {"face": 1.0, "eyes": 3.0, "lips": 1.5, "hair": 1.3}
 CARD_BOUND = 0.5  # the cards' picture (measured 0.14, the 99th percentile 0.56)
 
 
@@ -344,7 +344,7 @@ def _hue(lab: np.ndarray) -> float:
 
 def test_valid_eyes_show_their_iris(valid):
     """The iris pixels are dark and coloured as the texture's iris.  Measured: texture L* 13, chroma 11.8, hue
-    22 degrees (a dark red-brown); the preview (lit) 29, 8.7, 25; the vertex-colour look of before 53, 7.4, 44
+    22 degrees (a dark red-brown); the preview (lit) 27, 9.0, 24; the vertex-colour look of before 53, 7.4, 44
     (the iris blurred into the pink white of the eye: pale)."""
     drive, look = valid
     w = _expression(drive)

@@ -548,7 +548,7 @@ class _GLState:
             gt.build_mipmaps()
             for j in range(1, len(lv)):
                 gt.write(lv[j].tobytes(), level=j)
-            gt.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+            gt.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
             gt.repeat_x = gt.repeat_y = True
             self.textures[id(tex)] = gt
         self.tex_of = {k: (self.textures[id(sf.texture(k))] if sf.texture(k) is not None else None) for k in mats}
