@@ -141,6 +141,15 @@ def test_demo_command(tmp_path, capsys):
     assert m["temporal"]["rel_motion_pct"] < m["pyun"]["rel_motion_pct"]
     assert (tmp_path / "demo" / "clone.glb").stat().st_size > 10_000
     assert (tmp_path / "demo" / "preview.png").read_bytes()[:4] == b"\x89PNG"
+    video = tmp_path / "demo" / "preview.mp4"
+    if video.exists():                       # PyAV: issue 34, bo is previewed with eyes and lips, not in clay
+        from faceretarget.io import iter_frames
+
+        frame = next(rgb for i, _, rgb in iter_frames(video, max_frames=61) if i == 60)
+        bo = frame[:, frame.shape[1] // 2:].astype(int)
+        r, g, b = bo[..., 0], bo[..., 1], bo[..., 2]
+        assert ((b > r + 40) & (b > 100)).sum() > 20, "bo's blue irises"
+        assert ((r > g + 70) & (r > 150)).sum() > 200, "bo's red lips"
 
 
 def test_rig_unused(files):

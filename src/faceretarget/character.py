@@ -58,7 +58,8 @@ _MIN_ARKIT = 10
 
 @dataclass(eq=False)
 class Material:
-    """What a renderer needs of a surface: base colour (linear RGBA factor) and its texture.
+    """What a renderer needs of a surface: base colour (linear RGBA factor), its texture, and how its
+    alpha and its back faces are drawn (glTF's ``alphaMode``, ``alphaCutoff`` and ``doubleSided``).
 
     Attributes
     ----------
@@ -68,11 +69,23 @@ class Material:
     image_source : (H, W, 4) uint8 array or a function returning one (or None), optional
         Base-colour texture, sRGB, rows top-down (as the file stores it); read through :attr:`image`,
         decoded on first use so a character read only to be driven never decodes its textures.
+    alpha_mode : ``"OPAQUE"``, ``"MASK"`` or ``"BLEND"``
+        ``OPAQUE``: alpha is ignored; ``MASK``: a pixel whose alpha (factor times texture) is under
+        :attr:`alpha_cutoff` is not drawn (hair cards, lashes); ``BLEND``: drawn after the opaque
+        surfaces, back to front, blended by its alpha.
+    alpha_cutoff : float
+        ``MASK``'s threshold (glTF's default 0.5).
+    double_sided : bool
+        Both sides drawn; else back faces (clockwise as seen) are culled.  glTF says so per material
+        (default False); readers of formats that do not say draw both sides.
     """
 
     name: str = "material"
     color: np.ndarray = field(default_factory=lambda: np.array([0.8, 0.8, 0.8, 1.0]))
     image_source: object = None
+    alpha_mode: str = "OPAQUE"
+    alpha_cutoff: float = 0.5
+    double_sided: bool = True
 
     @property
     def image(self) -> np.ndarray | None:
@@ -146,6 +159,8 @@ class SceneMesh:
         The joint a rigid mesh follows entirely (an eyeball skinned to ``LeftEye``).
     skin_joints : (V, 4) int, optional / skin_weights : (V, 4) float, optional
         Linear-blend-skinning influences (joint indices into :attr:`Character.joints`), for posing.
+    vertex_colors : (V, 4) float, optional
+        Per-vertex colour, linear RGBA (glTF's ``COLOR_0``), multiplying the material's base colour.
     """
 
     name: str
@@ -159,6 +174,7 @@ class SceneMesh:
     joint: str | None = None
     skin_joints: np.ndarray | None = None
     skin_weights: np.ndarray | None = None
+    vertex_colors: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         V = self.mesh.n_vertices
@@ -170,6 +186,11 @@ class SceneMesh:
             k = int(np.flatnonzero(~np.isfinite(d).reshape(K, -1).all(axis=1))[0])
             raise InvalidDataError(f"{self.name}: shape '{self.shape_names[k]}' has non-finite values")
         self.deltas = d
+        if self.vertex_colors is not None:
+            c = np.asarray(self.vertex_colors, np.float64)
+            if c.ndim != 2 or c.shape[0] != V or c.shape[1] not in (3, 4):
+                raise InvalidDataError(f"{self.name}: vertex_colors must be ({V}, 4), got {c.shape}")
+            self.vertex_colors = np.concatenate([c, np.ones((V, 1))], axis=1) if c.shape[1] == 3 else c
         if self.shape_refs is None:
             self.shape_refs = list(range(K))
 

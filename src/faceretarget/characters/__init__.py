@@ -11,9 +11,11 @@ Blender extension use it; nothing below it imports it (``tests/test_architecture
 from ._generate import EYE_LOOK_DEGREES, LID_PAIRS, LIP_PAIRS, METHODS, GeneratedShapes, generate_shapes
 from ._load import (
     LANDMARKS_FORMAT,
+    CharacterLook,
     CharacterReport,
     DriveRig,
     apply_landmark_record,
+    character_look,
     character_weights,
     drive_rig,
     inspect_character,
@@ -26,7 +28,8 @@ from ._load import (
 )
 from ._template import load_template
 
-__all__ = ["load_character", "drive_rig", "DriveRig", "look_rig", "character_weights", "inspect_character",
+__all__ = ["load_character", "drive_rig", "DriveRig", "look_rig", "character_look", "CharacterLook",
+           "character_weights", "inspect_character",
            "CharacterReport", "landmark_cache_path", "landmark_record", "apply_landmark_record", "mesh_sha256",
            "read_landmark_file", "LANDMARKS_FORMAT", "generate_shapes", "GeneratedShapes", "load_template",
            "LID_PAIRS", "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS"]

@@ -64,7 +64,7 @@ from ..formats import JSON, character_format_of
 from ..rig import Rig
 
 __all__ = ["load_character", "drive_rig", "DriveRig", "inspect_character", "CharacterReport", "landmark_cache_path",
-           "look_rig", "character_weights", "landmark_record", "apply_landmark_record", "mesh_sha256",
+           "look_rig", "character_look", "CharacterLook", "character_weights", "landmark_record", "apply_landmark_record", "mesh_sha256",
            "read_landmark_file",
            "LANDMARKS_FORMAT"]
 
@@ -536,50 +536,93 @@ def character_weights(drive: DriveRig, weights: np.ndarray, names: list[str]) ->
 
 
 # ------------------------------------------------------------------------------------- preview
-def look_rig(drive: DriveRig, *, margin: float = 0.7,
-             channels: list[int] | None = None) -> tuple[Rig, np.ndarray, np.ndarray]:
-    """The character as it looks around its face, for preview videos: every mesh cropped to a sphere
-    about the face (the face region's extent times ``1 + margin``), face meshes moving with the driving
-    channels (or with ``channels``, indices into ``drive.channels``), the others still; colours from the
-    textures (sampled at each vertex's UVs) or materials.
+@dataclass(eq=False)
+class CharacterLook:
+    """The character as a preview shows it (:func:`character_look`).
 
-    Returns
-    -------
+    Attributes
+    ----------
     rig : Rig
-        Head frame (+Y up, +Z out of the face), metres; the driving channels' shapes in
-        ``drive.rig``'s order (or those of ``channels``, named as the channels).
+        Every mesh about the face, head frame (+Y up, +Z out of the face), metres; the face meshes move with
+        the shapes (the driving channels in ``drive.rig``'s order, or those asked for).
+    surface : Surface
+        Each triangle's material (base colour, texture, alpha mode, sides), texture coordinates per corner,
+        vertex colours: what :class:`~faceretarget.render.MeshRenderer` draws as a glTF viewer would.
     colors : (V, 3) float
-        sRGB 0..1 per vertex.
+        sRGB per vertex (the textures sampled at the vertices): a flat stand-in for the surface.
     pivot : (3,) float
-        The head joint (or the face region's centre), head frame: the centre of the preview's head
-        rotations.
+        The head joint (or the face region's centre), head frame: the centre of the head's rotations.
+    frame : (N, 3) float
+        The points the preview's camera frames (the face with a margin about it); the meshes reach further,
+        so that the edge where they were cut stays out of the picture.
+    eyes : list of (role, indices, centre)
+        The eyeballs: a mesh that follows an eye joint entirely, its vertices in :attr:`rig` and the joint's
+        position (head frame), for :meth:`eye_turns`.
     """
+
+    rig: Rig
+    surface: object
+    colors: np.ndarray
+    pivot: np.ndarray
+    frame: np.ndarray
+    eyes: list = field(default_factory=list)
+
+    def eye_turns(self, gaze: dict | None) -> list:
+        """The eyeballs turning with ``gaze`` (``{"leftEye": Rotation, "rightEye": Rotation}``, head frame,
+        relative to the head: what ``animate`` writes on the eye joints) as
+        :class:`~faceretarget.pipelines.TakeSampler`'s ``turns``."""
+        gaze = gaze or {}
+        return [(idx, centre, gaze[role]) for role, idx, centre in self.eyes if role in gaze]
+
+
+def character_look(drive: DriveRig, *, margin: float = 0.7, reach: float = 1.6,
+                   channels: list[int] | None = None) -> CharacterLook:
+    """The character as it looks around its face, for preview videos: every mesh cropped to a sphere about
+    the face (``reach`` times the framed one: the face region's extent times ``1 + margin``), face meshes
+    moving with the driving channels (or with ``channels``, indices into ``drive.channels``), the others still;
+    materials and textures as the file gives them (:class:`CharacterLook`)."""
     from ..capture import face_region
-    from ..character import character_frame
+    from ..character import Material, character_frame
     from ..mesh import Mesh
+    from ..render import Surface
 
     ch = drive.character
     F = character_frame(ch)
     reg = face_region(ch)
     c = (reg.min(axis=0) + reg.max(axis=0)) / 2.0
     radius = 0.5 * float(np.ptp(reg, axis=0).max()) * (1.0 + margin)
-    verts, counts, idx, cols, parts = [], [], [], [], []
+    verts, counts, idx, cols, parts, framed = [], [], [], [], [], []
+    mats, tmat, uvs, vcols, eyes = [], [], [], [], []
+    eye_joint = {j.name: role for role in ("leftEye", "rightEye") if (j := ch.joint(role)) is not None}
     n = 0
     for mi, m in enumerate(ch.meshes):
         tri = m.mesh.triangles()
         if not len(tri):
             continue
-        inside = np.linalg.norm(m.mesh.vertices - c, axis=1) < radius
-        keep_t = inside[tri].all(axis=1)
+        dist = np.linalg.norm(m.mesh.vertices - c, axis=1)
+        keep_t = (dist < reach * radius)[tri].all(axis=1)
         if not keep_t.any():
             continue
         used = np.unique(tri[keep_t])
         remap = np.full(m.mesh.n_vertices, -1, np.int64)
         remap[used] = np.arange(len(used)) + n
         verts.append(m.mesh.vertices[used])
+        framed.append(m.mesh.vertices[used][dist[used] < radius])
         counts.append(np.full(int(keep_t.sum()), 3))
         idx.append(remap[tri[keep_t]].reshape(-1))
         cols.append(_vertex_colors(m, used, tri, keep_t))
+        own = m.materials or [Material("default")]
+        tm = m.triangle_material if m.triangle_material is not None and m.materials else np.zeros(len(tri), np.int64)
+        tmat.append(np.asarray(tm, np.int64)[keep_t] + len(mats))
+        mats.extend(own)
+        if m.mesh.uvs is not None:
+            uvs.append(m.mesh.uvs[m.mesh.triangle_uv_indices()[keep_t]])
+        else:
+            uvs.append(np.zeros((int(keep_t.sum()), 3, 2)))
+        vcols.append(m.vertex_colors[used] if m.vertex_colors is not None else np.ones((len(used), 4)))
+        if m.joint in eye_joint:
+            role = eye_joint[m.joint]
+            eyes.append((role, np.arange(len(used)) + n, ch.joint(role).position @ F.T))
         parts.append((mi, used, n))
         n += len(used)
     if not parts:
@@ -595,9 +638,37 @@ def look_rig(drive: DriveRig, *, margin: float = 0.7,
     V = np.concatenate(verts) @ F.T
     rig = Rig(Mesh(V, np.concatenate(counts), np.concatenate(idx), name=ch.name), names, D @ F.T,
               unit="m", name=ch.name, keep_names=True)
+    any_colors = any(ch.meshes[mi].vertex_colors is not None for mi, _, _ in parts)
+    surface = Surface(mats, np.concatenate(tmat), np.concatenate(uvs),
+                      np.concatenate(vcols) if any_colors else None)
     head = ch.joint("head")
     pivot = (head.position if head is not None and np.linalg.norm(head.position - c) < 2 * radius else c) @ F.T
-    return rig, np.clip(np.concatenate(cols), 0.0, 1.0), pivot
+    frame = np.concatenate(framed) @ F.T
+    return CharacterLook(rig, surface, np.clip(np.concatenate(cols), 0.0, 1.0), pivot, frame if len(frame) else V,
+                         eyes)
+
+
+def look_rig(drive: DriveRig, *, margin: float = 0.7,
+             channels: list[int] | None = None) -> tuple[Rig, np.ndarray, np.ndarray]:
+    """The character as it looks around its face, as a rig, vertex colours and a pivot: every mesh cropped
+    to a sphere about the face (the face region's extent times ``1 + margin``), face meshes moving with the
+    driving channels (or with ``channels``, indices into ``drive.channels``), the others still; colours from
+    the textures (sampled at each vertex's UVs) or materials.  :func:`character_look` gives the textures,
+    alpha modes and sides themselves, as the preview draws them.
+
+    Returns
+    -------
+    rig : Rig
+        Head frame (+Y up, +Z out of the face), metres; the driving channels' shapes in
+        ``drive.rig``'s order (or those of ``channels``, named as the channels).
+    colors : (V, 3) float
+        sRGB 0..1 per vertex.
+    pivot : (3,) float
+        The head joint (or the face region's centre), head frame: the centre of the preview's head
+        rotations.
+    """
+    look = character_look(drive, margin=margin, reach=1.0, channels=channels)
+    return look.rig, look.colors, look.pivot
 
 
 def _vertex_colors(m, used: np.ndarray, tri: np.ndarray, keep_t: np.ndarray) -> np.ndarray:

@@ -338,10 +338,18 @@ def _uv_transform(uv: np.ndarray, tex: dict) -> np.ndarray:
 
 
 def _material(doc: GltfDocument, mi: int | None, images: dict) -> tuple[Material, int, dict]:
-    """The material (base colour and image), the TEXCOORD set it samples, and its texture info."""
+    """The material (base colour and image, alpha mode, sides), the TEXCOORD set it samples, and its
+    texture info."""
     if mi is None:
-        return Material("default"), 0, {}
+        return Material("default", np.ones(4), double_sided=False), 0, {}   # glTF's default material
     m = doc.json["materials"][mi]
+    mode = str(m.get("alphaMode", "OPAQUE")).upper()
+    if mode not in ("OPAQUE", "MASK", "BLEND"):
+        doc.notes.append(f"material '{m.get('name', mi)}': alphaMode '{excerpt(mode, 20)}' is not glTF's; drawn "
+                         "opaque")
+        mode = "OPAQUE"
+    sides = {"alpha_mode": mode, "alpha_cutoff": float(m.get("alphaCutoff", 0.5)),
+             "double_sided": bool(m.get("doubleSided", False))}
     pbr = m.get("pbrMetallicRoughness", {})
     color = np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0]), dtype=np.float64)
     tex = pbr.get("baseColorTexture")
@@ -365,7 +373,7 @@ def _material(doc: GltfDocument, mi: int | None, images: dict) -> tuple[Material
             if src not in images:
                 images[src] = _lazy_image(doc, src)
             image = images[src]
-    return Material(str(m.get("name", f"material{mi}")), color, image), texcoord, tex or {}
+    return Material(str(m.get("name", f"material{mi}")), color, image, **sides), texcoord, tex or {}
 
 
 def _lazy_image(doc: GltfDocument, i: int) -> EncodedImage | None:
@@ -426,9 +434,9 @@ def _primitive(doc: GltfDocument, mesh_i: int, p_i: int, prim: dict, images: dic
     if uv is not None:
         uv = _uv_transform(uv[:, :2].astype(np.float64), tex)
     col = attr("COLOR_0")
-    if col is not None and not mat.has_image:
-        c = np.clip(col[:, :3].astype(np.float64), 0, 1).mean(axis=0)
-        mat = Material(mat.name, np.r_[mat.color[:3] * c, mat.color[3]], None)
+    if col is not None:                                       # linear RGB(A), normalised when integer
+        col = np.clip(col.astype(np.float64), 0.0, 1.0)
+        col = np.concatenate([col[:, :3], col[:, 3:4] if col.shape[1] > 3 else np.ones((V, 1))], axis=1)
     targets = []
     for k, tg in enumerate(prim.get("targets", [])):
         if "POSITION" in tg:
@@ -450,7 +458,7 @@ def _primitive(doc: GltfDocument, mesh_i: int, p_i: int, prim: dict, images: dic
             ws.append(doc.accessor(attrs_idx[f"WEIGHTS_{s}"]).astype(np.float64)[:, :4])
         if js:
             joints, weights = np.concatenate(js, axis=1), np.concatenate(ws, axis=1)
-    return pos, tri, uv, mat, targets, joints, weights
+    return pos, tri, uv, mat, targets, joints, weights, col
 
 
 def _skin_matrices(doc: GltfDocument, skin_i: int, world: list[np.ndarray]) -> tuple[np.ndarray, list[int]]:
@@ -574,9 +582,10 @@ def _read(path: Path) -> Character:
         if any(len(p[4]) != K for p in parts):
             doc.notes.append(f"mesh '{gm.get('name', mi)}': primitives have different morph target counts; "
                              "the missing ones are zero")
-        pos, tris, uvs, mats, tmat, tg, js_, ws_ = [], [], [], [], [], [], [], []
+        pos, tris, uvs, mats, tmat, tg, js_, ws_, cols = [], [], [], [], [], [], [], [], []
         off = 0
-        for k, (p, t, uv, mat, targets, jn, wt) in enumerate(parts):
+        for k, (p, t, uv, mat, targets, jn, wt, col) in enumerate(parts):
+            cols.append(col if col is not None else np.ones((len(p), 4)))
             pos.append(p)
             tris.append(t + off)
             uvs.append(uv if uv is not None else np.zeros((len(p), 2)))
@@ -606,7 +615,8 @@ def _read(path: Path) -> Character:
                 rigid = node_names[int(dom[0])]
         meshes.append(SceneMesh(node_names[ni], f"node:{ni}", m, _target_names(doc, gm, K), D.astype(np.float32),
                                 mats, np.concatenate(tmat), joint=rigid,
-                                skin_joints=jn, skin_weights=jw))
+                                skin_joints=jn, skin_weights=jw,
+                                vertex_colors=np.concatenate(cols) if any(p[7] is not None for p in parts) else None))
     joints = [Joint(node_names[i], parent[i], world[i], f"node:{i}", local[i]) for i in range(len(nodes))]
     fmt, up, front = "gltf", np.array([0.0, 1.0, 0.0]), None
     expressions: dict = {}

@@ -433,6 +433,10 @@ class AnimateOptions:
         Pixels of the character's half of the preview.
     preview_backend : str
         ``"auto"``, ``"gl"`` or ``"numpy"`` (:func:`~faceretarget.render.preview_renderer`).
+    preview_colors : (V, 3) float, optional
+        For a rig given as the character: the sRGB colour (0..1) of each of its vertices in the preview
+        (the demo's faces: :func:`~faceretarget.datasets.demo_vertex_colors`); default clay.  A character
+        file's preview shows its own materials and textures.
     bake : bool
         USD output: mesh points per frame instead of blend-shape weights.
     progress : bool
@@ -464,6 +468,7 @@ class AnimateOptions:
     landmarker: str | os.PathLike | None = None
     preview_size: int = 512
     preview_backend: str = "auto"
+    preview_colors: np.ndarray | None = None
     bake: bool = False
     progress: bool = False
     shapes: str = "auto"
@@ -717,14 +722,16 @@ def _write_preview(res: AnimateResult, video, s: _Solved, drive, o: AnimateOptio
         raise InvalidDataError(f"{o.preview}: a preview of a capture or take needs the video to show beside "
                                "the character (preview_video)")
     if drive is not None:
-        from ..characters import look_rig
+        from ..characters import character_look
 
-        look, colors, pivot = look_rig(drive)
-        res.outputs.append(_preview(o.preview, shown, look, res, o.preview_size, o.preview_backend, o.progress,
-                                    log, colors=colors, pivot=pivot))
+        look = character_look(drive)
+        res.outputs.append(_preview(o.preview, shown, look.rig, res, o.preview_size, o.preview_backend, o.progress,
+                                    log, surface=look.surface, pivot=look.pivot, fit_to=look.frame,
+                                    turns=look.eye_turns(res.gaze)))
     else:
+        colors = {} if o.preview_colors is None else {"colors": o.preview_colors}
         res.outputs.append(_preview(o.preview, shown, s.play, res, o.preview_size, o.preview_backend, o.progress,
-                                    log))
+                                    log, **colors))
 
 
 def _eye_joints(drive, take: Performance) -> dict:

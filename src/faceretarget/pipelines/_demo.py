@@ -93,7 +93,7 @@ def _main_job(out: Path, ada, bo, take, src, truth, noise_mm: float, log, progre
 
         log(f"no preview video: PyAV is missing ({install_line('av')}; make demo installs it)")
     res = animate(tracked, bo, out=out / "animate.glb", preview=preview, preview_size=384,
-                  preview_video=video, progress=progress, log=log)
+                  preview_video=video, preview_colors=demo_vertex_colors("bo"), progress=progress, log=log)
     pred = bo.evaluate(res.weights)
     m = metrics(pred, truth, bo.neutral.vertices, bo)
     log("animate ada -> bo (bo's own shapes from the tracked landmarks), against bo driven by ada's true weights:")

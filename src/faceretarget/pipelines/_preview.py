@@ -48,9 +48,15 @@ class TakeSampler:
         ``T`` frames.  Its translation (metres) is taken relative to its median over the frames that
         have one, so the head moves about the place it usually is (a video capture's translation is
         from the camera).
+    turns : list of (indices, centre, Rotation), optional
+        Parts of the rig that turn rigidly about a point (an eyeball about its eye joint: the gaze a
+        character file carries, :meth:`~faceretarget.characters.CharacterLook.eye_turns`): vertex
+        indices, the centre (rig units) and a :class:`scipy.spatial.transform.Rotation` of ``T`` keys
+        (slerp between them).
     """
 
-    def __init__(self, rig: Rig, weights: np.ndarray, times: np.ndarray, head: HeadPose | None = None) -> None:
+    def __init__(self, rig: Rig, weights: np.ndarray, times: np.ndarray, head: HeadPose | None = None,
+                 turns: list | None = None) -> None:
         W = np.asarray(weights, np.float64)
         t = np.asarray(times, np.float64)
         K = rig.n_shapes
@@ -77,6 +83,15 @@ class TakeSampler:
         self._D = np.ascontiguousarray(rig.deltas.reshape(K, -1), dtype=np.float32)
         self._rest = rig.neutral.vertices.reshape(-1).astype(np.float32)
         self._head_t, self._head_q, self._head_tr = _head_samples(head, t)
+        self._turns = []
+        for idx, centre, rot in turns or ():
+            q = np.atleast_2d(rot.as_quat())
+            if len(q) != len(W):
+                raise InvalidDataError(f"preview of {rig.name}: a turning part has {len(q)} rotations for {len(W)} "
+                                       "frames")
+            flip = np.cumprod(np.where(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0, -1.0, 1.0))
+            q[1:] *= flip[:, None]
+            self._turns.append((np.asarray(idx, np.int64), np.asarray(centre, np.float32).reshape(3), q))
 
     def weights_at(self, time: float) -> np.ndarray:
         """(K,) weights at ``time`` seconds."""
@@ -86,7 +101,13 @@ class TakeSampler:
     def vertices_at(self, time: float) -> np.ndarray:
         """(V, 3) float32 face vertices (rig units, before head motion) at ``time`` seconds."""
         w = self.weights_at(time).astype(np.float32)
-        return (np.einsum("k,kn->n", w, self._D) + self._rest).reshape(-1, 3)
+        v = (np.einsum("k,kn->n", w, self._D) + self._rest).reshape(-1, 3)
+        if self._turns:
+            i, a = _bracket(self.times, time)
+            for idx, c, q in self._turns:
+                R = _quat_matrix(q[i] if a == 0.0 else _slerp(q[i], q[i + 1], a)).astype(np.float32)
+                v[idx] = (v[idx] - c) @ R.T + c
+        return v
 
     def head_at(self, time: float) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Head rotation (3, 3) and translation (3,) metres at ``time``, each None without one."""
@@ -229,6 +250,7 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
                             times: np.ndarray, head: HeadPose | None = None, *,
                             frame_times: np.ndarray | None = None, size: int = 512, backend: str = "auto",
                             progress: bool = False, colors: np.ndarray | None = None, pivot: np.ndarray | None = None,
+                            surface=None, fit_to: np.ndarray | None = None, turns: list | None = None,
                             log: Callable[..., None] = print) -> dict:
     """Write an mp4 of ``video`` beside the character playing the take, with the video's audio.
 
@@ -262,9 +284,16 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
     progress : bool
         Show a progress bar.
     colors : (V, 3) float, optional
-        sRGB colour per vertex (a character's textures sampled at its vertices; default grey).
+        sRGB colour per vertex (default clay).
     pivot : (3,) float, optional
         Centre of the head's rotation, rig units (default the neutral's centroid).
+    surface : Surface, optional
+        The character's materials, textures and vertex colours (:class:`~faceretarget.render.Surface`;
+        :func:`~faceretarget.characters.character_look`), drawn as a glTF viewer draws them.
+    fit_to : (N, 3) float, optional
+        The points the camera frames (default the rig's vertices).
+    turns : list, optional
+        Rigid parts turning with the take (the eyes with the gaze: :class:`TakeSampler`).
     log : callable
         Receives one line naming the renderer in use (and why the fast one is not, if so).
 
@@ -293,7 +322,7 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
     size = int(size)
     if size < 16:
         raise InvalidDataError(f"{out}: preview size must be at least 16 pixels, got {size}")
-    sampler = TakeSampler(rig, weights, times, head)
+    sampler = TakeSampler(rig, weights, times, head, turns)
     max_frames = None
     ft = None
     if frame_times is not None:
@@ -311,7 +340,7 @@ def write_animation_preview(out: str | os.PathLike, video: str | os.PathLike, ri
         audio_s = max_frames / fps
     extra = {} if colors is None else {"color": colors}
     with MeshRenderer(rig.neutral, (size, size), backend=backend, mm_per_unit=rig.mm_per_unit, pivot=pivot,
-                      **extra) as renderer:
+                      surface=surface, fit_to=fit_to, **extra) as renderer:
         if renderer.reason:
             log(f"preview: rendering with {renderer.backend} (slow), not OpenGL: {renderer.reason}")
         else:

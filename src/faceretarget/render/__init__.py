@@ -1,5 +1,6 @@
 """Preview rendering: the NumPy rasteriser (no system dependencies) and :class:`MeshRenderer`, the fast
-OpenGL (EGL) path for preview videos that falls back to it."""
+OpenGL (EGL) path for preview videos that falls back to it; both draw a :class:`Surface` (materials,
+textures, alpha modes, sides) as a glTF viewer does."""
 
 from ._gl import GL_PACKAGES, MeshRenderer, gl_available
 from ._preview import (
@@ -16,6 +17,7 @@ from ._preview import (
     view_rotation,
 )
 from ._scene import SceneRender, barycentric_2d, look_at, pick, render_scene
+from ._surface import ALPHA_MODES, Surface, scene_surface
 
 __all__ = [
     "render_scene",
@@ -24,6 +26,9 @@ __all__ = [
     "pick",
     "barycentric_2d",
     "MeshRenderer",
+    "Surface",
+    "scene_surface",
+    "ALPHA_MODES",
     "gl_available",
     "GL_PACKAGES",
     "Camera",

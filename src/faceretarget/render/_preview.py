@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import InvalidDataError
 from ..mesh import Mesh
+from ._surface import Surface, front_facing
 
 __all__ = [
     "Camera",
@@ -181,16 +182,37 @@ def _vertex_normals(v: np.ndarray, tris: np.ndarray) -> np.ndarray:
     return n / np.where(ln > 0, ln, 1.0)
 
 
-def _rasterize(p: np.ndarray, tris: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+def _rasterize(p: np.ndarray, tris: np.ndarray, W: int, H: int, *, keep=None, zbuf: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Z-buffer ``tris`` over projected points ``p`` (pixel x, pixel y, depth; larger depth is nearer).
+
+    ``keep(tt, L0, L1, L2) -> bool mask``, when given, drops fragments before the depth test (a
+    material's alpha under its cutoff); ``zbuf`` (H*W,), when given, is the depth buffer used and
+    updated in place (``-inf`` where empty).
 
     Returns ``tri_id`` ``(H*W,)`` (-1 where empty) and barycentrics ``(H*W, 3)``.
     """
     tri_id = np.full(H * W, -1, np.int64)
     bary = np.zeros((H * W, 3))
-    zbuf = np.full(H * W, -np.inf)
+    if zbuf is None:
+        zbuf = np.full(H * W, -np.inf)
+    for pix, depth, tt, L0, L1, L2 in _fragments(p, tris, W, H):
+        if keep is not None:
+            k = keep(tt, L0, L1, L2)
+            if not k.all():
+                pix, depth, tt, L0, L1, L2 = pix[k], depth[k], tt[k], L0[k], L1[k], L2[k]
+            if not tt.size:
+                continue
+        _keep_nearest(zbuf, tri_id, bary, pix, depth, tt, (L0, L1, L2))
+    return tri_id, bary
+
+
+def _fragments(p: np.ndarray, tris: np.ndarray, W: int, H: int) -> Iterator[tuple[np.ndarray, ...]]:
+    """Every pixel centre inside each triangle of ``tris`` over projected points ``p``, in batches:
+    ``(pix, depth, tt, L0, L1, L2)``, each (m,): pixel index ``y * W + x``, interpolated depth, the
+    triangle (an index into ``tris``) and the three barycentrics."""
     if not len(tris):
-        return tri_id, bary
+        return
     x, y, z = p[tris, 0], p[tris, 1], p[tris, 2]  # (F, 3)
     ix0, ix1, iy0, iy1 = _pixel_boxes(x, y, W, H)
     a, b, c, ok = _edge_functions(x, y, ix0, ix1, iy0, iy1)
@@ -211,8 +233,7 @@ def _rasterize(p: np.ndarray, tris: np.ndarray, W: int, H: int) -> tuple[np.ndar
                 continue
             depth = L0 * z[tt, 0] + L1 * z[tt, 1] + L2 * z[tt, 2]
             pix = (iy0[tt] + oy[ci]) * W + (ix0[tt] + ox[ci])
-            _keep_nearest(zbuf, tri_id, bary, pix, depth, tt, (L0, L1, L2))
-    return tri_id, bary
+            yield pix, depth, tt, L0, L1, L2
 
 
 def _pixel_boxes(x: np.ndarray, y: np.ndarray, W: int, H: int
@@ -312,6 +333,7 @@ def render_mesh(
     ambient: float = 0.22,
     specular: float = 0.12,
     antialias: int = 1,
+    surface: Surface | None = None,
 ) -> np.ndarray:
     """Render a mesh to an ``(H, W, 3)`` uint8 image.
 
@@ -340,6 +362,9 @@ def render_mesh(
         Ambient light level and Blinn-Phong highlight strength.
     antialias : int
         Supersampling factor (1 = off; 2 renders 4x the pixels and averages).
+    surface : Surface, optional
+        Materials, textures and vertex colours (:class:`~faceretarget.render.Surface`), drawn as a glTF
+        viewer draws them (alpha masks and blending, culled back faces); ``color`` is then not used.
     """
     verts, tris = _faces_of(mesh_or_vertices, faces_mesh)
     if shading not in ("smooth", "flat"):
@@ -350,16 +375,20 @@ def render_mesh(
     W, H = camera.size
     cam = Camera(camera.rotation, camera.center, camera.scale * ss, (W * ss, H * ss)) if ss > 1 else camera
     Ws, Hs = cam.size
-    p = cam.project(verts)
-    tri_id, bary = _rasterize(p, tris, Ws, Hs)
-
     bg = np.clip(np.asarray(background, np.float64).reshape(3), 0.0, 1.0)
-    out = np.empty((Hs * Ws, 3))
-    out[:] = bg
-    hit = np.flatnonzero(tri_id >= 0)
-    if hit.size:
-        out[hit] = _shade(verts, tris, tri_id[hit], bary[hit], cam.rotation, shading=shading, light=light,
-                          color=color, ambient=ambient, specular=specular)
+    if surface is not None:
+        surface.check(len(tris), len(verts))
+        out = _render_surface(verts, tris, cam, surface, shading=shading, light=light, ambient=ambient,
+                             specular=specular, background=bg)
+    else:
+        p = cam.project(verts)
+        tri_id, bary = _rasterize(p, tris, Ws, Hs)
+        out = np.empty((Hs * Ws, 3))
+        out[:] = bg
+        hit = np.flatnonzero(tri_id >= 0)
+        if hit.size:
+            out[hit] = _shade(verts, tris, tri_id[hit], bary[hit], cam.rotation, shading=shading, light=light,
+                              color=color, ambient=ambient, specular=specular)
     out = out.reshape(Hs, Ws, 3)
     if ss > 1:
         out = out.reshape(H, ss, W, ss, 3).mean(axis=(1, 3))
@@ -372,7 +401,19 @@ def _shade(verts: np.ndarray, tris: np.ndarray, t: np.ndarray, B: np.ndarray, R:
     """(n, 3) sRGB colours (0..1) of n covered pixels, each on triangle ``t`` (n,) of ``tris`` (F, 3)
     at barycentrics ``B`` (n, 3); ``verts`` (V, 3) in world space, ``R`` the world-to-view rotation.
     The other arguments are :func:`render_mesh`'s."""
-    n = _pixel_normals(verts, tris, t, B, R, shading)
+    col = np.asarray(color, np.float64)
+    if col.ndim == 2:
+        if col.shape != (len(verts), 3):
+            raise InvalidDataError(f"per-vertex colours must be ({len(verts)}, 3), got {col.shape}")
+        base = _srgb_to_linear(np.einsum("pk,pkd->pd", B, col[tris[t]]))
+    else:
+        base = _srgb_to_linear(col.reshape(1, 3))
+    return _lit(_pixel_normals(verts, tris, t, B, R, shading), base, light, ambient, specular)
+
+
+def _lit(n: np.ndarray, base: np.ndarray, light: Sequence[float], ambient: float, specular: float) -> np.ndarray:
+    """(n, 3) sRGB 0..1 of linear base colours ``base`` (n or 1, 3) under the preview's lights at unit
+    view-space normals ``n`` (n, 3): key and fill Lambert, an ambient term and a Blinn-Phong highlight."""
     L = np.asarray(light, np.float64).reshape(3)
     L = L / max(np.linalg.norm(L), 1e-12)
     fill = np.array([0.6, -0.1, 0.8])
@@ -381,23 +422,16 @@ def _shade(verts: np.ndarray, tris: np.ndarray, t: np.ndarray, B: np.ndarray, R:
     half = L + np.array([0.0, 0.0, 1.0])
     half /= np.linalg.norm(half)
     spec = specular * np.clip(n @ half, 0, None) ** 40
-    col = np.asarray(color, np.float64)
-    if col.ndim == 2:
-        if col.shape != (len(verts), 3):
-            raise InvalidDataError(f"per-vertex colours must be ({len(verts)}, 3), got {col.shape}")
-        base = _srgb_to_linear(np.einsum("pk,pkd->pd", B, col[tris[t]]))
-    else:
-        base = _srgb_to_linear(col.reshape(1, 3))
     return _linear_to_srgb(base * (ambient + diff)[:, None] + spec[:, None])
 
 
 def _pixel_normals(verts: np.ndarray, tris: np.ndarray, t: np.ndarray, B: np.ndarray, R: np.ndarray,
-                   shading: str) -> np.ndarray:
+                   shading: str, vn: np.ndarray | None = None) -> np.ndarray:
     """(n, 3) unit view-space normals at n pixels (triangle ``t`` (n,), barycentrics ``B`` (n, 3)),
-    interpolated from vertex normals (``"smooth"``) or the triangle's own (``"flat"``), turned
-    toward the viewer."""
+    interpolated from vertex normals (``"smooth"``; ``vn`` (V, 3) world-space when already known) or
+    the triangle's own (``"flat"``), turned toward the viewer."""
     if shading == "smooth":
-        vn = _vertex_normals(verts, tris) @ R.T
+        vn = (_vertex_normals(verts, tris) if vn is None else vn) @ R.T
         n = np.einsum("pk,pkd->pd", B, vn[tris[t]])
     else:
         v = verts @ R.T
@@ -407,6 +441,70 @@ def _pixel_normals(verts: np.ndarray, tris: np.ndarray, t: np.ndarray, B: np.nda
     # two-sided: a face seen from behind is lit as if it faced the viewer
     n *= np.where(n[:, 2:3] < 0, -1.0, 1.0)
     return n
+
+
+def _render_surface(verts: np.ndarray, tris: np.ndarray, cam, surface: Surface, *, shading: str, light, ambient: float,
+                   specular: float, background: np.ndarray) -> np.ndarray:
+    """The NumPy rasteriser's picture of a mesh with a :class:`~faceretarget.render.Surface` (as its module,
+    ``render/_surface.py``, says): ``(H*W, 3)`` sRGB 0..1, rows of ``cam.size``."""
+    W, H = cam.size
+    p = cam.project(verts)
+    tm = surface.triangle_material
+    modes = surface.modes()[tm]
+    shown = surface.double_sided()[tm] | front_facing(p, tris)
+    lod = surface.lod(p, tris)
+    vn = _vertex_normals(verts, tris) if shading == "smooth" else None
+    out = np.empty((H * W, 3))
+    out[:] = background
+    zbuf = np.full(H * W, -np.inf)
+    solid = np.flatnonzero(shown & (modes < 2))
+    keep = surface.alpha_keep(tris, lod)
+    tri_id, bary = _rasterize(p, tris[solid], W, H, zbuf=zbuf,
+                              keep=lambda tt, L0, L1, L2: keep(solid[tt], L0, L1, L2))
+    hit = np.flatnonzero(tri_id >= 0)
+    if hit.size:
+        t = solid[tri_id[hit]]
+        base = surface.base_color(tris, t, bary[hit], lod)
+        out[hit] = _lit(_pixel_normals(verts, tris, t, bary[hit], cam.rotation, shading, vn), base[:, :3], light,
+                        ambient, specular)
+    blend = np.flatnonzero(shown & (modes == 2))
+    if blend.size:
+        def shade(tt, B):
+            rgba = surface.base_color(tris, tt, B, lod)
+            n = _pixel_normals(verts, tris, tt, B, cam.rotation, shading, vn)
+            return _lit(n, rgba[:, :3], light, ambient, specular), rgba[:, 3:4]
+
+        _blend_layers(out, zbuf, p, tris, blend, tm[blend], shade, W, H)
+    return out
+
+
+def _blend_layers(out: np.ndarray, zbuf: np.ndarray, p: np.ndarray, tris: np.ndarray, blend: np.ndarray,
+                  groups: np.ndarray, shade, W: int, H: int) -> None:
+    """Draw the blended triangles ``blend`` (indices into ``tris``) over ``out`` (H*W, 3) in place, as WebGL
+    does with depth writes off: group by group (``groups`` (n,), e.g. their materials), the farthest first
+    (mean depth of its triangles' corners; larger is nearer), within one back to front per pixel, each fragment
+    nearer than ``zbuf`` mixed by its alpha: ``a * colour + (1 - a) * below``.  ``shade(tt, B)`` gives the
+    colours (m, 3) and alphas (m, 1) of fragments on triangles ``tt`` at barycentrics ``B``."""
+    ids = np.unique(groups)
+    depth_of = {int(k): float(p[tris[blend[groups == k]], 2].mean()) for k in ids}
+    for k in sorted(depth_of, key=depth_of.get):
+        tk = blend[groups == k]
+        frags = list(_fragments(p, tris[tk], W, H))
+        if not frags:
+            continue
+        pix, depth, tt, L0, L1, L2 = (np.concatenate(a) for a in zip(*frags, strict=True))
+        front = depth > zbuf[pix]                  # depth-tested against the opaque surfaces, not written
+        pix, depth, tt = pix[front], depth[front], tk[tt[front]]
+        if not pix.size:
+            continue
+        col, a = shade(tt, np.stack([L0[front], L1[front], L2[front]], axis=1))
+        order = np.lexsort((depth, pix))           # per pixel, the farthest first
+        ps = pix[order]
+        start = np.r_[0, np.flatnonzero(ps[1:] != ps[:-1]) + 1]
+        rank = np.arange(ps.size) - np.repeat(start, np.diff(np.r_[start, ps.size]))
+        for r in range(int(rank.max()) + 1):
+            sel = order[rank == r]
+            out[pix[sel]] = a[sel] * col[sel] + (1.0 - a[sel]) * out[pix[sel]]
 
 
 def render_frames(

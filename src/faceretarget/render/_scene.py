@@ -1,8 +1,8 @@
 """A character as it looks: several meshes with their textures, rendered by one orthographic camera.
 
 :func:`render_scene` draws :class:`~faceretarget.character.SceneMesh` objects (a body or head with its
-eyes, teeth, hair; each with base-colour textures or colours) with the NumPy z-buffer rasteriser of
-:mod:`faceretarget.render._preview`, textures sampled bilinearly in linear light, a soft key light from
+eyes, teeth, hair; each with base-colour textures or colours, alpha modes and sides) with the NumPy z-buffer
+rasteriser of :mod:`faceretarget.render._preview`, textures sampled bilinearly in linear light, a soft key light from
 the camera's upper left and an ambient term, so a face tracker sees a plausible face.  It also returns
 what was hit at every pixel (mesh, triangle, barycentric coordinates): finding a landmark's point on
 the surface under a pixel is a look-up (:func:`pick`).
@@ -20,7 +20,8 @@ import numpy as np
 
 from ..character import SceneMesh
 from ..errors import InvalidDataError
-from ._preview import Camera, _linear_to_srgb, _rasterize, _srgb_to_linear, _vertex_normals
+from ._preview import Camera, _blend_layers, _linear_to_srgb, _rasterize, _srgb_to_linear, _vertex_normals
+from ._surface import ALPHA_MODES, front_facing
 
 __all__ = ["look_at", "render_scene", "SceneRender", "pick", "barycentric_2d"]
 
@@ -71,6 +72,11 @@ def render_scene(meshes: Sequence[SceneMesh], camera: Camera, *, vertices: Seque
                  light=(-0.35, 0.45, 0.82), textures: bool = True) -> SceneRender:
     """Render meshes with their materials.
 
+    Alpha and sides as a glTF viewer draws them (:class:`~faceretarget.character.Material`): a ``MASK``
+    material's pixels under its cutoff are not drawn (what is behind a hair card's transparent texels shows),
+    ``BLEND`` materials are mixed over the rest by their alpha (in linear light; not counted as what is at a
+    pixel), single-sided materials show their front faces only.
+
     Parameters
     ----------
     meshes : sequence of SceneMesh
@@ -104,31 +110,56 @@ def render_scene(meshes: Sequence[SceneMesh], camera: Camera, *, vertices: Seque
     own = np.concatenate(owner) if owner else np.zeros(0, np.int64)
     loc = np.concatenate(local_tri) if local_tri else np.zeros(0, np.int64)
     p = camera.project(P)
-    # keep triangles with a corner in front of the image plane's box (cheap culling of the body)
+    mode, cutoff, sides, group = _triangle_materials(meshes, own, loc)
+    # keep triangles with a corner in front of the image plane's box (cheap culling of the body), and of a
+    # single-sided material only those facing the camera
     inside = ((p[:, 0] > -W) & (p[:, 0] < 2 * W) & (p[:, 1] > -H) & (p[:, 1] < 2 * H))
-    keep = np.flatnonzero(inside[T].any(axis=1)) if len(T) else np.zeros(0, np.int64)
-    tri_id, bary = _rasterize(p, T[keep], W, H)
+    shown = (inside[T].any(axis=1) & (sides | front_facing(p, T))) if len(T) else np.zeros(0, bool)
+    keep = np.flatnonzero(shown & (mode < 2))
+
+    def rgba(gt: np.ndarray, B: np.ndarray) -> np.ndarray:
+        out = np.empty((len(gt), 4))
+        owners = own[gt]
+        for i in np.unique(owners):
+            rows = np.flatnonzero(owners == i)
+            out[rows] = _surface_color(meshes[i], loc[gt[rows]], B[rows], textures)
+        return out
+
+    def masked(tt, L0, L1, L2):
+        gt = keep[tt]
+        ok = np.ones(len(gt), bool)
+        m = np.flatnonzero(mode[gt] == 1)
+        if m.size:
+            ok[m] = rgba(gt[m], np.stack([L0[m], L1[m], L2[m]], axis=1))[:, 3] >= cutoff[gt[m]]
+        return ok
+
+    zbuf = np.full(H * W, -np.inf)
+    tri_id, bary = _rasterize(p, T[keep], W, H, keep=masked if (mode[keep] == 1).any() else None, zbuf=zbuf)
     hit = np.flatnonzero(tri_id >= 0)
     gt = keep[tri_id[hit]]                                  # global triangle of each hit pixel
     B = bary[hit]
     bg = _srgb_to_linear(np.clip(np.asarray(background, np.float64).reshape(3), 0, 1))
     out = np.empty((H * W, 3))
     out[:] = bg
-    if hit.size:
-        normals = _vertex_normals(P, T) @ camera.rotation.T
-        n = np.einsum("pk,pkd->pd", B, normals[T[gt]])
+    L = np.asarray(light, np.float64)
+    L = L / np.linalg.norm(L)
+    normals = _vertex_normals(P, T) @ camera.rotation.T if len(T) else np.zeros((0, 3))
+
+    def lit(g: np.ndarray, b: np.ndarray) -> np.ndarray:
+        n = np.einsum("pk,pkd->pd", b, normals[T[g]])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
         n *= np.where(n[:, 2:3] < 0, -1.0, 1.0)
-        L = np.asarray(light, np.float64)
-        L = L / np.linalg.norm(L)
-        shade = ambient + (1.0 - ambient) * np.clip(n @ L, 0.0, None)
-        base = np.empty((hit.size, 3))
-        owners = own[gt]
-        ltri = loc[gt]
-        for i in np.unique(owners):
-            rows = np.flatnonzero(owners == i)
-            base[rows] = _surface_color(meshes[i], ltri[rows], B[rows], textures)
-        out[hit] = base * shade[:, None]
+        return ambient + (1.0 - ambient) * np.clip(n @ L, 0.0, None)
+
+    if hit.size:
+        out[hit] = rgba(gt, B)[:, :3] * lit(gt, B)[:, None]
+    blend = np.flatnonzero(shown & (mode == 2))
+    if blend.size:
+        def shade(tt, b):
+            c = rgba(tt, b)
+            return c[:, :3] * lit(tt, b)[:, None], c[:, 3:4]
+
+        _blend_layers(out, zbuf, p, T, blend, group[blend], shade, W, H)
     img = np.round(_linear_to_srgb(out).reshape(H, W, 3) * 255.0).astype(np.uint8)
     mesh_id = np.full(H * W, -1, np.int64)
     tri_out = np.full(H * W, -1, np.int64)
@@ -139,25 +170,50 @@ def render_scene(meshes: Sequence[SceneMesh], camera: Camera, *, vertices: Seque
     return SceneRender(img, mesh_id.reshape(H, W), tri_out.reshape(H, W), full_b.reshape(H, W, 3), camera)
 
 
+def _triangle_materials(meshes: Sequence[SceneMesh], own: np.ndarray, loc: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per triangle (mesh ``own``, its triangle ``loc``): alpha mode (0 opaque, 1 mask, 2 blend), cutoff,
+    double-sided, and a group id per (mesh, material)."""
+    n = len(own)
+    mode, cutoff, sides, group = np.zeros(n, np.int64), np.full(n, 0.5), np.ones(n, bool), np.zeros(n, np.int64)
+    for i in np.unique(own):
+        rows = np.flatnonzero(own == i)
+        m = meshes[i]
+        mats = m.materials or []
+        tm = m.triangle_material[loc[rows]] if m.triangle_material is not None and mats else np.zeros(rows.size, int)
+        for k in np.unique(tm):
+            r = rows[tm == k]
+            mat = mats[int(k)] if mats else None
+            group[r] = int(i) * 65536 + int(k)
+            if mat is None:
+                continue
+            mode[r] = ALPHA_MODES.index(mat.alpha_mode) if mat.alpha_mode in ALPHA_MODES else 0
+            cutoff[r] = float(mat.alpha_cutoff)
+            sides[r] = bool(mat.double_sided)
+    return mode, cutoff, sides, group
+
+
 def _surface_color(m: SceneMesh, tri: np.ndarray, B: np.ndarray, textures: bool) -> np.ndarray:
-    """Linear RGB of pixels on triangles ``tri`` of ``m`` at barycentrics ``B``."""
+    """Linear RGBA of pixels on triangles ``tri`` of ``m`` at barycentrics ``B``: the material's factor times its
+    texture (bilinear) times the vertex colours."""
     mats = m.materials or []
     tm = m.triangle_material
-    out = np.empty((len(tri), 3))
+    out = np.empty((len(tri), 4))
     mat_of = tm[tri] if tm is not None and len(mats) else np.zeros(len(tri), np.int64)
-    faces = m.mesh.triangles()
     tuv = m.mesh.triangle_uv_indices() if m.mesh.uvs is not None else None
     for k in np.unique(mat_of):
         rows = np.flatnonzero(mat_of == k)
         mat = mats[int(k)] if len(mats) else None
-        color = np.array([0.8, 0.8, 0.8]) if mat is None else np.asarray(mat.color, np.float64)[:3]
+        color = np.array([0.8, 0.8, 0.8, 1.0]) if mat is None else np.r_[np.asarray(mat.color, np.float64)[:4],
+                                                                           np.ones(4)][:4]
         img = mat.image if (mat is not None and textures and tuv is not None) else None
         if img is None:
             out[rows] = color
             continue
         uv = np.einsum("pk,pkd->pd", B[rows], m.mesh.uvs[tuv[tri[rows]]])
         out[rows] = _sample(img, uv) * color
-    del faces
+    if m.vertex_colors is not None:
+        out *= np.einsum("pk,pkd->pd", B, m.vertex_colors[m.mesh.triangles()[tri]])
     return out
 
 
@@ -166,17 +222,23 @@ _LINEAR = _srgb_to_linear(np.arange(256) / 255.0)
 
 
 def _sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear, repeating texture look-up of ``uv`` (n, 2) (glTF: v down) in linear RGB."""
+    """Bilinear, repeating texture look-up of ``uv`` (n, 2) (glTF: v down) in linear RGBA (alpha 1 for an RGB
+    image)."""
     h, w = img.shape[:2]
     x = uv[:, 0] * w - 0.5
     y = uv[:, 1] * h - 0.5
     x0 = np.floor(x).astype(np.int64)
     y0 = np.floor(y).astype(np.int64)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    rgba = img.ndim == 3 and img.shape[2] == 4
 
     def at(yy, xx):                          # gather the bytes first, then only those become linear light
-        texel = img[np.mod(yy, h), np.mod(xx, w), :3]
-        return _LINEAR[texel] if img.dtype == np.uint8 else texel
+        texel = img[np.mod(yy, h), np.mod(xx, w)]
+        if img.dtype != np.uint8:
+            c = np.asarray(texel, np.float64)
+            return c if rgba else np.concatenate([c[:, :3], np.ones((len(c), 1))], axis=1)
+        a = texel[:, 3:4] / 255.0 if rgba else np.ones((len(texel), 1))
+        return np.concatenate([_LINEAR[texel[:, :3]], a], axis=1)
 
     return ((at(y0, x0) * (1 - fx) + at(y0, x0 + 1) * fx) * (1 - fy)
             + (at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx) * fy)
