@@ -308,9 +308,9 @@ class _Transfer:
         vn = vertex_normals(V, self.T)
         self.ridx = ridx = np.flatnonzero(self.region)
         t_lm_reg = np.einsum("pk,pkd->pd", tmpl.lm_bary, reg[tmpl.lm_triangles])
-        t_side = _mouth_side(reg, t_lm_reg, self.F, size)
+        t_side = _mouth_side(reg, t_lm_reg, self.F, size, tt)
         self.t_tri_side = np.sign(t_side[tt].sum(axis=1))
-        self.c_side = _mouth_side(V, self.lm, self.F, size)
+        self.c_side = _mouth_side(V, self.lm, self.F, size, self.T)
         self.ctri, self.cbar, cdist = self.corr(V[ridx], vn[ridx], self.c_side[ridx])
         te = np.concatenate([tt[:, [0, 1]], tt[:, [1, 2]], tt[:, [2, 0]]])
         te.sort(axis=1)
@@ -771,22 +771,39 @@ def _separate_lips(ch: Character, V: np.ndarray, ub: np.ndarray, size: float) ->
     return moved
 
 
-def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float) -> np.ndarray:
+def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float, T: np.ndarray | None = None) -> np.ndarray:
     """+1 for points of the upper lip, -1 of the lower, 0 elsewhere: in the mouth's zone (between the
     corners, within a third of ``size`` of the lips' line), above or below the inner-lip line (the
-    middles of the facing inner-lip landmarks and the corners, interpolated across)."""
+    middles of the facing inner-lip landmarks and the corners, interpolated across).
+
+    With the mesh's triangles ``T``, where the mouth is a slit (in the zone the upper lip's surface is not
+    joined to the lower's), each lip is the piece of the zone holding its outer landmarks: where closed lips
+    touch, their inner surfaces lie on the lips' line and the position alone gave points of one lip to the
+    other (on a VALID avatar 21 of 583; their template motion then tore the lip and folded it at ``jawOpen``)."""
     H = P @ F.T
     L = lm @ F.T
-    xs = [L[60, 0], L[61:64, 0].mean() * 0 + 0.5 * (L[61, 0] + L[67, 0]), 0.5 * (L[62, 0] + L[66, 0]),
-          0.5 * (L[63, 0] + L[65, 0]), L[64, 0]]
+    xs = [L[60, 0], 0.5 * (L[61, 0] + L[67, 0]), 0.5 * (L[62, 0] + L[66, 0]), 0.5 * (L[63, 0] + L[65, 0]), L[64, 0]]
     ys = [L[60, 1], 0.5 * (L[61, 1] + L[67, 1]), 0.5 * (L[62, 1] + L[66, 1]), 0.5 * (L[63, 1] + L[65, 1]), L[64, 1]]
     order = np.argsort(xs)
     xs, ys = np.asarray(xs)[order], np.asarray(ys)[order]
     line = np.interp(H[:, 0], xs, ys)
     zone = (H[:, 0] > xs[0] + 0.05 * size) & (H[:, 0] < xs[-1] - 0.05 * size) & (np.abs(H[:, 1] - line) < size / 3)
     zone &= np.abs(H[:, 2] - L[60:68, 2].mean()) < size / 3
-    out = np.where(H[:, 1] >= line, 1, -1)
-    return np.where(zone, out, 0)
+    out = np.where(zone, np.where(H[:, 1] >= line, 1, -1), 0)
+    if T is None or not zone.any():
+        return out
+    lab = components(len(P), T[zone[T].all(axis=1)])
+    inz = np.flatnonzero(zone)
+
+    def piece(ids):
+        return set(lab[inz[np.argmin(np.linalg.norm(P[inz][:, None] - lm[None, list(ids)], axis=2), axis=0)]])
+
+    up, lo = piece((50, 51, 52)), piece((56, 57, 58))
+    if up & lo:                                          # the lips are joined in the zone: positions decide
+        return out
+    out[zone & np.isin(lab, list(up))] = 1
+    out[zone & np.isin(lab, list(lo))] = -1
+    return out
 
 
 def _onto_skin(ch: Character, V: np.ndarray, rt: np.ndarray, region: np.ndarray) -> list[int]:
