@@ -14,6 +14,7 @@ from ..character import Character, character_frame
 from ..errors import InvalidDataError, MissingShapeError
 from ..names import ARKIT_NAMES, normalize_name
 from ..transfer import (
+    SEAM,
     LidMargin,
     Part,
     Template,
@@ -535,12 +536,28 @@ class _Transfer:
             added[a] = _untangle(self.outside(u_s), V, ft, self.smooth_op, self.kept(a), project=self.outside)
         self.notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
 
+    def sewn(self) -> dict:
+        """``{mesh: (vertices, B, solve)}`` for the pieces sewn to the skin (:func:`_seam_system`): their motion
+        is ``solve(B @ u)`` of the head mesh's motion ``u``."""
+        by_mesh: dict = {}
+        for p in self.parts:
+            if p.role == "sewn":
+                by_mesh.setdefault(p.mesh, []).append(p.vertices)
+        out = {}
+        for mi, vs in by_mesh.items():
+            m = self.ch.meshes[mi]
+            S = np.unique(np.concatenate(vs))
+            out[mi] = (S, *_seam_system(m.mesh.vertices.astype(np.float64), m.mesh.triangles(), S, self.V,
+                                        self.skin_idx, self.size))
+        return out
+
     def result(self) -> GeneratedShapes:
         """The shapes of every mesh: the face's, and the other parts': eyes turn, the lower teeth and tongue ride
-        the jaw, the rest follows the skin."""
+        the jaw, pieces sewn to the skin continue its motion, the rest follows the skin."""
         self.timings["shapes"] = time.perf_counter() - self.t_shapes
         ch, todo, added, size = self.ch, self.todo, self.added, self.size
         out: dict[str, dict[str, np.ndarray]] = {self.hm.name: {a: added[a].astype(np.float32) for a in todo}}
+        sewn = self.sewn()
         for p in self.parts:
             m = ch.meshes[p.mesh]
             P = m.mesh.vertices[p.vertices].astype(np.float64)
@@ -567,6 +584,10 @@ class _Transfer:
                     d[p.vertices] = P @ Rj.T + tj - P
                 elif p.role == "follow":
                     d[p.vertices] = added[a][self.skin_idx[nn]] * fade[:, None]
+                elif p.role == "sewn":
+                    S, B, solve = sewn[p.mesh]                  # every piece of the mesh sewn on, at once
+                    rhs = B @ added[a]
+                    d[S] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
                 else:
                     continue
                 dst[a] = d
@@ -577,6 +598,36 @@ class _Transfer:
         self.say(f"generated {len(todo)} shapes on {len(out)} mesh(es) in {self.timings['total']:.1f} s")
         return GeneratedShapes(ch, out, self.skipped, self.notes, self.shape_notes, self.timings, self.tmpl.name,
                                self.info, self.replace)
+
+
+def _seam_system(P: np.ndarray, T: np.ndarray, S: np.ndarray, V: np.ndarray, skin_idx: np.ndarray, size: float):
+    """The motion of the vertices ``S`` of a mesh (``P``, ``T``) sewn to the skin (``V[skin_idx]``): the
+    smoothest (least squared differences along the edges) that gives each seam vertex the motion of the skin
+    vertex it sits on, pieces sewn to each other moving together at their own seams.  Returns ``B`` (sparse,
+    ``len(S)`` x ``len(V)``) and a solve: the motion of ``S`` is ``solve(B @ u)`` for a motion ``u`` of ``V``.
+    The nearest skin vertex's motion (``follow``) copied a discontinuous field into the inside of a mouth sewn
+    to the lips, and it folded; split as teeth at the lips' line it tore."""
+    from scipy.sparse import coo_matrix, diags
+    from scipy.spatial import cKDTree
+
+    n, tol, weld = len(S), SEAM * size, 1e4
+    loc = np.full(len(P), -1)
+    loc[S] = np.arange(n)
+    tri = loc[T[(loc[T] >= 0).all(axis=1)]]
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    A = coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    A.data[:] = 1.0
+    pairs = np.array(sorted(cKDTree(P[S]).query_pairs(tol)), dtype=np.int64).reshape(-1, 2)
+    W = coo_matrix((np.full(2 * len(pairs), weld), (np.r_[pairs[:, 0], pairs[:, 1]], np.r_[pairs[:, 1], pairs[:, 0]])),
+                   shape=(n, n)).tocsr()
+    A = A + W
+    dist, nn = cKDTree(V[skin_idx]).query(P[S])
+    tw = np.flatnonzero(dist <= tol)
+    B = coo_matrix((np.full(len(tw), weld), (tw, skin_idx[nn[tw]])), shape=(n, len(V))).tocsr()
+    twin = np.zeros(n)
+    twin[tw] = weld
+    K = diags(np.asarray(A.sum(axis=1)).ravel() + twin + 1e-9) - A
+    return B, _factorized(K.tocsc())
 
 
 def _factorized(K):
