@@ -14,6 +14,7 @@ from ..character import Character, character_frame
 from ..errors import InvalidDataError, MissingShapeError
 from ..names import ARKIT_NAMES, normalize_name
 from ..transfer import (
+    SEAM,
     LidMargin,
     Part,
     Template,
@@ -308,9 +309,9 @@ class _Transfer:
         vn = vertex_normals(V, self.T)
         self.ridx = ridx = np.flatnonzero(self.region)
         t_lm_reg = np.einsum("pk,pkd->pd", tmpl.lm_bary, reg[tmpl.lm_triangles])
-        t_side = _mouth_side(reg, t_lm_reg, self.F, size)
+        t_side = _mouth_side(reg, t_lm_reg, self.F, size, tt)
         self.t_tri_side = np.sign(t_side[tt].sum(axis=1))
-        self.c_side = _mouth_side(V, self.lm, self.F, size)
+        self.c_side = _mouth_side(V, self.lm, self.F, size, self.T)
         self.ctri, self.cbar, cdist = self.corr(V[ridx], vn[ridx], self.c_side[ridx])
         te = np.concatenate([tt[:, [0, 1]], tt[:, [1, 2]], tt[:, [2, 0]]])
         te.sort(axis=1)
@@ -535,12 +536,28 @@ class _Transfer:
             added[a] = _untangle(self.outside(u_s), V, ft, self.smooth_op, self.kept(a), project=self.outside)
         self.notes.append("the face is symmetric: left/right shapes made mirror images and the others symmetric")
 
+    def sewn(self) -> dict:
+        """``{mesh: (vertices, B, solve)}`` for the pieces sewn to the skin (:func:`_seam_system`): their motion
+        is ``solve(B @ u)`` of the head mesh's motion ``u``."""
+        by_mesh: dict = {}
+        for p in self.parts:
+            if p.role == "sewn":
+                by_mesh.setdefault(p.mesh, []).append(p.vertices)
+        out = {}
+        for mi, vs in by_mesh.items():
+            m = self.ch.meshes[mi]
+            S = np.unique(np.concatenate(vs))
+            out[mi] = (S, *_seam_system(m.mesh.vertices.astype(np.float64), m.mesh.triangles(), S, self.V,
+                                        self.skin_idx, self.size))
+        return out
+
     def result(self) -> GeneratedShapes:
         """The shapes of every mesh: the face's, and the other parts': eyes turn, the lower teeth and tongue ride
-        the jaw, the rest follows the skin."""
+        the jaw, pieces sewn to the skin continue its motion, the rest follows the skin."""
         self.timings["shapes"] = time.perf_counter() - self.t_shapes
         ch, todo, added, size = self.ch, self.todo, self.added, self.size
         out: dict[str, dict[str, np.ndarray]] = {self.hm.name: {a: added[a].astype(np.float32) for a in todo}}
+        sewn = self.sewn()
         for p in self.parts:
             m = ch.meshes[p.mesh]
             P = m.mesh.vertices[p.vertices].astype(np.float64)
@@ -567,6 +584,10 @@ class _Transfer:
                     d[p.vertices] = P @ Rj.T + tj - P
                 elif p.role == "follow":
                     d[p.vertices] = added[a][self.skin_idx[nn]] * fade[:, None]
+                elif p.role == "sewn":
+                    S, B, solve = sewn[p.mesh]                  # every piece of the mesh sewn on, at once
+                    rhs = B @ added[a]
+                    d[S] = np.column_stack([solve(rhs[:, c]) for c in range(3)])
                 else:
                     continue
                 dst[a] = d
@@ -577,6 +598,36 @@ class _Transfer:
         self.say(f"generated {len(todo)} shapes on {len(out)} mesh(es) in {self.timings['total']:.1f} s")
         return GeneratedShapes(ch, out, self.skipped, self.notes, self.shape_notes, self.timings, self.tmpl.name,
                                self.info, self.replace)
+
+
+def _seam_system(P: np.ndarray, T: np.ndarray, S: np.ndarray, V: np.ndarray, skin_idx: np.ndarray, size: float):
+    """The motion of the vertices ``S`` of a mesh (``P``, ``T``) sewn to the skin (``V[skin_idx]``): the
+    smoothest (least squared differences along the edges) that gives each seam vertex the motion of the skin
+    vertex it sits on, pieces sewn to each other moving together at their own seams.  Returns ``B`` (sparse,
+    ``len(S)`` x ``len(V)``) and a solve: the motion of ``S`` is ``solve(B @ u)`` for a motion ``u`` of ``V``.
+    The nearest skin vertex's motion (``follow``) copied a discontinuous field into the inside of a mouth sewn
+    to the lips, and it folded; split as teeth at the lips' line it tore."""
+    from scipy.sparse import coo_matrix, diags
+    from scipy.spatial import cKDTree
+
+    n, tol, weld = len(S), SEAM * size, 1e4
+    loc = np.full(len(P), -1)
+    loc[S] = np.arange(n)
+    tri = loc[T[(loc[T] >= 0).all(axis=1)]]
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    A = coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    A.data[:] = 1.0
+    pairs = np.array(sorted(cKDTree(P[S]).query_pairs(tol)), dtype=np.int64).reshape(-1, 2)
+    W = coo_matrix((np.full(2 * len(pairs), weld), (np.r_[pairs[:, 0], pairs[:, 1]], np.r_[pairs[:, 1], pairs[:, 0]])),
+                   shape=(n, n)).tocsr()
+    A = A + W
+    dist, nn = cKDTree(V[skin_idx]).query(P[S])
+    tw = np.flatnonzero(dist <= tol)
+    B = coo_matrix((np.full(len(tw), weld), (tw, skin_idx[nn[tw]])), shape=(n, len(V))).tocsr()
+    twin = np.zeros(n)
+    twin[tw] = weld
+    K = diags(np.asarray(A.sum(axis=1)).ravel() + twin + 1e-9) - A
+    return B, _factorized(K.tocsc())
 
 
 def _factorized(K):
@@ -771,22 +822,39 @@ def _separate_lips(ch: Character, V: np.ndarray, ub: np.ndarray, size: float) ->
     return moved
 
 
-def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float) -> np.ndarray:
+def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float, T: np.ndarray | None = None) -> np.ndarray:
     """+1 for points of the upper lip, -1 of the lower, 0 elsewhere: in the mouth's zone (between the
     corners, within a third of ``size`` of the lips' line), above or below the inner-lip line (the
-    middles of the facing inner-lip landmarks and the corners, interpolated across)."""
+    middles of the facing inner-lip landmarks and the corners, interpolated across).
+
+    With the mesh's triangles ``T``, where the mouth is a slit (in the zone the upper lip's surface is not
+    joined to the lower's), each lip is the piece of the zone holding its outer landmarks: where closed lips
+    touch, their inner surfaces lie on the lips' line and the position alone gave points of one lip to the
+    other (on a VALID avatar 21 of 583; their template motion then tore the lip and folded it at ``jawOpen``)."""
     H = P @ F.T
     L = lm @ F.T
-    xs = [L[60, 0], L[61:64, 0].mean() * 0 + 0.5 * (L[61, 0] + L[67, 0]), 0.5 * (L[62, 0] + L[66, 0]),
-          0.5 * (L[63, 0] + L[65, 0]), L[64, 0]]
+    xs = [L[60, 0], 0.5 * (L[61, 0] + L[67, 0]), 0.5 * (L[62, 0] + L[66, 0]), 0.5 * (L[63, 0] + L[65, 0]), L[64, 0]]
     ys = [L[60, 1], 0.5 * (L[61, 1] + L[67, 1]), 0.5 * (L[62, 1] + L[66, 1]), 0.5 * (L[63, 1] + L[65, 1]), L[64, 1]]
     order = np.argsort(xs)
     xs, ys = np.asarray(xs)[order], np.asarray(ys)[order]
     line = np.interp(H[:, 0], xs, ys)
     zone = (H[:, 0] > xs[0] + 0.05 * size) & (H[:, 0] < xs[-1] - 0.05 * size) & (np.abs(H[:, 1] - line) < size / 3)
     zone &= np.abs(H[:, 2] - L[60:68, 2].mean()) < size / 3
-    out = np.where(H[:, 1] >= line, 1, -1)
-    return np.where(zone, out, 0)
+    out = np.where(zone, np.where(H[:, 1] >= line, 1, -1), 0)
+    if T is None or not zone.any():
+        return out
+    lab = components(len(P), T[zone[T].all(axis=1)])
+    inz = np.flatnonzero(zone)
+
+    def piece(ids):
+        return set(lab[inz[np.argmin(np.linalg.norm(P[inz][:, None] - lm[None, list(ids)], axis=2), axis=0)]])
+
+    up, lo = piece((50, 51, 52)), piece((56, 57, 58))
+    if up & lo:                                          # the lips are joined in the zone: positions decide
+        return out
+    out[zone & np.isin(lab, list(up))] = 1
+    out[zone & np.isin(lab, list(lo))] = -1
+    return out
 
 
 def _onto_skin(ch: Character, V: np.ndarray, rt: np.ndarray, region: np.ndarray) -> list[int]:

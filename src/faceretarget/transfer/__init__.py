@@ -20,7 +20,7 @@ from ._metrics import (
     shape_metrics,
     teeth_showing_px,
 )
-from ._parts import LidMargin, Part, components, find_parts, fit_sphere, lid_margins
+from ._parts import SEAM, LidMargin, Part, components, find_parts, fit_sphere, lid_margins
 from ._register import register_template
 from ._template import TEMPLATES, Template, ict_to_arkit, packaged_template, packaged_template_path
 
@@ -29,7 +29,7 @@ __all__ = ["Template", "TEMPLATES", "ict_to_arkit", "packaged_template", "closes
            "packaged_template_path", "register_template", "find_parts", "fit_sphere", "Part", "LidMargin",
            "lid_margins", "blink_gap_pct", "lip_gap_pct", "inverted_triangles",
            "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta", "lips_in_teeth",
-           "teeth_showing_px"]
+           "teeth_showing_px", "SEAM"]
 
 #: Names that moved to :mod:`faceretarget.characters` (issue 33: generating a character's shapes is a
 #: character job; this package keeps the method); they still work here for one release.

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Part", "find_parts", "fit_sphere", "components", "LidMargin", "lid_margins"]
+__all__ = ["Part", "find_parts", "fit_sphere", "components", "LidMargin", "lid_margins", "SEAM"]
 
 
 @dataclass(eq=False)
@@ -20,7 +20,9 @@ class Part:
     vertices : (n,) int
     role : str
         ``"eye"`` (rotates about ``centre``), ``"lower"`` (rides the jaw), ``"upper"`` (stays),
-        ``"follow"`` (each vertex follows the nearest skin vertex, fading with distance).
+        ``"sewn"`` (sewn to the skin along a seam, the mesh split there: a mouth's inside, an ear; moves with
+        the skin, its seam closed), ``"follow"`` (each vertex follows the nearest skin vertex, fading with
+        distance).
     side : str
         ``"left"`` / ``"right"`` for an eye (the character's own sides).
     centre : (3,) float, radius : float
@@ -56,6 +58,8 @@ def components(n: int, T: np.ndarray) -> np.ndarray:
     return connected_components(g, directed=False)[1]
 
 
+#: Vertices of two pieces closer than this (times the outer-eye-corner distance) are one point of a seam.
+SEAM = 1e-4
 _EYE_WORDS = ("eye", "cornea", "iris", "pupil", "sclera")
 _NOT_EYE = ("lash", "brow", "lid", "gland", "shadow", "occlusion", "tear", "cartilage")
 _LOWER_WORDS = ("down", "lower", "bottom", "tongue", "bot", "jaw")
@@ -74,6 +78,8 @@ def find_parts(character, head: int, skin: np.ndarray, lm: np.ndarray, frame: np
         Which of the head mesh's vertices are the face's skin (the rest of its pieces near the face are parts).
     lm : (68, 3) the landmarks; frame : (3, 3) world to head frame; size : outer eye corners' distance.
     """
+    from scipy.spatial import cKDTree
+
     eyes = {"right": lm[36:42].mean(axis=0), "left": lm[42:48].mean(axis=0)}
     if (eyes["left"] @ frame[0]) < (eyes["right"] @ frame[0]):
         eyes = {"left": eyes["right"], "right": eyes["left"]}
@@ -95,9 +101,15 @@ def find_parts(character, head: int, skin: np.ndarray, lm: np.ndarray, frame: np
         else:
             pieces.append((mi, np.arange(len(V)), m.name))
     parts = []
+    skin_tree = cKDTree(character.meshes[head].mesh.vertices[skin]) if skin.any() else None
     for mi, idx, name in pieces:
         P = character.meshes[mi].mesh.vertices[idx]
         low = name.lower()
+        # a piece with vertices where the skin has its own (a seam: the mesh split where UVs or materials
+        # change) continues the skin's surface: the inside of the mouth sewn to the inner lips is no teeth
+        if skin_tree is not None and int((skin_tree.query(P)[0] <= SEAM * size).sum()) >= 3:
+            parts.append(Part(mi, idx, "sewn"))
+            continue
         c = P.mean(axis=0)
         ext = float(np.ptp(P, axis=0).max())
         if ext > 1.5 * size:                         # hair, body, clothes: only what touches the face follows
