@@ -1072,11 +1072,13 @@ def _facing_solve(P0: list, TL: np.ndarray, fi: np.ndarray, S: list, N0: np.ndar
 
     z = np.zeros(3 * nf)
     for rho in (1e3, 1e6):
+        f_was = np.inf
         for _ in range(40):
             f, J, sh = shortfall(z, rho, jac=True)
+            if (not len(sh) or float(sh.max()) <= 0.5 * _FACING) and f > (1.0 - 1e-3) * f_was:
+                break                                     # every triangle faces its way, and no more to gain
+            f_was = f
             grad = 2.0 * (Q3 @ z) + 2.0 * rho * (J.T @ sh)
-            if not len(sh) and float(np.abs(grad).max()) < 1e-12:
-                break
             step = spsolve((2.0 * Q3 + 2.0 * rho * (J.T @ J)).tocsc(), -grad)
             t, slope = 1.0, float(grad @ step)
             while t > 1e-4 and shortfall(z + t * step, rho) > f + 1e-4 * t * slope:
