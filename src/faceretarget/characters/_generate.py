@@ -931,7 +931,7 @@ def _adjacency(n: int, T: np.ndarray):
     return A
 
 
-#: Untangling: each triangle keeps at least this much of its rest area facing its rest side (a margin, so that
+#: Untangling: each triangle keeps at least this share of its rest area facing its rest side (a margin, so that
 #: float32 deltas do not turn it over), and the pinned points' stiffness when they have to give (against 1 per
 #: edge for the smoothness of the change).
 _FACING, _PIN_STIFF = 0.005, 1e4
@@ -941,12 +941,12 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, adj, pins, fixed: np.
               poses=(None,), project=None, rings: int = 2, tries: int = 3):
     """Unfold the triangles a motion turns over (normal reversed at weight 1, alone or added to each of
     ``poses``): the smallest smooth change of the motion around them (least squared differences of the change
-    along the edges) under which every triangle near them keeps facing its rest side, a penalty solved by
-    L-BFGS with a stiffening weight.  The region is the turned triangles' vertices and ``rings`` rings more,
-    doubled while some are left; the vertices of ``pins`` (sparse rows: the pinned lid and lip points) move
-    only in a last try, and then the pinned points stiffly;
-    ``fixed`` ones (no coverage) never; ``project`` (the eyeball push) follows.  The motion with the fewest
-    turned over is kept.
+    along the edges) under which every triangle near them keeps facing its rest side (:func:`_facing_solve`).
+    The region is the turned triangles' vertices and ``rings`` rings more, doubled while some are left; the
+    vertices of ``pins`` (sparse rows: the pinned lid and lip points) move only in a last try, and then the
+    pinned points stiffly; ``fixed`` ones (no coverage) never; ``project`` (the eyeball push) follows, and what
+    it moves stays for the next try.  A change that moves a vertex further than the shape moves any is
+    refused; the motion with the fewest turned over is kept.
 
     The relaxation this replaces (half steps towards the neighbours' mean) could only shrink motion: it
     stopped with folds left where a surface folded at rest opens by more than a right angle (the corners of a
