@@ -19,6 +19,7 @@ filter exactly what this package says (``warnings.simplefilter("error", DataWarn
 from __future__ import annotations
 
 __all__ = [
+    "moved_names",
     "FaceRetargetError",
     "InputFileError",
     "TopologyError",
@@ -151,3 +152,22 @@ def excerpt(text, limit: int = 40, *, bare: bool = False) -> str:
     if bare and len(s) <= limit and s.isprintable():
         return s
     return repr(s[:limit]) + ("..." if len(s) > limit else "")
+
+
+def moved_names(module: str, names, to: str):
+    """A module's ``__getattr__`` for public names that moved to ``to``: each still works for one release,
+    with a :class:`DeprecationWarning` naming the new place (``__getattr__ = moved_names(__name__, NAMES,
+    "faceretarget.characters")``)."""
+    import importlib
+    import warnings
+
+    moved = frozenset(names)
+
+    def __getattr__(name: str):
+        if name in moved:
+            warnings.warn(f"{module}.{name} moved to {to}.{name}; the old name goes in the next release",
+                          DeprecationWarning, stacklevel=2)
+            return getattr(importlib.import_module(to), name)
+        raise AttributeError(f"module {module!r} has no attribute {name!r}")
+
+    return __getattr__

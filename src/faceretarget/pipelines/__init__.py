@@ -39,6 +39,7 @@ public name of theirs is exported here too.
 ================================ ================================================================
 """
 
+from ..errors import moved_names
 from ._animate import (
     GAZE_DEG,
     HEAD_SOURCES,
@@ -150,12 +151,4 @@ _MOVED = ("CharacterReport", "DriveRig", "apply_landmark_record", "character_wei
           "read_landmark_file")
 
 
-def __getattr__(name: str):
-    if name in _MOVED:
-        import importlib
-        import warnings
-
-        warnings.warn(f"faceretarget.pipelines.{name} moved to faceretarget.characters.{name}; the old name goes in "
-                      "the next release", DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module("faceretarget.characters"), name)
-    raise AttributeError(f"module 'faceretarget.pipelines' has no attribute {name!r}")
+__getattr__ = moved_names(__name__, _MOVED, "faceretarget.characters")

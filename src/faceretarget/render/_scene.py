@@ -21,7 +21,7 @@ import numpy as np
 from ..character import SceneMesh
 from ..errors import InvalidDataError
 from ._preview import Camera, _blend_layers, _linear_to_srgb, _rasterize, _srgb_to_linear, _vertex_normals
-from ._surface import ALPHA_MODES, front_facing
+from ._surface import ALPHA_MODES, bilinear, front_facing
 
 __all__ = ["look_at", "render_scene", "SceneRender", "pick", "barycentric_2d"]
 
@@ -225,11 +225,6 @@ def _sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear, repeating texture look-up of ``uv`` (n, 2) (glTF: v down) in linear RGBA (alpha 1 for an RGB
     image)."""
     h, w = img.shape[:2]
-    x = uv[:, 0] * w - 0.5
-    y = uv[:, 1] * h - 0.5
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.floor(y).astype(np.int64)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     rgba = img.ndim == 3 and img.shape[2] == 4
 
     def at(yy, xx):                          # gather the bytes first, then only those become linear light
@@ -240,8 +235,7 @@ def _sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
         a = texel[:, 3:4] / 255.0 if rgba else np.ones((len(texel), 1))
         return np.concatenate([_LINEAR[texel[:, :3]], a], axis=1)
 
-    return ((at(y0, x0) * (1 - fx) + at(y0, x0 + 1) * fx) * (1 - fy)
-            + (at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx) * fy)
+    return bilinear(uv, h, w, at)
 
 
 def pick(render: SceneRender, meshes: Sequence[SceneMesh], points: np.ndarray, mesh: int, *,

@@ -226,15 +226,19 @@ class _MipTexture:
     def _bilinear(self, k: int, uv: np.ndarray) -> np.ndarray:
         img = self.linear(k)
         h, w = img.shape[:2]
-        x = uv[:, 0] * w - 0.5
-        y = uv[:, 1] * h - 0.5
-        x0 = np.floor(x).astype(np.int64)
-        y0 = np.floor(y).astype(np.int64)
-        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-        xa, xb = np.mod(x0, w), np.mod(x0 + 1, w)
-        ya, yb = np.mod(y0, h), np.mod(y0 + 1, h)
-        return ((img[ya, xa] * (1 - fx) + img[ya, xb] * fx) * (1 - fy)
-                + (img[yb, xa] * (1 - fx) + img[yb, xb] * fx) * fy)
+        return bilinear(uv, h, w, lambda yy, xx: img[np.mod(yy, h), np.mod(xx, w)])
+
+
+def bilinear(uv: np.ndarray, h: int, w: int, at) -> np.ndarray:
+    """Bilinear look-up of ``uv`` (n, 2) (v down, repeating) in an ``h`` x ``w`` image whose texels at integer
+    rows and columns ``at(rows, cols)`` gives (it wraps them); both renderers' texture sampling."""
+    x = uv[:, 0] * w - 0.5
+    y = uv[:, 1] * h - 0.5
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    return ((at(y0, x0) * (1 - fx) + at(y0, x0 + 1) * fx) * (1 - fy)
+            + (at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx) * fy)
 
 
 def _half(a: np.ndarray) -> np.ndarray:

@@ -8,6 +8,7 @@ Eyeballs turn for ``eyeLook*``, the lower teeth and tongue ride the jaw, lids cl
 eyeballs, the inner lips meet for ``jawOpen + mouthClose``.  See docs/shapes.md.
 """
 
+from ..errors import moved_names
 from ._geometry import closest_points, gradient_operator, triangle_areas, umeyama, vertex_normals
 from ._metrics import (
     blink_gap_pct,
@@ -37,12 +38,4 @@ _MOVED = ("generate_shapes", "GeneratedShapes", "load_template", "LID_PAIRS", "L
           "METHODS")
 
 
-def __getattr__(name: str):
-    if name in _MOVED:
-        import importlib
-        import warnings
-
-        warnings.warn(f"faceretarget.transfer.{name} moved to faceretarget.characters.{name}; the old name goes in "
-                      "the next release", DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module("faceretarget.characters"), name)
-    raise AttributeError(f"module 'faceretarget.transfer' has no attribute {name!r}")
+__getattr__ = moved_names(__name__, _MOVED, "faceretarget.characters")
