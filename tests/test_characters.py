@@ -617,6 +617,22 @@ def test_no_face_shapes_two_heads_and_the_cli(tmp_path, chars, arkit_rig):
     assert r.returncode == 2
 
 
+def test_a_written_take_with_a_head_node_off_the_origin_reads_back_as_a_character(tmp_path, arkit_rig):
+    """write_glb's ``head`` node at a pivot off the origin is the file's only joint: its head region (where face
+    shapes count) must still hold the face, not the 1 cm a lone joint's skeleton spans."""
+    from scipy.spatial.transform import Rotation
+
+    T = 10
+    w = np.zeros((T, arkit_rig.n_shapes))
+    w[:, arkit_rig.names.index("jawOpen")] = np.linspace(0, 1, T)
+    q = Rotation.from_euler("y", np.linspace(0, 10, T)[:, None], degrees=True).as_quat()
+    pivot = (0.0, -0.0086, 0.0412)                       # the face's centre, 4 cm from the origin
+    path = write_glb(tmp_path / "take.glb", arkit_rig, w, np.arange(T) / 30.0, head=HeadPose(q), head_pivot=pivot)
+    ch = load_character(path, find=False)
+    assert ch.face_meshes() == [0] and ch.meshes[0].n_shapes == arkit_rig.n_shapes
+    assert np.allclose(ch.joint("head").position, pivot, atol=1e-6)
+
+
 def test_character_inspect_cli(tmp_path, chars):
     pytest.importorskip("mediapipe")
     pic = tmp_path / "check.png"

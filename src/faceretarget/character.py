@@ -54,6 +54,9 @@ SHAPE_SETS = ("auto", "arkit", "visemes", "all", "expressions")
 #: VRM expressions a VRM runtime sets itself (gaze) or that stand for no expression.
 _RUNTIME_EXPRESSIONS = frozenset({"lookUp", "lookDown", "lookLeft", "lookRight", "neutral"})
 _MIN_ARKIT = 10
+#: The least radius of the head's region around the head joint, metres: a human head's reach from its
+#: joint (the face lies within it; a body's muscle shapes outside it).
+HEAD_RADIUS_M = 0.15
 
 
 @dataclass(eq=False)
@@ -440,8 +443,10 @@ class Character:
         pos = np.array([j.position for j in self.joints])
         height = float(np.ptp(pos, axis=0).max()) if len(pos) > 1 else 0.0
         r = 3.0 * float(np.linalg.norm(head.position - neck.position)) if neck is not None else 0.0
-        r = max(r, 0.25 * height)
-        return (head.position, r) if r > 0 else None
+        # at least a head: a skeleton of a head joint alone (a head node over a face, as write_glb adds) spans
+        # nothing, and its 0.25 * height would leave the face outside its own head
+        r = max(r, 0.25 * height, HEAD_RADIUS_M)
+        return head.position, r
 
     @property
     def primary(self) -> int:
