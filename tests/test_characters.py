@@ -257,6 +257,29 @@ def test_fbx_by_ufbx_equals_blender_importer(chars):
                                @ BLENDER_AXES.T, atol=2e-5)
 
 
+def test_fbx_textures_found_in_the_textures_folder_beside_the_export(tmp_path, chars):
+    """Rocketbox's FBX names its textures by an exporter's absolute Windows path (``D:/temp/.../textures/
+    f001_head_color.tga``); a user's copy keeps them in ``Textures/`` beside the FBX's ``Export/`` folder, in
+    whatever case: found there and decoded, and a texture found nowhere is one note."""
+    from PIL import Image
+
+    src = chars / "rocketbox" / "Female_Adult_01_facial.fbx"
+    plain = read_character(src)
+    assert any("missing texture" in n and "f001_head_color" in n for n in plain.notes)
+    (tmp_path / "Export").mkdir()
+    (tmp_path / "Textures").mkdir()
+    fbx = tmp_path / "Export" / src.name
+    shutil.copyfile(src, fbx)
+    Image.new("RGB", (8, 8), (200, 30, 40)).save(tmp_path / "Textures" / "F001_HEAD_COLOR.TGA")
+    ch = read_character(fbx)
+    found = [m for sm in ch.meshes for m in sm.materials if m.image_source is not None]
+    assert len(found) == 1 and str(found[0].image_source.path).endswith("F001_HEAD_COLOR.TGA")
+    px = found[0].image
+    assert px.shape == (8, 8, 4) and tuple(px[0, 0]) == (200, 30, 40, 255)
+    assert not any("f001_head_color" in n for n in ch.notes)
+    assert any("f001_body_color" in n for n in ch.notes)
+
+
 def test_slow_reads_are_cached_by_content(tmp_path, chars, monkeypatch):
     """An .fbx read out of process is kept by its SHA-256: read back the same, fast; a damaged entry or an
     edited file is read again."""

@@ -287,15 +287,45 @@ def _material(path: Path, m, notes: list, textures: dict, keep: list) -> Materia
     return Material(m.name or "material", col, image)
 
 
+#: Folder names (lower case) where exporters and asset libraries keep a model's textures: looked in beside the
+#: FBX and beside its folder (``Export/model.fbx`` with ``Textures/``, Rocketbox's layout).
+_TEXTURE_FOLDERS = ("textures", "texture", "tex", "maps", "images", "materials")
+
+
 def _texture(path: Path, tex, notes: list):
     content = bytes(tex.content) if len(tex.content) else b""   # read now: the scene is gone after the read
-    cands = []
-    for f in (tex.relative_filename, tex.filename, tex.absolute_filename):
-        if f:
-            cands += [path.parent / f, path.parent / Path(f.replace("\\", "/")).name]
-    found = next((p for p in cands if p.is_file()), None)
+    found = None if content else _texture_file(path, [tex.relative_filename, tex.filename, tex.absolute_filename])
     if not content and found is None:
-        notes.append(f"missing texture: '{excerpt(tex.relative_filename or tex.filename, 60)}' is not in the file "
-                     f"nor beside it; rendered in its base colour")
+        named = str(tex.relative_filename or tex.filename)
+        notes.append(f"missing texture: '{Path(named.replace(chr(92), '/')).name}' (named {excerpt(named, 60)}) "
+                     "is not in the file, beside it nor in a textures folder near it; rendered in its base colour")
         return None
     return EncodedImage(content or None, None if content else str(found), tex.name or tex.filename, notes)
+
+
+def _texture_file(path: Path, names: list) -> Path | None:
+    """The file a texture names, found where a user's copy keeps it: the path as written (relative to the FBX),
+    then its file name beside the FBX or in a textures folder beside the FBX or beside its folder, the name's
+    case ignored (a Windows exporter's ``F001_Body.TGA``)."""
+    names = [str(f).replace("\\", "/") for f in names if f]
+    for f in names:
+        p = path.parent / f
+        if p.is_file():
+            return p
+    wanted = {Path(f).name.lower() for f in names}
+    if not wanted:
+        return None
+    folders = [path.parent]
+    for base in (path.parent, path.parent.parent):
+        try:
+            folders += sorted(d for d in base.iterdir() if d.is_dir() and d.name.lower() in _TEXTURE_FOLDERS)
+        except OSError:
+            continue
+    for d in folders:
+        try:
+            hit = sorted(f for f in d.iterdir() if f.name.lower() in wanted and f.is_file())
+        except OSError:
+            continue
+        if hit:
+            return hit[0]
+    return None
