@@ -67,8 +67,8 @@ def check_character_route(path: str | os.PathLike, out: str | os.PathLike | None
     if needs:
         via = " or ".join("+".join(n) for n in (f.read_needs, f.read_fallback) if n)
         require(f"{path} (a {f.name} character, read by {f.route}; needs {via})", *needs)
-    if out is not None and extension(out) in f.writes_back and f.write_needs:
-        require(f"{out} (written back into a copy of the {f.name} character)", *f.write_needs)
+    if out is not None and extension(out) in f.writes_back and f.write_needs_for(out):
+        require(f"{out} (written back into a copy of the {f.name} character)", *f.write_needs_for(out))
 
 
 def character_from_rig(rig: Rig, path: str | os.PathLike | None = None, route: str = "rig") -> Character:

@@ -68,8 +68,12 @@ def direct_write_problem(character: Character) -> str | None:
     if not str(character.route).startswith("ufbx"):
         return f"the character was read by {character.route}, not ufbx"
     with open(path, "rb") as f:
-        if not is_binary_fbx(f.read(32)):
-            return f"{path.name} is an ASCII FBX"
+        head = f.read(27)
+    if not is_binary_fbx(head):
+        return f"{path.name} is an ASCII FBX"
+    version = int.from_bytes(head[23:27], "little")
+    if not 7100 <= version < 8000:
+        return f"{path.name} is a binary FBX of version {version} (7100-7700 are edited directly)"
     return None
 
 
@@ -115,9 +119,7 @@ def write_fbx_animation(out: str | os.PathLike, character: Character, chans: lis
     for mi, cols in mesh_columns(chans, np.asarray(W, dtype=np.float64)).items():
         ids = scene.shape_channels(character.meshes[mi])
         for k, col in cols.items():
-            node = scene.curve_node(layer, "DeformPercent", ids[k], "DeformPercent", {"DeformPercent": 100.0 * col},
-                                    ticks)
-            del node
+            scene.curve_node(layer, "DeformPercent", ids[k], "DeformPercent", {"DeformPercent": 100.0 * col}, ticks)
             keyed += 1
     placed = []
     for role, j, rot in joint_motions(character, head, neck_share, gaze):
