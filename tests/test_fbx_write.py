@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from faceretarget.character import _rotation_part, channels, character_frame, mesh_columns, shape_key
 from faceretarget.errors import InputFileError, MissingDependencyError
 from faceretarget.headpose import HeadPose
-from faceretarget.io import read_character, write_character_animation
+from faceretarget.io import check_character_route, read_character, write_character_animation
 from faceretarget.io._fbx_binary import FbxArray, encode_fbx, parse_fbx
 from faceretarget.io._fbx_write import KTIME_V7, direct_write_problem
 
@@ -189,6 +189,11 @@ def test_fbx_direct_write_refuses_and_falls_back(rocketbox, tmp_path, monkeypatc
     monkeypatch.setattr(opt, "has_module", lambda n: n != "bpy" and real(n))
     with pytest.raises(MissingDependencyError, match=r"out\.fbx: .*ascii\.fbx directly \(ascii\.fbx is an ASCII FBX\)"):
         write_character_animation(tmp_path / "out.fbx", ch, chans, W, t, head=head)
+    # before any work: a binary FBX into .fbx needs no bpy; into .blend, or an ASCII FBX, does
+    check_character_route(rocketbox.path, tmp_path / "out.fbx")
+    for src, out in ((rocketbox.path, "out.blend"), (ascii_, "out.fbx")):
+        with pytest.raises(MissingDependencyError, match=rf"{out}.*'bpy'"):
+            check_character_route(src, tmp_path / out)
     cut = tmp_path / "cut.fbx"
     cut.write_bytes(Path(rocketbox.path).read_bytes()[:1_000_000])
     ch.path = cut

@@ -39,7 +39,7 @@ from ..files import atomic_path
 from ..headpose import HeadPose
 from ._fbx_binary import FbxArray, FbxDocument, FbxNode, encode_fbx, is_binary_fbx, parse_fbx
 
-__all__ = ["write_fbx_animation", "DirectWriteUnsupported", "direct_write_problem"]
+__all__ = ["write_fbx_animation", "DirectWriteUnsupported", "direct_write_problem", "direct_file_problem"]
 
 KTIME_V7, KTIME_V8 = 46186158000, 141120000
 _ANIM_TYPES = ("AnimationStack", "AnimationLayer", "AnimationCurveNode", "AnimationCurve")
@@ -67,6 +67,12 @@ def direct_write_problem(character: Character) -> str | None:
         return "the character's file is not there"
     if not str(character.route).startswith("ufbx"):
         return f"the character was read by {character.route}, not ufbx"
+    return direct_file_problem(path)
+
+
+def direct_file_problem(path: Path) -> str | None:
+    """Why the FBX file ``path`` cannot be edited directly (None when it can): an ASCII FBX or a binary one
+    outside versions 7100-7700 (read from its first 27 bytes)."""
     with open(path, "rb") as f:
         head = f.read(27)
     if not is_binary_fbx(head):
