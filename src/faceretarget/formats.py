@@ -60,7 +60,10 @@ class CharacterFormat:
     writes_back : tuple of str
         Output extensions that put an animation or new shapes into a copy of the user's file.
     write_needs : tuple of str
-        Import names writing back needs.
+        Import names writing back needs (but for ``direct_writes``).
+    direct_writes : tuple of str
+        Output extensions among ``writes_back`` that a writer of the project's own puts into the copy
+        without ``write_needs`` (FBX into ``.fbx``: the binary node tree is edited directly, no Blender).
     animation_writer, shapes_writer : str
         ``"module:function"`` of the write-back routes (empty: not supported).
     slow_read : bool
@@ -77,6 +80,7 @@ class CharacterFormat:
     read_fallback: tuple[str, ...] = ()
     writes_back: tuple[str, ...] = ()
     write_needs: tuple[str, ...] = ()
+    direct_writes: tuple[str, ...] = ()
     animation_writer: str = ""
     shapes_writer: str = ""
     slow_read: bool = False
@@ -93,6 +97,11 @@ class CharacterFormat:
         if not self.read_fallback or all(installed(n) for n in self.read_needs):
             return self.read_needs
         return self.read_fallback
+
+    def write_needs_for(self, out: str | os.PathLike) -> tuple[str, ...]:
+        """The import names writing the animation back into ``out`` needs (none for a ``direct_writes``
+        extension; the writer falls back to ``write_needs``' route only for a file it cannot edit)."""
+        return () if extension(out) in self.direct_writes else self.write_needs
 
 
 def _resolve(spec: str):
@@ -112,7 +121,7 @@ CHARACTER_FORMATS: dict[str, CharacterFormat] = {f.name: f for f in (
                     writes_back=(VRM, GLB), animation_writer=_ANIM, shapes_writer=_SHAPES, aliases=("vrm0", "vrm1")),
     CharacterFormat("fbx", (FBX,), "ufbx (core), else Blender's importer", _IO + "_character:read_fbx_route",
                     read_needs=("ufbx",), read_fallback=("bpy",), writes_back=(FBX, BLEND), write_needs=("bpy",),
-                    animation_writer=_ANIM, shapes_writer=_SHAPES, slow_read=True),
+                    direct_writes=(FBX,), animation_writer=_ANIM, shapes_writer=_SHAPES, slow_read=True),
     CharacterFormat("blend", (BLEND,), "Blender itself (bpy)", _IO + "_character:read_blender_route",
                     read_needs=("bpy",), writes_back=(BLEND, FBX), write_needs=("bpy",),
                     animation_writer=_ANIM, shapes_writer=_SHAPES, slow_read=True),
@@ -147,7 +156,8 @@ def format_named(name: str | None) -> CharacterFormat | None:
 
 
 #: Optional packages an output file needs, by extension (``.mp4``: previews, overlays, restyled videos and
-#: drawing animations are encoded with PyAV).
+#: drawing animations are encoded with PyAV); an animation written back into a copy of a character file needs
+#: what its format says instead (:meth:`CharacterFormat.write_needs_for`: an ``.fbx`` into ``.fbx``, nothing).
 OUTPUT_NEEDS: dict[str, tuple[str, ...]] = {
     BLEND: ("bpy",), FBX: ("bpy",), **{e: ("pxr",) for e in USD_WRITE}, MP4: ("av",),
 }

@@ -64,10 +64,17 @@ def install_line(name: str) -> str:
     return f"make {target} (in the faceretarget checkout), or: {pip}" if target else pip
 
 
-def output_needs(path) -> tuple[str, ...]:
-    """The optional packages writing ``path`` needs (by its extension; :data:`OUTPUT_NEEDS`)."""
+def output_needs(path, character=None) -> tuple[str, ...]:
+    """The optional packages writing ``path`` needs (by its extension; :data:`OUTPUT_NEEDS`), or, when it
+    writes the animation back into a copy of the ``character`` file, what that format's write-back needs
+    (:meth:`~faceretarget.formats.CharacterFormat.write_needs_for`: an ``.fbx`` into ``.fbx`` needs no bpy)."""
     import os
 
+    from .formats import character_format_of, extension
+
+    fmt = character_format_of(character) if character is not None else None
+    if fmt is not None and extension(path) in fmt.writes_back:
+        return fmt.write_needs_for(path)
     return OUTPUT_NEEDS.get(os.path.splitext(str(path))[1].lower(), ())
 
 

@@ -69,7 +69,7 @@ def cmd_animate(args, log) -> int:
                  ("--target-keys", args.target_keys), ("--model", args.model), ("--landmarks", args.landmarks),
                  folders=("--character", "--source-keys", "--target-keys"))
     out = Path(args.out)
-    character_out(args.character, out)
+    back = character_out(args.character, out)
     file_character = is_character_file(args.character)
     if not file_character and (args.shapes != "auto" or args.landmarks or args.mesh or args.neck_share):
         raise InvalidDataError("--shapes, --landmarks, --mesh and --neck-share apply to a character file "
@@ -85,7 +85,8 @@ def cmd_animate(args, log) -> int:
             raise OutputError(f"{preview}: given for both --out and --preview")
         _protect(preview, inputs)
         check_output_path(preview)
-    require_output_deps(out)                     # before any work: .blend/.fbx need bpy, .usd* usd-core
+    # before any work: .blend/.fbx need bpy (not an .fbx character's own copy), .usd* usd-core
+    require_output_deps(out, character=args.character if back else None)
     require_output_deps(preview, "--preview")
     require_video_deps("video", video, args.model)
     log(f"reading the character {args.character}")

@@ -159,10 +159,11 @@ def check_out(out, inputs=(), exts=None, *, option: str = "--out") -> Path:
     return out
 
 
-def require_output_deps(out, option: str = "--out") -> None:
+def require_output_deps(out, option: str = "--out", character=None) -> None:
     """Refuse, before any work and in milliseconds, an output whose format needs an optional package
     that is not installed (``.blend`` / ``.fbx``: Blender's ``bpy``; ``.usd*``: usd-core; ``.mp4``:
-    PyAV), with the install line that works in this project's set-up.
+    PyAV), with the install line that works in this project's set-up; with ``character`` (a character file
+    the animation is written back into a copy of), what its format's write-back needs instead.
 
     Raises
     ------
@@ -173,7 +174,7 @@ def require_output_deps(out, option: str = "--out") -> None:
         return
     from ..optional import output_needs, require
 
-    require(f"{option} {out}", *output_needs(out))
+    require(f"{option} {out}", *output_needs(out, character))
 
 
 def require_video_deps(option: str, video, model=None) -> None:

@@ -67,8 +67,18 @@ def check_character_route(path: str | os.PathLike, out: str | os.PathLike | None
     if needs:
         via = " or ".join("+".join(n) for n in (f.read_needs, f.read_fallback) if n)
         require(f"{path} (a {f.name} character, read by {f.route}; needs {via})", *needs)
-    if out is not None and extension(out) in f.writes_back and f.write_needs:
-        require(f"{out} (written back into a copy of the {f.name} character)", *f.write_needs)
+    if out is None or extension(out) not in f.writes_back:
+        return
+    write_needs = f.write_needs_for(out)
+    why = ""
+    if not write_needs and f.write_needs and Path(path).is_file():   # a direct writer: can it edit this file?
+        from ._fbx_write import direct_file_problem
+
+        why = direct_file_problem(Path(path)) if f.name == "fbx" else None
+        write_needs = f.write_needs if why else ()
+    if write_needs:
+        require(f"{out} (written back into a copy of the {f.name} character{f': {why}' if why else ''})",
+                *write_needs)
 
 
 def character_from_rig(rig: Rig, path: str | os.PathLike | None = None, route: str = "rig") -> Character:

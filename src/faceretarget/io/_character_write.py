@@ -11,7 +11,12 @@ nothing else changed:
     ``neck_share``) relative to its rest pose.  The new data is appended to the binary chunk (``.glb``,
     ``.vrm``) or written to ``<out>.anim.bin`` (``.gltf``, whose other files are referenced where they
     are); images and every other byte range are untouched.  The sound goes beside it (``<out>.wav``).
-``.fbx`` / ``.blend`` in
+``.fbx`` in, ``.fbx`` out
+    The binary file's node tree is copied with its animation replaced by the take: ``DeformPercent``
+    curves on the driven blend shape channels and ``Lcl Rotation`` curves on the head bones, every other
+    record written as the bytes it was read from (:mod:`faceretarget.io._fbx_write`, no Blender).  An
+    ASCII FBX, or a character Blender read, goes the ``.blend`` way below.
+``.fbx`` / ``.blend`` in (``.blend`` out, or what the direct FBX writer cannot do)
     Blender opens the character's own scene and adds an action on the shape keys and the head bone
     (:mod:`faceretarget.io._blender_scene`).
 ``.usd*`` in
@@ -36,9 +41,19 @@ from pathlib import Path
 import numpy as np
 
 from ..character import Channel, Character, joint_motions, joint_rotations, mesh_columns
-from ..errors import InvalidDataError, OutputError
+from ..errors import InvalidDataError, MissingDependencyError, OutputError
 from ..files import atomic_path, check_output_path
-from ..formats import CHARACTER_FORMATS, GLB, VRM, VRMA, WAV, character_format_of, extension, format_named
+from ..formats import (
+    CHARACTER_FORMATS,
+    FBX,
+    GLB,
+    VRM,
+    VRMA,
+    WAV,
+    character_format_of,
+    extension,
+    format_named,
+)
 from ..headpose import HeadPose
 
 __all__ = ["write_character_animation", "writes_back", "WRITE_BACK", "write_vrma", "check_motion", "write_plain_glb"]
@@ -117,6 +132,8 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
             write_vrma(vrma, character, chans, W, t, head=head, neck_share=neck_share, name=name)
             log(f"wrote {vrma} (the same animation as VRM expressions and humanoid head rotation, for VRM runtimes "
                 "such as three-vrm, which set the expression-bound morph targets and the bones themselves)")
+    elif fmt == "fbx" and extension(out) == FBX:
+        return _write_fbx(out, character, chans, W, t, head, audio, audio_rate, neck_share, gaze, name, log)
     elif fmt in ("fbx", "blend"):
         from ._blender_scene import write_blender_animation
 
@@ -136,6 +153,31 @@ def write_character_animation(out: str | os.PathLike, character: Character, chan
             write_wav(tmp, *checked_audio(wav, audio, audio_rate))
         log(f"wrote {wav} (the sound, beside the animation)")
     return path
+
+
+def _write_fbx(out: Path, character: Character, chans: list[Channel], W: np.ndarray, t: np.ndarray, head, audio,
+               audio_rate, neck_share: float, gaze, name: str, log) -> Path:
+    """An FBX character into ``.fbx``: straight into a copy of its binary file
+    (:func:`~faceretarget.io._fbx_write.write_fbx_animation`); a file that writer cannot do (an ASCII FBX, a
+    character Blender read) goes through Blender, with a line saying why, or is an error naming the file
+    when Blender's ``bpy`` is not installed."""
+    from ..optional import has_module, install_line
+    from ._fbx_write import DirectWriteUnsupported, write_fbx_animation
+
+    try:
+        return write_fbx_animation(out, character, chans, W, t, head=head, neck_share=neck_share, gaze=gaze,
+                                   name=name, log=log)
+    except DirectWriteUnsupported as e:
+        why = str(e).removeprefix(f"{out}: ")
+    if not has_module("bpy"):
+        raise MissingDependencyError(f"{out}: cannot write the animation into a copy of {Path(character.path).name} "
+                                     f"directly ({why}), and the Blender route needs the 'bpy' package, which is not "
+                                     f"installed: {install_line('bpy')}")
+    log(f"{out.name}: written through Blender ({why})")
+    from ._blender_scene import write_blender_animation
+
+    return write_blender_animation(out, character, chans, W, t, head=head, audio=audio, audio_rate=audio_rate,
+                                   neck_share=neck_share, gaze=gaze, name=name, log=log)
 
 
 # ----------------------------------------------------------------------------------------- VRM animation

@@ -862,14 +862,16 @@ def run_batch(jobs: str | os.PathLike | BatchSpec, *, scheduler: str | None = No
 def _require_packages(spec: BatchSpec, *, cluster: bool) -> None:
     """Raise before anything runs when the batch needs an optional package that is not installed: Dask's
     ``distributed`` (``cluster``), and what the jobs' outputs and video inputs need (``.blend`` /
-    ``.fbx``: bpy, ``.usd*``: usd-core, videos: MediaPipe, PyAV and the FaceLandmarker model)."""
+    ``.fbx``: bpy but for an ``.fbx`` character's own copy, ``.usd*``: usd-core, videos: MediaPipe, PyAV and
+    the FaceLandmarker model)."""
     from .._animate import VIDEO_EXTENSIONS
 
     if cluster:
         require("faceretarget batch (Dask's distributed scheduler)", "distributed")
     seen = set()
     for job in spec.jobs:
-        for name in output_needs(job.out):
+        char = spec.characters.get(job.character) if job.operation == "animate" else None
+        for name in output_needs(job.out, char.rig if char is not None else None):
             if name not in seen:
                 seen.add(name)
                 require(f"{spec.path}: job {job.id} (output {job.out.name})", name)
