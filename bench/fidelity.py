@@ -5,7 +5,9 @@ most active ``--seconds`` of each, resampled to 30 fps) played on every characte
 ``--characters`` (default ``../shared/data``: rig folders and character files with a human face; see below for
 those without ARKit-named shapes), with real head motion from speech capture (``--head``, default the ZEGGS take's BVH head, relative to
 its mean pose: the shared takes carry no head rotation).  Each is rendered to an mp4 with the project's preview
-renderer (the character's textures sampled per vertex, or its material colours), in two set-ups:
+renderer (the character's textures sampled per vertex, or its material colours) as a webcam sees a face
+``--distance`` metres away (0.6 by default: the perspective of a pinhole camera, the picture cropped to the face;
+0: an orthographic camera, as P11 was before), in two set-ups:
 
 * ``webcam``: the camera in front, the key light above and to the left;
 * ``turned``: the camera turned 15 degrees about the head's vertical axis and the key light from the right.
@@ -31,7 +33,7 @@ median head-rotation error in degrees.
 Usage::
 
     python bench/fidelity.py [--json] [--characters DIR] [--takes DIR] [--head FILE] [--seconds S]
-                             [--setups webcam,turned] [--solver default|legacy] [--no-generate]
+                             [--setups webcam,turned] [--distance M] [--solver default|all-gains|legacy] [--no-generate]
                              [--figure PNG [--figure-character NAME]] [--out DIR]
 
 The last line with ``--json``: ``{"runs": [{character, take, setup, target, ours: {...}, peer: {...}}],
@@ -61,6 +63,9 @@ SKIP_DIRS = ("conformance", "video", "speech", "livelinkface", "facial-mocap", "
 #: in view space (x right, y up, z toward the viewer).
 SETUPS = {"webcam": (0.0, (-0.35, 0.45, 0.82)), "turned": (15.0, (0.6, 0.3, 0.75))}
 REGIONS = ("mouth", "lids", "brows", "cheeks")
+#: The camera's distance from the face, metres: a webcam's on a desk.  The picture is the crop of its frame
+#: around the face (the face's perspective is a webcam's whatever the crop: it depends only on the distance).
+DISTANCE = 0.6
 
 
 # --------------------------------------------------------------------------------------------- inputs
@@ -215,17 +220,36 @@ def figure(rows: list[tuple[str, Target, tuple, tuple[str, ...]]], out: Path, si
     return save_png(out, render_grid(imgs, labels, cols=3))
 
 
-def render_video(target: Target, W: np.ndarray, head: Rotation, setup: str, out: Path, size: int = 512) -> int:
-    """The take (``W`` in ``target.names`` order, 30 fps) on the character as an mp4; frames written."""
+def render_video(target: Target, W: np.ndarray, head: Rotation, setup: str, out: Path, size: int = 512,
+                 distance: float = DISTANCE) -> int:
+    """The take (``W`` in ``target.names`` order, 30 fps) on the character as an mp4, seen by a camera
+    ``distance`` metres from the face (0: orthographic); frames written."""
     from faceretarget.io._video import write_video
 
     rig, D, r = look(target, size, *SETUPS[setup])
     V0 = rig.neutral.vertices
     R = head.as_matrix()
     with r:
-        frames = (r.render(V0 + (W[i] @ D).reshape(-1, 3), R[i]) for i in range(len(W)))
+        frames = (r.render(perspective(r, r.transform(V0 + (W[i] @ D).reshape(-1, 3), R[i]), distance))
+                  for i in range(len(W)))
         write_video(out, frames, FPS)
     return len(W)
+
+
+def perspective(r, V: np.ndarray, distance: float) -> np.ndarray:
+    """``V`` (mesh units, head motion applied) as a pinhole camera ``distance`` metres in front of the framed
+    face sees it, for the renderer's orthographic camera: each point pulled toward the view axis by
+    ``d / (d - z)`` (``z`` toward the camera from the framing's centre), so that the centre plane keeps its
+    size and nearer parts grow as they do in a webcam's picture (0: ``V`` unchanged)."""
+    if not distance:
+        return V
+    cam = r.camera
+    d = distance * r.units_per_metre
+    v = (V - cam.center) @ cam.rotation.T
+    if (v[:, 2] >= 0.5 * d).any():
+        raise ValueError(f"the face reaches within half of the camera's {distance} m distance")
+    v[:, :2] *= (d / (d - v[:, 2]))[:, None]
+    return v @ cam.rotation + cam.center
 
 
 # ---------------------------------------------------------------------------------------------- scores
@@ -269,13 +293,16 @@ def main(argv=None) -> int:
     ap.add_argument("--head", type=Path, default=DATA / "headmotion" / "zeggs_067_Speech_2_x_1_0.bvh")
     ap.add_argument("--seconds", type=float, default=12.0, help="the most active seconds of each take")
     ap.add_argument("--setups", default="webcam,turned")
+    ap.add_argument("--distance", type=float, default=DISTANCE, help="the camera's distance from the face in metres "
+                    f"(default {DISTANCE}: a webcam's perspective; 0: an orthographic camera, P11 before this option)")
     ap.add_argument("--max-characters", type=int, default=0, help="only the first N characters (0: all)")
     ap.add_argument("--no-generate", action="store_true", help="leave out characters without ARKit shapes instead "
                     "of generating them (faceretarget character shapes; P11 counts generated shapes)")
     ap.add_argument("--out", type=Path, default=None, help="keep the rendered videos here")
     ap.add_argument("--figure-character", default="", help="only runs of characters whose name holds this")
-    ap.add_argument("--solver", choices=["default", "legacy"], default="default",
-                    help="legacy: the solver before issue 32 (prior 0.1, no per-take gains), for comparison")
+    ap.add_argument("--solver", choices=["default", "all-gains", "legacy"], default="default",
+                    help="for comparison: all-gains, issue 32's first solver (per-take gains on every shape, "
+                    "0-4); legacy, the solver before issue 32 (prior 0.1, no per-take gains)")
     ap.add_argument("--figure", type=Path, default=None, help="write truth / ours / peer at a smile and a blink "
                     "frame (the same-character run with the most blinking) as a PNG")
     ap.add_argument("--json", action="store_true")
@@ -289,6 +316,8 @@ def main(argv=None) -> int:
     from faceretarget.retarget import LandmarkSolver
 
     def solver():
+        if a.solver == "all-gains":
+            return LandmarkSolver(prior=10.0, gains=True, unscored_prior=0.1)
         return LandmarkSolver() if a.solver == "legacy" else video_solver()
 
     targets, skipped = [], {}
@@ -322,7 +351,7 @@ def main(argv=None) -> int:
                 t0 = time.perf_counter()
                 video = work / f"{src.name}-{take_path.stem}-{setup}.mp4"
                 try:
-                    render_video(src, src.weights(Wtake, perf.names), head, setup, video)
+                    render_video(src, src.weights(Wtake, perf.names), head, setup, video, distance=a.distance)
                     cap = capture_take(video, neutral_percentile=5.0, progress=False, log=lambda *_: None)
                     dsts = [("same", src)] + ([("other", targets[(i + 1) % len(targets)])] if len(targets) > 1 else [])
                     for kind, dst in dsts:

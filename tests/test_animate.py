@@ -120,6 +120,33 @@ def test_per_take_gains_undo_a_tracker_that_reads_the_mouth_at_half_size(arkit):
     assert sol.transform(P[:10], biased[:10]).prior_gains is None
 
 
+def test_gains_bounded_and_kept_off_the_mouth(arkit):
+    """The animate solver's gains (issue 32, P11 with a webcam's perspective): the mouth shapes, found by where
+    their landmark motion lies (not by name), keep gain 1; the others stay within gain_min..gain_max even where
+    the tracker's scores say four times too much or a hundredth; a brow the tracker reads at a quarter of its
+    size is put back only to twice its score."""
+    from faceretarget.pipelines import video_solver
+
+    W, X, P = _take(arkit)
+    n0 = neutral_face(P, W)
+    sol = video_solver().fit(arkit, n0)
+    mouth = np.array([n.startswith(("jaw", "mouth")) for n in arkit.names])
+    assert sol.mouth_shapes_[mouth & (W.max(axis=0) > 0.3)].all() and not sol.mouth_shapes_[sol.eye_shapes_].any()
+    brows = np.array([n.startswith("brow") for n in arkit.names])
+    assert not sol.mouth_shapes_[brows].any()
+    biased = W * np.where(mouth, 0.5, np.where(brows, 0.25, 1.0))
+    biased[:, arkit.names.index("cheekSquintLeft")] *= 4.0
+    g = sol.transform(P, biased).prior_gains
+    scored = np.abs(biased).max(axis=0) > 1e-6
+    assert (g[sol.mouth_shapes_] == 1.0).all()
+    assert (g[scored] >= 0.5 - 1e-12).all() and (g <= 2.0 + 1e-12).all() and (g[sol.eye_shapes_] >= 1.0).all()
+    used = brows & (W.max(axis=0) > 0.3)
+    assert used.any() and np.allclose(g[used], 2.0), g[used]      # wanted 4: bounded at 2
+    # the same take with every shape's gain free (issue 32's first solver): the mouth comes back to 2
+    free = LandmarkSolver(prior=10.0, gains=True).fit(arkit, n0).transform(P, biased).prior_gains
+    assert np.median(free[mouth & (W.max(axis=0) > 0.3)]) == pytest.approx(2.0, rel=0.1)
+
+
 def test_landmark_solver_errors_name_the_problem(arkit):
     _, _, P = _take(arkit, T=20)
     with pytest.raises(InvalidDataError, match="68"):
@@ -193,7 +220,9 @@ def test_animate_a_real_video_follows_the_mouth_and_the_head(arkit, aoc_capture,
     r = animate(aoc_capture, arkit, out=out)
     assert out.is_file() and r.weights.shape == (100, arkit.n_shapes)
     assert r.weights.min() >= 0 and r.weights.max() <= 1
-    assert r.mouth_corr > 0.9, r.mouth_corr
+    # measured 0.89: the mouth follows the tracker's mouth scores, the lips' landmarks correct them (no per-take
+    # mouth gains since P11 showed them turning smiles into grimaces; 0.93 with them)
+    assert r.mouth_corr > 0.85, r.mouth_corr
     # the head in the file is the tracked one (about its rest pose) to well under a degree
     head = read_head_motion(out).head
     tracked = r.capture.head[r.capture.valid].rotation
@@ -334,7 +363,7 @@ def test_emotion_blends_restyled_solves_by_alpha_and_keeps_the_lip_sync(arkit, a
     r = animate(aoc_capture, arkit, emotion="angry:0.6", style=style)
     assert r.weights.min() >= 0 and r.weights.max() <= 1
     assert np.abs(r.weights - r0.weights).mean() > 0.01       # the face changed ...
-    assert r.mouth_corr > 0.9, r.mouth_corr                   # ... and still speaks the same (0.98 measured)
+    assert r.mouth_corr > 0.85, r.mouth_corr                  # ... and still speaks the same (0.89 measured)
     # a curve that is 0 until 1 s leaves those frames exactly as without emotion (Eq. 5.1)
     curve = tmp_path / "curve.txt"
     curve.write_text("0 angry 0\n1.0 angry 0\n2.0 angry 1\n")
@@ -364,7 +393,7 @@ def test_emotion_from_a_speaker_model_on_an_actor_it_has_not_seen(arkit, aoc_cap
     assert r.weights.min() >= 0 and r.weights.max() <= 1
     change = np.abs(r.weights - r0.weights).mean(0)
     assert change.mean() > 0.005                                # the face changed ...
-    assert r.mouth_corr > 0.9, r.mouth_corr                     # ... and still speaks the same
+    assert r.mouth_corr > 0.85, r.mouth_corr                    # ... and still speaks the same (0.88 measured)
     brows = [r.names.index(n) for n in ("browDownLeft", "browDownRight")]
     assert (r.weights[:, brows] - r0.weights[:, brows]).mean() > 0   # anger lowers the brows
 
@@ -379,7 +408,9 @@ def test_a_character_without_arkit_shapes_goes_through_keyshape_pairs(arkit, aoc
     from faceretarget.rig import Rig
 
     take = tracked_take(aoc_capture)
-    direct = animate(take, arkit)
+    # what the character's own shapes give from the landmarks (per-take gains on every shape: the solve that
+    # follows the landmarks most, which keyshape pairs, made of landmarks, can reproduce)
+    direct = animate(take, arkit, solver=LandmarkSolver(prior=10.0, gains=True, unscored_prior=0.1))
     plain = Rig(arkit.neutral, [f"s{i}" for i in range(arkit.n_shapes)], arkit.deltas, arkit.unit,
                 arkit.landmarks, name="no-arkit-names")
     with pytest.raises(InvalidDataError, match="no-arkit-names.*keyshape pairs"):

