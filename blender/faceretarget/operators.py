@@ -74,7 +74,8 @@ def animate_body(names: list[str], video: str, s, *, emotion: dict | None = None
     def body(job):
         yield from jobs.wait_library()
         ch = yield from scene.read_character(job, names, 0.0, 0.08)
-        params.update(character=str(scene.save_character(job, ch)), landmarks=scene.stored_landmarks(names))
+        saved = yield from scene.save_character(job, ch)
+        params.update(character=str(saved), landmarks=scene.stored_landmarks(names))
         yield
         done = yield from jobs.run_in_worker(job, "animate", params, 0.1, 0.9)
         return (yield from _key_result(job, names, ch, done, {"video": video, **{k: v for k, v in params.items()
@@ -92,7 +93,8 @@ def take_body(names: list[str], take: str, s):
     def body(job):
         yield from jobs.wait_library()
         ch = yield from scene.read_character(job, names, 0.0, 0.08)
-        params.update(character=str(scene.save_character(job, ch)), landmarks=scene.stored_landmarks(names))
+        saved = yield from scene.save_character(job, ch)
+        params.update(character=str(saved), landmarks=scene.stored_landmarks(names))
         yield
         done = yield from jobs.run_in_worker(job, "take", params, 0.1, 0.9)
         job.lines.append(f"route: {done.get('route')}")
@@ -104,7 +106,8 @@ def landmarks_body(names: list[str], points: np.ndarray | None = None, accept: b
     def body(job):
         yield from jobs.wait_library()
         ch = yield from scene.read_character(job, names, 0.0, 0.3)
-        params = {"character": str(scene.save_character(job, ch)), "landmarks": scene.stored_landmarks(names),
+        saved = yield from scene.save_character(job, ch)
+        params = {"character": str(saved), "landmarks": scene.stored_landmarks(names),
                   "points": None if points is None else np.asarray(points).tolist()}
         yield
         done = yield from jobs.run_in_worker(job, "landmarks", params, 0.3, 1.0)
@@ -126,7 +129,8 @@ def live_body(names: list[str], source, s, state):
     def body(job):
         yield from jobs.wait_library()
         ch = yield from scene.read_character(job, names, 0.0, 0.5)
-        params.update(character=str(scene.save_character(job, ch)), landmarks=scene.stored_landmarks(names))
+        saved = yield from scene.save_character(job, ch)
+        params.update(character=str(saved), landmarks=scene.stored_landmarks(names))
         yield
         w = jobs.Worker(background=False)                # its own process, at full priority: stopping ends it
         job.on_cancel.append(w.kill)
