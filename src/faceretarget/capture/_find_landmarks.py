@@ -434,6 +434,34 @@ def _lids_on_rim(character: Character, prim: int, alone, pts: np.ndarray, tris: 
     return sorted(moved)
 
 
+#: Landmarks on the skin whatever hair or eyes a head has: the jaw line, the nose, the outer lips.
+_SKIN_POINTS = np.r_[0:17, 27:36, 48:60]
+
+
+def _face_under(character: Character, prim: int, seen, px: np.ndarray, log) -> int:
+    """The mesh the tracker found the face on, for a character with no face shapes: the mesh seen under most
+    of the skin landmarks (``seen``, the render they were found on), when it is not ``prim`` (the head mesh
+    guessed as the one with most vertices in the head: a dense hair mesh, as on a VRoid avatar, outnumbers the
+    face) and holds at least half of them; then it is made the character's
+    :attr:`~faceretarget.character.Character.neutral_head`."""
+    H, W = seen.mesh.shape
+    p = np.rint(px[CHARACTER_68][_SKIN_POINTS, :2]).astype(int)
+    inside = (p[:, 0] >= 0) & (p[:, 0] < W) & (p[:, 1] >= 0) & (p[:, 1] < H)
+    ids = seen.mesh[p[inside, 1], p[inside, 0]]
+    ids = ids[ids >= 0]
+    if not len(ids):
+        return prim
+    counts = np.bincount(ids, minlength=len(character.meshes))
+    face = int(np.argmax(counts))
+    if face == prim or counts[face] < len(_SKIN_POINTS) / 2 or counts[face] <= counts[prim]:
+        return prim
+    log(f"landmarks: the face is on '{character.meshes[face].name}' ({int(counts[face])} of "
+        f"{len(_SKIN_POINTS)} skin points), not on '{character.meshes[prim].name}' (the mesh with most vertices "
+        "in the head): the head mesh is now it")
+    character.neutral_head = face
+    return face
+
+
 def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=None) -> LandmarkSearch:
     """Find the character's 68 landmarks on a render of its neutral face (module docstring).
 
@@ -468,7 +496,8 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         best = None
         for up, front in _candidates(character):
             cam = look_at(centre, front, up, 2.0 * extent, (320, 320))
-            img = render_scene(character.meshes, cam).image
+            seen = render_scene(character.meshes, cam)
+            img = seen.image
             images.append(img)
             r = tr.track(img, 0.0)
             v = {"up": up.tolist(), "front": front.tolist(), "found": r is not None,
@@ -478,7 +507,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
                 + ("no face" if r is None else f"a face, {v['frontal']:.0%} frontal")
                 + f" ({time.perf_counter() - t0:.1f} s)")
             if r is not None and (best is None or v["frontal"] > best[0]):
-                best = (v["frontal"], up, front, r[0], cam)
+                best = (v["frontal"], up, front, r[0], cam, seen)
             if r is not None and v["frontal"] > (0.6 if character.front is not None
                                                  and np.allclose(front, character.front) else 0.85):
                 break                                    # a face seen squarely: the other sides can only be worse
@@ -489,7 +518,9 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
                 "'faceretarget character inspect FILE --out check.png' for what was rendered)", views=views)
             err.images = images
             raise err
-        _, up, front, px, cam = best
+        _, up, front, px, cam, seen = best
+        if not character.face_meshes() and not character.face_filter:     # the head mesh was a guess
+            prim = _face_under(character, prim, seen, px, log)
         # zoom on the face found and look again
         p = px[CHARACTER_68]
         mid = (p[:, :2].min(axis=0) + p[:, :2].max(axis=0)) / 2.0

@@ -190,6 +190,8 @@ def _apply(character: Character, d: dict, where: str) -> None:
             or not np.isfinite(bary).all():
         raise InputFileError(f"{where}: 'triangles' and 'bary' must be 68 x 3 (vertices of '{m.name}', weights)")
     character.landmarks = SurfacePoints(mi, tri, bary, d.get("source", where))
+    if character.neutral_head is not None and not character.face_meshes():
+        character.neutral_head = mi               # no face shapes: the face is where its landmarks are
     if d.get("up") is not None:
         character.up = np.asarray(d["up"], dtype=np.float64)
     if d.get("front") is not None:
