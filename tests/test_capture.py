@@ -60,6 +60,31 @@ def test_one_euro_sine_keeps_the_signal_with_little_lag():
     assert np.sqrt(np.mean((y0 - s)[30:] ** 2)) > 3 * np.sqrt(np.mean((y - s)[30:] ** 2))
 
 
+def test_one_euro_both_ways_does_not_lag():
+    """A whole recording is smoothed forwards and backwards (``both_ways``): a slow sine (0.5 Hz, where the
+    causal filter lags most) comes out without lag and closer to the clean signal, with no more jitter."""
+    rng = np.random.default_rng(3)
+    t = np.arange(300) / 30.0
+    s = np.sin(np.pi * t)
+    x = s + rng.normal(0, 0.02, t.size)
+
+    def lag(y):
+        return int(np.argmax([np.dot(y[30 + k:270 + k], s[30:270]) for k in range(-5, 6)])) - 5
+
+    # the default setting (measured error 0.032 causal / 0.019 both ways) and a stronger one (lag 1 frame,
+    # error 0.105 / 0.022)
+    for p, causal_lag in ((OneEuroParams(1.0, 5.0, 1.0), 0), (OneEuroParams(1.0, 0.5, 1.0), 1)):
+        causal, both = one_euro(x, t, p), one_euro(x, t, p, both_ways=True)
+        assert lag(causal) == causal_lag and lag(both) == 0
+        err_c, err_b = (np.sqrt(np.mean((y - s)[30:-30] ** 2)) for y in (causal, both))
+        assert err_b < 0.65 * err_c
+        jit_c, jit_b = (np.sqrt(np.mean(np.diff(y, 2) ** 2)) for y in (causal, both))
+        assert jit_b <= jit_c
+    p = OneEuroParams()
+    # the forward pass alone is the causal filter; a one-sample signal passes through
+    assert np.allclose(one_euro(x[:1], t[:1], p, both_ways=True), x[:1])
+
+
 def test_one_euro_vector_speed_and_irregular_times():
     t = np.cumsum(np.r_[0, np.full(49, 0.04)])
     x = np.zeros((50, 3, 2))
@@ -244,7 +269,12 @@ def test_capture_postprocess_performance_csv_and_npz(tmp_path):
     c2 = Capture.read_npz(q)
     np.testing.assert_array_equal(c2.detected, cap.detected)
     np.testing.assert_allclose(c2.landmarks, cap.landmarks, atol=1e-4, equal_nan=True)
-    assert c2.processing["smooth"]["beta"] == OneEuroParams().beta
+    assert c2.processing["smooth"]["beta"] == OneEuroParams().beta and c2.processing["smooth"]["both_ways"] is True
+    causal = _fake_capture().postprocess(max_gap=3, smooth=OneEuroParams(), both_ways=False)
+    assert causal.processing["smooth"]["both_ways"] is False
+    v = cap.valid
+    assert not np.allclose(causal.landmarks[v], cap.landmarks[v])         # the option reaches every stream
+    assert not np.allclose(causal.head.quaternions[v], cap.head.quaternions[v])
     with pytest.raises(InvalidDataError, match="already post-processed"):
         cap.postprocess()
 

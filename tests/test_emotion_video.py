@@ -118,8 +118,10 @@ def test_p6_translation_and_recognition_on_three_real_speakers(p6):
     for r in base.values():
         # the speaker's own mean offset is the best any constant edit can do; the models cannot see it
         assert r["own_offset_rel_err"] < r["additive_rel_err"]
-        # the thesis's plain model extrapolates wildly from one or two training speakers
-        assert r["plain_rel_err"] > 1.2
+        # the thesis's plain model extrapolates from one or two training speakers: worse than no edit on every
+        # take (measured 1.14-59.8 with the captures smoothed both ways; 1.2 and more when they lagged)
+        assert r["plain_rel_err"] > 1.0
+    assert np.median([r["plain_rel_err"] for r in base.values()]) > 2.0          # measured 2.58
     old, new = summ["landmarks"], summ[ev.DEFAULT]
     # gains chosen on held-out training speakers: sad is not shared (measured 0.04-0.2), anger and
     # happiness more (0.38-0.75)

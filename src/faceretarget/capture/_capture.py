@@ -119,7 +119,7 @@ class Capture:
     # ------------------------------------------------------------------ post-processing
     def postprocess(self, *, max_gap: int = 5, neutral_frames: tuple[int, int] | None = None,
                     neutral_percentile: float | None = None,
-                    smooth: OneEuroParams | None = None) -> Capture:
+                    smooth: OneEuroParams | None = None, both_ways: bool = True) -> Capture:
         """Gap filling, then neutral calibration, then One Euro smoothing (a new :class:`Capture`).
 
         Parameters
@@ -138,6 +138,11 @@ class Capture:
             ``beta`` in face-relative units: weights as they are, angles in radians, landmarks
             divided by the face width in pixels (:meth:`face_width`, speed = norm of the point's
             x, y, z velocity), translation by :data:`FACE_WIDTH_M`.
+        both_ways : bool
+            Smooth without lag: the filter run forwards and backwards in time, averaged (a whole take
+            is at hand; :func:`~faceretarget.capture.one_euro`).  False: causal, as a live stream is
+            smoothed (the head then lagged 1-3 frames behind the truth on rendered takes, and the
+            median head-rotation error of P11 was 2.3 degrees instead of 1.8).
         """
         if self.interpolated.any() or self.processing:
             raise InvalidDataError(f"{self.source}: this capture is already post-processed")
@@ -162,12 +167,12 @@ class Capture:
                 if b - a < 2:
                     continue
                 s = slice(a, b)
-                lm[s] = one_euro(lm[s], t[s], smooth, vector_axis=-1, scale=fw)
-                w[s] = np.clip(one_euro(w[s], t[s], smooth), 0.0, 1.0)
-                rot[s] = one_euro(rot[s], t[s], smooth)
-                tr[s] = one_euro(tr[s], t[s], smooth, vector_axis=-1, scale=FACE_WIDTH_M)
+                lm[s] = one_euro(lm[s], t[s], smooth, vector_axis=-1, scale=fw, both_ways=both_ways)
+                w[s] = np.clip(one_euro(w[s], t[s], smooth, both_ways=both_ways), 0.0, 1.0)
+                rot[s] = one_euro(rot[s], t[s], smooth, both_ways=both_ways)
+                tr[s] = one_euro(tr[s], t[s], smooth, vector_axis=-1, scale=FACE_WIDTH_M, both_ways=both_ways)
             info["smooth"] = {"min_cutoff": smooth.min_cutoff, "beta": smooth.beta,
-                              "d_cutoff": smooth.d_cutoff, "face_width_px": fw}
+                              "d_cutoff": smooth.d_cutoff, "face_width_px": fw, "both_ways": bool(both_ways)}
         rot[~valid] = np.nan
         tr[~valid] = np.nan
         head = HeadPose.from_euler(HEAD_EULER, rot, tr, source=self.source)

@@ -72,8 +72,8 @@ def _alpha(cutoff: np.ndarray | float, dt: float) -> np.ndarray | float:
 
 
 def one_euro(x: np.ndarray, times: np.ndarray, params: OneEuroParams | None = None, *,
-             vector_axis: int | None = None, scale: float = 1.0) -> np.ndarray:
-    """Filter a signal over time with the One Euro filter (causal, as in the paper).
+             vector_axis: int | None = None, scale: float = 1.0, both_ways: bool = False) -> np.ndarray:
+    """Filter a signal over time with the One Euro filter (causal, as in the paper; or both ways).
 
     Parameters
     ----------
@@ -90,17 +90,27 @@ def one_euro(x: np.ndarray, times: np.ndarray, params: OneEuroParams | None = No
     scale : float
         The speed is divided by ``scale`` before ``beta`` applies (makes ``beta`` unit-free: pass
         e.g. the face width in pixels for pixel landmarks).
+    both_ways : bool
+        For a whole recording (not a live stream): the mean of the filter run forwards in time and
+        run backwards, whose lags are equal and opposite, so the result does not lag (a causal
+        pass delays a slow head turn by 2-3 frames at 30 fps); jitter is smoothed as much.
 
     Returns
     -------
     (T, ...) float64
-        Filtered samples; the first sample is passed through.
+        Filtered samples; the first sample is passed through (causal).
     """
     p = params or OneEuroParams()
     x = np.asarray(x, dtype=np.float64)
     t = np.asarray(times, dtype=np.float64).reshape(-1)
     if x.shape[0] != t.size:
         raise InvalidDataError(f"one_euro: {t.size} times for {x.shape[0]} samples")
+    if both_ways:
+        fwd = one_euro(x, t, p, vector_axis=vector_axis, scale=scale)
+        if x.shape[0] < 2:
+            return fwd
+        bwd = one_euro(x[::-1], t[-1] - t[::-1], p, vector_axis=vector_axis, scale=scale)[::-1]
+        return 0.5 * (fwd + bwd)
     out = np.empty_like(x)
     if x.shape[0] == 0:
         return out
