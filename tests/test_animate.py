@@ -429,3 +429,52 @@ def test_a_character_without_arkit_shapes_goes_through_keyshape_pairs(arkit, aoc
     rel = np.linalg.norm(played - want) / np.linalg.norm(motion)
     assert rel < 0.5, rel                                  # measured 0.39 (20 keys of 100 frames, NNLS)
     assert r.mouth_corr > 0.95, r.mouth_corr                # measured 0.98
+
+
+def test_score_map_reaches_shapes_without_arkit_names(arkit):
+    """Issue 32: the tracker's ARKit scores reach a character's own shapes through the template's landmark
+    motion. The packaged template itself, its shapes renamed, gets every score on its own shape back (43 of
+    43: weight 1 within 0.05, less than 0.1 elsewhere); gaze and tongueOut drive nothing; a rig with ARKit
+    names takes them by name, as before."""
+    from faceretarget.characters import score_map
+    from faceretarget.mesh import Mesh
+    from faceretarget.names import ARKIT_NAMES
+    from faceretarget.rig import Rig
+    from faceretarget.transfer import packaged_template
+
+    t = packaged_template()
+    names = list(t.shapes)
+    renamed = Rig(Mesh(t.vertices, np.full(len(t.triangles), 3), t.triangles.ravel()),
+                  [f"s{i}" for i in range(len(names))], np.stack([t.shapes[n] for n in names]), "m",
+                  t.lm_triangles[:, 0], name="renamed")
+    lines = []
+    M = score_map(renamed, list(ARKIT_NAMES), log=lines.append)
+    assert M.shape == (len(ARKIT_NAMES), len(names)) and M.min() >= 0 and M.max() <= 1
+    checked = 0
+    for i, n in enumerate(ARKIT_NAMES):
+        if n not in names or n.startswith("eyeLook"):
+            assert not M[i].any(), n
+            continue
+        j = names.index(n)
+        assert abs(M[i, j] - 1.0) < 0.05 and M[i].sum() - M[i, j] < 0.1, (n, M[i, j])
+        checked += 1
+    assert checked == 43 and "carry no ARKit names" in lines[0]
+    by_name = score_map(arkit, list(ARKIT_NAMES))
+    np.testing.assert_array_equal(by_name, arkit.map_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES)), warn=False))
+
+
+def test_own_shapes_of_a_valid_avatar_take_the_scores(data_dir):
+    """A VALID avatar's own shapes (``LsmileClose_h``, ``LeyeClose_h``, ...) take the tracker's smile and blink
+    through the map (before, no score reached them); measured on AIAN_F_1_Busi: mouthSmileLeft -> LsmileClose_h
+    1.0, eyeBlinkLeft -> LeyeClose_h 1.0, browInnerUp -> both brow raisers."""
+    from faceretarget.characters import drive_rig, load_character, score_map
+
+    ch = load_character(data_dir / "characters" / "valid" / "AIAN_F_1_Busi.glb")
+    rig = drive_rig(ch, "auto").rig
+    names = ["mouthSmileLeft", "eyeBlinkLeft", "browInnerUp", "eyeLookDownLeft"]
+    M = score_map(rig, names)
+    short = [n.split(".")[-1] for n in rig.names]
+    assert short[int(np.argmax(M[0]))] == "LsmileClose_h" and M[0].max() > 0.9
+    assert short[int(np.argmax(M[1]))] == "LeyeClose_h" and M[1].max() > 0.9
+    assert {short[k] for k in np.argsort(-M[2])[:2]} == {"RbrowUp_h", "LbrowUp_h"}
+    assert not M[3].any()

@@ -644,11 +644,14 @@ def _solve(character: Rig, take: Performance, o: AnimateOptions, by_landmarks: b
         tr = retarget_take(ftake, o.source_keys, o.target_keys, solver="nnls", log=log)
         own = tr.target if tr.target is not None and tr.target.kind != "mesh" else None
         return _Solved(tr.result.weights, list(tr.result.names), tr.target_keys, own, solve_pairs, ftake)
-    prior = None if take.weights is None else character.map_weights(take.names, take.weights, warn=False)
+    from ..characters import score_map
+
+    # each score's drive of the character's shapes: by name, or through the ARKit template's landmark motion
+    smap = None if take.weights is None else score_map(character, list(take.names), log=log)
+    prior = None if smap is None else np.nan_to_num(take.weights) @ smap
     sol = (o.solver or video_solver()).fit(character, neutral_face(ftake.points))   # the face take's rest face
     # the shapes the tracker has a score for (any value), whatever it scored them in this take
-    scored = None if take.weights is None else np.abs(character.map_weights(
-        take.names, np.ones((1, len(take.names))), warn=False)).max(axis=0) > 0
+    scored = None if smap is None else np.abs(smap).max(axis=0) > 0
 
     def solve(points: np.ndarray) -> np.ndarray:
         return sol.transform(points, prior, take.times, scored=scored).weights

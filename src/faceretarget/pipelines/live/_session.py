@@ -48,6 +48,7 @@ from ...capture import (
     neutral_baseline,
     pose_from_matrices,
 )
+from ...characters import score_map
 from ...errors import InputFileError, InvalidDataError, OutputError
 from ...headpose import HeadPose
 from ...names import normalize_name
@@ -779,7 +780,7 @@ class _State:
         neutral = neutral_face(P, calibrate_neutral(S, self.base))
         tpl = s.solver_template
         self.solver = LandmarkSolver(**tpl.get_params()).fit(s.character, neutral)
-        self.prior_map = s.character.map_weights(self.tracker.names, np.eye(len(self.tracker.names)), warn=False)
+        self.prior_map = score_map(s.character, list(self.tracker.names), log=s.log)
         self.rest = Rotation.from_quat(np.array(self.cal_rot)).mean()
         s.log(f"calibrated on {len(P)} frames ({self.stats.calibration_frames} with a face): neutral face, "
               f"score baseline (mean {self.base.mean():.3f}), head rest {np.degrees(self.rest.magnitude()):.1f} deg "
