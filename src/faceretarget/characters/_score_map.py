@@ -42,9 +42,7 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
     names : list of str
         The tracker's score names.
     """
-    from scipy.optimize import lsq_linear
-
-    from ..numerics import similarity_fit
+    from ..numerics import similarity_fit, solve_bounded
 
     names = list(names)
     by_name = rig.map_weights(names, np.eye(len(names)), warn=False)
@@ -56,12 +54,16 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
     s, R, _ = similarity_fit(T0, C0[None])               # character ~ s template R' + c
     A = rig.deltas[:, rig.landmarks].astype(np.float64).reshape(rig.n_shapes, -1).T      # (204, K)
     out = np.zeros((len(names), rig.n_shapes))
+    rows, targets = [], []
     for i, n in enumerate(names):
         a = normalize_name(n)
         d = motions.get(a)
         if d is None or a.startswith("eyeLook"):     # gaze turns the eyeballs; its lid motion is not a lid shape
             continue
-        out[i] = lsq_linear(A, (float(s[0]) * d @ R[0].T).reshape(-1), bounds=(0.0, 1.0)).x
+        rows.append(i)
+        targets.append((float(s[0]) * d @ R[0].T).reshape(-1))
+    if rows:                                         # every score's mix at once, each within [0, 1]
+        out[rows] = solve_bounded(A, np.array(targets), 0.0, 1.0)
     if log is not None:
         reached = int((out.max(axis=0) > 1e-6).sum())
         log(f"{rig.name}: its shapes carry no ARKit names; the tracker's scores reach {reached} of its "
