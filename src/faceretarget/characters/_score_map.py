@@ -19,10 +19,17 @@ import numpy as np
 from ..names import normalize_name
 from ..rig import Rig
 
-__all__ = ["score_map", "MIN_NAMED"]
+__all__ = ["score_map", "by_name", "MIN_NAMED"]
 
 #: Fewer shapes than this taken by name, and the scores reach the shapes through the template instead.
 MIN_NAMED = 10
+
+
+def by_name(rig: Rig, names: list[str]) -> bool:
+    """Whether :func:`score_map` takes the scores ``names`` by name (at least :data:`MIN_NAMED` of the rig's
+    shapes are named after one)."""
+    return int((np.abs(rig.map_weights(list(names), np.eye(len(names)), warn=False)).max(axis=0) > 0).sum()) \
+        >= MIN_NAMED
 
 
 def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
@@ -45,10 +52,10 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
     from ..numerics import similarity_fit, solve_bounded
 
     names = list(names)
-    by_name = rig.map_weights(names, np.eye(len(names)), warn=False)
-    if int((np.abs(by_name).max(axis=0) > 0).sum()) >= MIN_NAMED or rig.landmarks is None \
+    named = rig.map_weights(names, np.eye(len(names)), warn=False)
+    if int((np.abs(named).max(axis=0) > 0).sum()) >= MIN_NAMED or rig.landmarks is None \
             or len(rig.landmarks) != 68 or rig.n_shapes == 0:
-        return by_name
+        return named
     T0, motions = _template_landmarks()
     C0 = rig.neutral.vertices[rig.landmarks].astype(np.float64)
     s, R, _ = similarity_fit(T0, C0[None])               # character ~ s template R' + c
@@ -64,6 +71,7 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
         targets.append((float(s[0]) * d @ R[0].T).reshape(-1))
     if rows:                                         # every score's mix at once, each within [0, 1]
         out[rows] = solve_bounded(A, np.array(targets), 0.0, 1.0)
+        out[out < 1e-3] = 0.0                        # round-off, no drive
     if log is not None:
         reached = int((out.max(axis=0) > 1e-6).sum())
         log(f"{rig.name}: its shapes carry no ARKit names; the tracker's scores reach {reached} of its "
