@@ -6,8 +6,9 @@ score by name.  One whose shapes are its own (a VALID avatar's ``RsmileClose_h``
 none: every shape was solved from the 68 points alone, and a broad smile came out as a grimace with the
 brows pulled down.  :func:`score_map` reaches such shapes through geometry instead of names: each ARKit
 shape of the packaged template (ICT-FaceKit) moves the template's 68 landmarks; that motion, carried onto
-the character's landmarks by the similarity between the two neutral faces, is matched by a non-negative
-mix of the character's shapes' landmark motion (least squares); the mix is that score's row.
+the character's landmarks by the similarity between the two neutral faces, is matched by a mix of the
+character's shapes' landmark motion, each weight within [0, 1] (bounded least squares: unbounded, a jaw drop
+no shape reaches became five times a viseme); the mix is that score's row.
 """
 
 from __future__ import annotations
@@ -52,10 +53,8 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
     from ..numerics import similarity_fit, solve_bounded
 
     names = list(names)
-    named = rig.map_weights(names, np.eye(len(names)), warn=False)
-    if int((np.abs(named).max(axis=0) > 0).sum()) >= MIN_NAMED or rig.landmarks is None \
-            or len(rig.landmarks) != 68 or rig.n_shapes == 0:
-        return named
+    if by_name(rig, names) or rig.landmarks is None or len(rig.landmarks) != 68 or rig.n_shapes == 0:
+        return rig.map_weights(names, np.eye(len(names)), warn=False)
     T0, motions = _template_landmarks()
     C0 = rig.neutral.vertices[rig.landmarks].astype(np.float64)
     s, R, _ = similarity_fit(T0, C0[None])               # character ~ s template R' + c
@@ -73,7 +72,7 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
         out[rows] = solve_bounded(A, np.array(targets), 0.0, 1.0)
         out[out < 1e-3] = 0.0                        # round-off, no drive
     if log is not None:
-        reached = int((out.max(axis=0) > 1e-6).sum())
+        reached = int((out.max(axis=0) > 0).sum())
         log(f"{rig.name}: its shapes carry no ARKit names; the tracker's scores reach {reached} of its "
             f"{rig.n_shapes} shapes through the ARKit template's landmark motion")
     return out
