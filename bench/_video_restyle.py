@@ -46,9 +46,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _emotion_data import cached_capture, find_clips  # noqa: E402  (bench/_emotion_data.py, same folder)
 from _plot import font as _font  # noqa: E402
+from faceretarget.files import cache_dir  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "emotion-video"
-CACHE = Path(__file__).resolve().parents[1] / "out" / "emotion_video" / "captures"
+CACHE = cache_dir("bench", "emotion_video")           # the user's cache folder, never the checkout
 GREY = np.array([0.299, 0.587, 0.114])
 
 

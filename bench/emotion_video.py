@@ -62,6 +62,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _emotion_data import audio_of, cached_capture, find_clips  # noqa: E402
+from faceretarget.files import cache_dir  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "emotion-video"
@@ -391,7 +392,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=DATA, help="folder of clips (default ../shared/data/emotion-video)")
     ap.add_argument("--train", help="training speakers, comma-separated (default: every other speaker)")
     ap.add_argument("--test", help="test speakers, comma-separated (default: every speaker, one at a time)")
-    ap.add_argument("--cache", type=Path, default=REPO / "out" / "emotion_video" / "captures")
+    ap.add_argument("--cache", type=Path, default=cache_dir("bench", "emotion_video"),
+                    help="captured clips (default: the user's faceretarget cache folder)")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "emotion_video")
     ap.add_argument("--fit-speed", action="store_true", help="also time style fit on 3 x --fit-frames frames")
     ap.add_argument("--fit-frames", type=int, default=2000)
