@@ -466,8 +466,11 @@ def test_score_map_reaches_shapes_without_arkit_names(arkit):
 def test_own_shapes_of_a_valid_avatar_take_the_scores(data_dir):
     """A VALID avatar's own shapes (``LsmileClose_h``, ``LeyeClose_h``, ...) take the tracker's smile and blink
     through the map (before, no score reached them); measured on AIAN_F_1_Busi: mouthSmileLeft -> LsmileClose_h
-    1.0, eyeBlinkLeft -> LeyeClose_h 1.0, browInnerUp -> both brow raisers."""
+    1.0 and LsmileOpen_h 0.49 (and nothing else: every shape allowed, 15 shapes, a disgust shape among them,
+    bared the teeth on broad smiles), eyeBlinkLeft -> LeyeClose_h 1.0, browInnerUp -> both brow raisers; 3.6
+    shapes a score (13.2 every shape allowed)."""
     from faceretarget.characters import drive_rig, load_character, score_map
+    from faceretarget.names import ARKIT_NAMES
 
     ch = load_character(data_dir / "characters" / "valid" / "AIAN_F_1_Busi.glb")
     rig = drive_rig(ch, "auto").rig
@@ -478,3 +481,8 @@ def test_own_shapes_of_a_valid_avatar_take_the_scores(data_dir):
     assert short[int(np.argmax(M[1]))] == "LeyeClose_h" and M[1].max() > 0.9
     assert {short[k] for k in np.argsort(-M[2])[:2]} == {"RbrowUp_h", "LbrowUp_h"}
     assert not M[3].any()
+    smile = {short[k] for k in np.flatnonzero(M[0])}
+    assert smile <= {"LsmileClose_h", "LsmileOpen_h", "LlipCorner_h"} and "Ldisgust_h" not in smile, smile
+    full = score_map(rig, list(ARKIT_NAMES))
+    per_score = (full > 0).sum(axis=1)[full.any(axis=1)]
+    assert per_score.mean() < 5, per_score.mean()              # measured 3.6

@@ -9,6 +9,14 @@ shape of the packaged template (ICT-FaceKit) moves the template's 68 landmarks; 
 the character's landmarks by the similarity between the two neutral faces, is matched by a mix of the
 character's shapes' landmark motion, each weight within [0, 1] (bounded least squares: unbounded, a jaw drop
 no shape reaches became five times a viseme); the mix is that score's row.
+
+Each mix is kept to the few shapes that explain the motion, as an artist's mapping would be: a bounded lasso
+(:data:`SPARSITY`) picks them, and the bounded least squares on those alone gives their weights.  Every shape
+allowed, 68 points cannot tell a smile's corner lift from the same lift plus a little of a disgust shape
+(corners down, upper lip up) and a jaw thrust: a VALID avatar's ``mouthSmileLeft`` took 15 shapes, disgust
+among them, and its broad smiles bared the teeth with flat corners.  With the lasso it takes 2
+(``LsmileClose_h`` 1.0, ``LsmileOpen_h`` 0.49), 3.6 shapes a score on average instead of 13.2, and the
+median fit residual goes from 0.50 to 0.52 of the template's motion.
 """
 
 from __future__ import annotations
@@ -24,6 +32,8 @@ __all__ = ["score_map", "by_name", "MIN_NAMED"]
 
 #: Fewer shapes than this taken by name, and the scores reach the shapes through the template instead.
 MIN_NAMED = 10
+#: The lasso weight that picks each score's shapes (:func:`_sparse_support`).
+SPARSITY = 0.15
 
 
 def by_name(rig: Rig, names: list[str]) -> bool:
@@ -41,7 +51,7 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
     docstring), for the rig's 68 landmarks (``rig.landmarks``); a score the template has no shape for
     (``tongueOut``) drives nothing, nor do the gaze scores (``eyeLook*``: they turn the eyeballs, and the lids
     that follow them matched a VALID avatar's eye-closing shapes, closing its eyes when the actor looked
-    down).
+    down).  Each row holds the few shapes a bounded lasso keeps (module docstring).
 
     Parameters
     ----------
@@ -68,14 +78,40 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
             continue
         rows.append(i)
         targets.append((float(s[0]) * d @ R[0].T).reshape(-1))
-    if rows:                                         # every score's mix at once, each within [0, 1]
-        out[rows] = solve_bounded(A, np.array(targets), 0.0, 1.0)
+    if rows:                                         # each score's few shapes, then their mix within [0, 1]
+        B = np.array(targets)
+        keep = _sparse_support(A, B, SPARSITY)
+        for r, b, k in zip(rows, B, keep):
+            if k.any():
+                out[r, k] = solve_bounded(A[:, k], b, 0.0, 1.0)
         out[out < 1e-3] = 0.0                        # round-off, no drive
     if log is not None:
         reached = int((out.max(axis=0) > 0).sum())
         log(f"{rig.name}: its shapes carry no ARKit names; the tracker's scores reach {reached} of its "
             f"{rig.n_shapes} shapes through the ARKit template's landmark motion")
     return out
+
+
+def _sparse_support(A: np.ndarray, B: np.ndarray, mu: float, *, iters: int = 100,
+                    tol: float = 1e-6) -> np.ndarray:
+    """``(len(B), K)`` bool: the shapes each target's bounded lasso keeps: ``min 1/2 ||A x - b||^2 + mu ||b||
+    sum_k ||A_k|| x_k`` over ``0 <= x <= 1`` (coordinate descent, every target at once): a shape that adds
+    little to the fit costs more than it gains."""
+    G = A.T @ A
+    C = B @ A                                         # (n, K)
+    d = np.diag(G).copy()
+    pen = mu * np.linalg.norm(B, axis=1)[:, None] * np.sqrt(np.maximum(d, 0.0))[None, :]
+    X = np.zeros_like(C)
+    for _ in range(iters):
+        change = 0.0
+        for k in np.flatnonzero(d > 0):
+            r = C[:, k] - X @ G[k] + d[k] * X[:, k]
+            new = np.clip((r - pen[:, k]) / d[k], 0.0, 1.0)
+            change = max(change, float(np.abs(new - X[:, k]).max()))
+            X[:, k] = new
+        if change < tol:
+            break
+    return X > 1e-3
 
 
 @functools.lru_cache(maxsize=1)
