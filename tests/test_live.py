@@ -358,7 +358,9 @@ def test_live_session_solves_the_character_from_the_video(session_run, arkit_rig
     r = float(np.corrcoef(tracked, character)[0, 1])
     print(f"mouth opening, tracked vs character: r = {r:.3f} over {before.sum()} frames; tracked "
           f"{tracked.min():.3f}..{tracked.max():.3f}, character {character.min():.3f}..{character.max():.3f}")
-    assert r > 0.85                                         # measured 0.93
+    # measured 0.860 (0.93 with the scores a weak prior, the solver that lost to MediaPipe's own scores on P11's
+    # ground truth: mouth 1.26x its error, blink F1 0.16; pipelines.frame_solver)
+    assert r > 0.8
     assert np.ptp(tracked) > 0.1 and np.ptp(character) > 0.05
     # latency and stage timings are measured, positive and finite
     assert stats.latency.shape == (stats.solved,) and (stats.latency > 0).all()
@@ -367,6 +369,14 @@ def test_live_session_solves_the_character_from_the_video(session_run, arkit_rig
         assert stats.stage_ms(k) > 0, k
     assert stats.fps > 0 and stats.seconds > 0
     assert "latency" in stats.summary() and "p95" in stats.summary()
+    # the scores hold the shapes animate holds, in every frame (before, only those scored above 0 in that frame:
+    # a shape the tracker scored 0 there was left to the landmarks' weak prior)
+    from faceretarget.characters import held_shapes, score_map
+    from faceretarget.names import ARKIT_NAMES
+
+    scores = [n for n in ARKIT_NAMES if n != "tongueOut"]       # MediaPipe's 51
+    assert np.array_equal(stats.held, held_shapes(arkit_rig, scores, score_map(arkit_rig, scores)))
+    assert stats.held.sum() >= 50                               # arkit-face: every shape but tongueOut's
     # every frame reached on_frame, calibrating ones with a neutral face
     assert [f.index for f in frames] == list(range(125))
     assert all(not f.weights.any() for f in frames if f.calibrating)
@@ -400,6 +410,16 @@ def test_live_session_streams_livelinkface_packets(session_run, arkit_rig):
     t = np.array([p.time for p in decoded])
     np.testing.assert_allclose(t, stats.times, atol=1e-6)
     assert {p.rate for p in decoded} == {(25, 1)} and len({p.device_id for p in decoded}) == 1
+
+
+def test_live_session_solves_with_the_frame_solver(video, arkit_rig):
+    """The live modes' default is animate's solver without its per-take gains (pipelines.frame_solver); the weak
+    prior of LandmarkSolver() they used before lost to MediaPipe's own scores on P11 (docs/live.md)."""
+    from faceretarget.pipelines import frame_solver, video_solver
+
+    p = LiveSession(video, arkit_rig).solver_template.get_params()
+    assert p == frame_solver().get_params() and p["prior"] == video_solver().prior == 10.0
+    assert not p["gains"] and p["unscored_prior"] == 0.1 and p["eye_prior"] == 2.0
 
 
 def test_live_session_rejects_bad_input(arkit_rig, tmp_path):

@@ -28,7 +28,7 @@ import numpy as np
 from ..names import normalize_name
 from ..rig import Rig
 
-__all__ = ["score_map", "by_name", "MIN_NAMED"]
+__all__ = ["score_map", "by_name", "held_shapes", "MIN_NAMED"]
 
 #: Fewer shapes than this taken by name, and the scores reach the shapes through the template instead.
 MIN_NAMED = 10
@@ -90,6 +90,17 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
         log(f"{rig.name}: its shapes carry no ARKit names; the tracker's scores reach {reached} of its "
             f"{rig.n_shapes} shapes through the ARKit template's landmark motion")
     return out
+
+
+def held_shapes(rig: Rig, names: list[str], smap: np.ndarray) -> np.ndarray:
+    """``(K,)`` bool: the shapes the tracker's scores hold (the solver's ``prior``; the others get its weak
+    ``unscored_prior``), whatever they scored in a frame: taken by name, those a score reaches; reached through
+    the template, every shape, 0 where no score reaches it (left free, the 5 of a VALID avatar's 58 shapes no
+    score reaches took up what the landmarks' fit left: mouth error 66.9 -> 78.4 %, ``bench/own_shapes.py``).
+    ``animate`` and the live modes hold the same shapes."""
+    if by_name(rig, list(names)):
+        return np.abs(np.asarray(smap)).max(axis=0) > 0
+    return np.ones(rig.n_shapes, bool)
 
 
 def _sparse_support(A: np.ndarray, B: np.ndarray, mu: float, *, iters: int = 100,

@@ -139,6 +139,17 @@ def video_solver() -> LandmarkSolver:
                           gain_min=0.5, gain_max=2.0)
 
 
+def frame_solver() -> LandmarkSolver:
+    """The solver of the live modes, one frame at a time: :func:`video_solver`'s priors (the tracker's scores
+    strong, ``prior=10``; unscored shapes weak, ``0.1``; the eye shapes' twice as strong) without its per-take
+    gains, which are fitted over a whole take.  On P11's 24 cached runs (``bench/fidelity.py``'s renders, solved
+    offline with each solver) it is within 0.00-0.08x of :func:`video_solver` (brows 0.98x / 0.90x of the peer's
+    error, the rest equal); the default :class:`~faceretarget.retarget.LandmarkSolver` the live modes used
+    before (the scores a weak prior, ``0.1``) lost to the peer everywhere: mouth 1.26x / 1.55x, blink F1 0.16 /
+    0.37 (peer 0.77)."""
+    return LandmarkSolver(prior=10.0, unscored_prior=0.1, eye_prior=2.0, mouth_gains=False)
+
+
 def drives_by_landmarks(character: Rig) -> bool:
     """Whether ``character`` is driven by its own shapes: its 68 landmarks and either ARKit-named shapes
     (a rig folder) or shapes chosen from a character file (:func:`~faceretarget.characters.drive_rig`,
@@ -644,17 +655,14 @@ def _solve(character: Rig, take: Performance, o: AnimateOptions, by_landmarks: b
         tr = retarget_take(ftake, o.source_keys, o.target_keys, solver="nnls", log=log)
         own = tr.target if tr.target is not None and tr.target.kind != "mesh" else None
         return _Solved(tr.result.weights, list(tr.result.names), tr.target_keys, own, solve_pairs, ftake)
-    from ..characters import by_name, score_map
+    from ..characters import held_shapes, score_map
 
     # each score's drive of the character's shapes: by name, or through the ARKit template's landmark motion
     smap = None if take.weights is None else score_map(character, list(take.names), log=log)
     prior = None if smap is None else np.nan_to_num(take.weights) @ smap
     sol = (o.solver or video_solver()).fit(character, neutral_face(ftake.points))   # the face take's rest face
-    # the shapes the tracker has a score for (any value), whatever it scored them in this take; reached through
-    # the template, every shape is held by its prior (0 where no score reaches it): freed, the few no score
-    # reached took up what the landmarks' fit left (mouth error 66.9 -> 78.4 % on AIAN, bench/own_shapes.py)
-    scored = None if smap is None else (np.abs(smap).max(axis=0) > 0 if by_name(character, list(take.names))
-                                        else np.ones(smap.shape[1], bool))
+    # the shapes the scores hold, whatever they scored in this take (the live modes hold the same)
+    scored = None if smap is None else held_shapes(character, list(take.names), smap)
 
     def solve(points: np.ndarray) -> np.ndarray:
         return sol.transform(points, prior, take.times, scored=scored).weights

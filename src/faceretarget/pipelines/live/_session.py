@@ -48,12 +48,13 @@ from ...capture import (
     neutral_baseline,
     pose_from_matrices,
 )
-from ...characters import score_map
+from ...characters import held_shapes, score_map
 from ...errors import InputFileError, InvalidDataError, OutputError
 from ...headpose import HeadPose
 from ...names import normalize_name
 from ...retarget import LandmarkSolver, neutral_face
 from ...rig import Rig
+from .._animate import frame_solver
 from ._server import LiveServer, parse_address
 
 __all__ = ["LiveSession", "LiveStats", "LiveFrame", "run_live", "character_glb", "LIVE_LIMITS"]
@@ -137,6 +138,9 @@ class LiveStats:
         ``(T, K)`` in ``names`` order, the tracked 68 points ``(T, 68, 3)`` (pixels, +Y up, +Z to
         the camera, unfiltered), the head sent (:class:`HeadPose`), and ``(T, 2)`` the head
         amplitude and emotion amount in force.
+    held : (K,) bool, optional
+        After calibration: the shapes the tracker's scores hold in every frame
+        (:func:`~faceretarget.characters.held_shapes`, as ``animate`` holds them).
     """
 
     source: str
@@ -161,6 +165,7 @@ class LiveStats:
     points: np.ndarray | None = None
     head: HeadPose | None = None
     amounts: np.ndarray | None = None
+    held: np.ndarray | None = None
 
     @property
     def fps(self) -> float:
@@ -400,7 +405,8 @@ class LiveSession:
     model : path-like, optional
         FaceLandmarker ``.task`` file.
     solver : LandmarkSolver, optional
-        Its parameters are used (a fresh copy is fitted at calibration).
+        Its parameters are used (a fresh copy is fitted at calibration); default
+        :func:`~faceretarget.pipelines.frame_solver`.
     record : bool
         Keep the solved frames' weights, points and head in :class:`LiveStats` (memory grows
         with the session: about 2 KB per frame).
@@ -440,7 +446,7 @@ class LiveSession:
         self.smooth = smooth
         self.wait_for_viewer = float(wait_for_viewer)
         self.model = model
-        self.solver_template = solver or LandmarkSolver()
+        self.solver_template = solver or frame_solver()
         self.record = record
         self.on_frame = on_frame
         self.log = log
@@ -676,6 +682,7 @@ class _State:
         self.solver: LandmarkSolver | None = None
         self.base = None
         self.prior_map = None
+        self.held = None
         self.rest = None
         self.first_rot = None
         self.rec: dict[str, list] = {k: [] for k in ("frames", "times", "weights", "points", "head", "amounts")}
@@ -730,7 +737,8 @@ class _State:
             rest = self.first_rot
         else:
             prior = calibrate_neutral(S, self.base) @ self.prior_map
-            W = self.solver.transform(P[None], prior[None], smooth=False).weights[0]
+            # the shapes the scores hold, in every frame (not only those scored above 0 in this one)
+            W = self.solver.transform(P[None], prior[None], smooth=False, scored=self.held).weights[0]
             amount = params["emotion_amount"]
             if amount != 1.0:
                 lo, hi = self.solver.range_
@@ -781,6 +789,7 @@ class _State:
         tpl = s.solver_template
         self.solver = LandmarkSolver(**tpl.get_params()).fit(s.character, neutral)
         self.prior_map = score_map(s.character, list(self.tracker.names), log=s.log)
+        self.held = self.stats.held = held_shapes(s.character, list(self.tracker.names), self.prior_map)
         self.rest = Rotation.from_quat(np.array(self.cal_rot)).mean()
         s.log(f"calibrated on {len(P)} frames ({self.stats.calibration_frames} with a face): neutral face, "
               f"score baseline (mean {self.base.mean():.3f}), head rest {np.degrees(self.rest.magnitude()):.1f} deg "
