@@ -34,10 +34,14 @@ Usage::
 
     python bench/fidelity.py [--json] [--characters DIR] [--takes DIR] [--head FILE] [--seconds S]
                              [--setups webcam,turned] [--distance M] [--solver default|all-gains|legacy] [--no-generate]
-                             [--figure PNG [--figure-character NAME]] [--out DIR]
+                             [--figure PNG [--figure-character NAME]] [--out DIR] [--live]
+
+``--live`` also plays each video through the live mode (``faceretarget live``: each frame as it comes, causal
+filters, a 1 s calibration) onto the same targets, scored on the frames it solved; its peer is MediaPipe's raw
+scores on those frames (what an avatar app copies live).
 
 The last line with ``--json``: ``{"runs": [{character, take, setup, target, ours: {...}, peer: {...}}],
-"summary": {...}}``.
+"summary": {...}, "live": {"runs": [...], "summary": {...}}}`` (``live`` with ``--live``).
 """
 
 from __future__ import annotations
@@ -305,6 +309,9 @@ def main(argv=None) -> int:
                     "0-4); legacy, the solver before issue 32 (prior 0.1, no per-take gains)")
     ap.add_argument("--figure", type=Path, default=None, help="write truth / ours / peer at a smile and a blink "
                     "frame (the same-character run with the most blinking) as a PNG")
+    ap.add_argument("--live", action="store_true", help="also play each video through the live mode (LiveSession, "
+                    "frame by frame, causal filters, 1 s calibration) onto the same targets; its peer is MediaPipe's "
+                    "raw scores on the same frames")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
@@ -339,7 +346,7 @@ def main(argv=None) -> int:
         return 2
     work = a.out or Path(tempfile.mkdtemp(prefix="fidelity-"))
     work.mkdir(parents=True, exist_ok=True)
-    runs = []
+    runs, live_runs = [], []
     for take_path in find_takes(a.takes):
         perf = read_livelinkface(take_path)
         s0, s1 = active_window(perf.weights, perf.times, a.seconds)
@@ -362,6 +369,14 @@ def main(argv=None) -> int:
                                  detected=float(cap.detected.mean()), seconds=round(time.perf_counter() - t0, 1))
                         runs.append(r)
                         print(line(r), flush=True)
+                    if a.live:
+                        for kind, dst in dsts:
+                            r = run_live(src, dst, video, Wtake, perf.names, head)
+                            r.update(character=src.name, take=take_path.stem, setup=setup, target=kind, onto=dst.name,
+                                     window=[round(s0, 2), round(s1, 2)], detected=r["detected"],
+                                     seconds=round(time.perf_counter() - t0, 1))
+                            live_runs.append(r)
+                            print("live: " + line(r), flush=True)
                 except Exception as e:  # noqa: BLE001 - one failed run is reported, the rest go on
                     runs.append({"character": src.name, "take": take_path.stem, "setup": setup,
                                  "error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-2000:]})
@@ -387,9 +402,36 @@ def main(argv=None) -> int:
         r.pop("_weights", None)
     summ = summary(runs)
     print(table(summ))
+    out = {"runs": runs, "summary": summ, "skipped": skipped}
+    if a.live:
+        for r in live_runs:
+            r.pop("_weights", None)
+        out["live"] = {"runs": live_runs, "summary": summary(live_runs)}
+        print("live mode (faceretarget live: each frame as it comes; peer: MediaPipe's raw scores, same frames):")
+        print(table(out["live"]["summary"]))
     if a.json:
-        print(json.dumps({"runs": runs, "summary": summ, "skipped": skipped}, default=float))
+        print(json.dumps(out, default=float))
     return 0
+
+
+def run_live(src: Target, dst: Target, video: Path, Wtake: np.ndarray, names: list[str], head: Rotation) -> dict:
+    """The live mode on the rendered video (real time off, so every frame is solved): the frames it solved after
+    its calibration, against the truth, and MediaPipe's raw scores on the same frames as the peer."""
+    from types import SimpleNamespace
+
+    from faceretarget.capture import track_video
+    from faceretarget.pipelines.live import LiveSession
+
+    with LiveSession(video, dst.drive.rig, realtime=False, record=True, log=lambda *_: None) as ses:
+        st = ses.run()
+    fr = np.asarray(st.frames, np.int64)
+    raw = track_video(video)
+    res = SimpleNamespace(weights=st.weights, names=list(st.names), head=st.head, mouth_corr=float("nan"))
+    peer = SimpleNamespace(weights=raw.weights[fr], names=list(raw.names),
+                           head=SimpleNamespace(quaternions=raw.head.quaternions[fr]))
+    r = run_one(src, dst, peer, res, Wtake[fr], names, head[fr])
+    r["detected"] = float(raw.detected.mean())
+    return r
 
 
 def line(r: dict) -> str:
