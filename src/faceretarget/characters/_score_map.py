@@ -81,7 +81,7 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
     if rows:                                         # each score's few shapes, then their mix within [0, 1]
         B = np.array(targets)
         keep = _sparse_support(A, B, SPARSITY)
-        for r, b, k in zip(rows, B, keep):
+        for r, b, k in zip(rows, B, keep, strict=True):
             if k.any():
                 out[r, k] = solve_bounded(A[:, k], b, 0.0, 1.0)
         out[out < 1e-3] = 0.0                        # round-off, no drive
