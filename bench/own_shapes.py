@@ -55,15 +55,6 @@ def own_deltas(character, drive) -> np.ndarray:
     return D
 
 
-def region_errors(Xt: np.ndarray, Xp: np.ndarray, regions: dict) -> dict:
-    out = {}
-    for r, idx in regions.items():
-        a, b = Xt[:, idx].reshape(len(Xt), -1), Xp[:, idx].reshape(len(Xp), -1)
-        den = float(np.sqrt((a ** 2).sum()))
-        out[r] = float(100.0 * np.sqrt(((a - b) ** 2).sum()) / den) if den > 0 else float("nan")
-    return out
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--characters", type=Path, default=P11.DATA / "characters")
@@ -78,6 +69,7 @@ def main(argv=None) -> int:
     from faceretarget.characters import drive_rig, load_character, score_map
     from faceretarget.errors import FaceRetargetError
     from faceretarget.io import read_livelinkface
+    from faceretarget.metrics._fidelity import region_errors
     from faceretarget.pipelines import animate, capture_take
 
     work = Path(tempfile.mkdtemp(prefix="own-shapes-"))
@@ -128,8 +120,7 @@ def main(argv=None) -> int:
                         Wo, names = res.weights, list(res.names)
                     n = min(len(Wt), len(Wo))
                     Wo = Wo[:n][:, [names.index(x) for x in drive.rig.names]]
-                    e = region_errors(np.einsum("tk,kvd->tvd", Wt[:n], truth.deltas),
-                                      np.einsum("tk,kvd->tvd", Wo, D_own), truth.regions)
+                    e = region_errors(Wt[:n], Wo, truth.deltas, truth.regions, pred_deltas=D_own)
                     errs[way].append(e)
                     line.append(f"{way} " + " ".join(f"{r} {v:.0f}" for r, v in e.items()))
                 print(f"  {take_path.stem} {setup}: " + "; ".join(line), flush=True)

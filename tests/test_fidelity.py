@@ -49,6 +49,13 @@ def test_region_error_is_a_share_of_the_true_motion():
     half[:, 2] *= 0.5                                       # the blink at half its size: 50 % off in the lids
     e = F.region_errors(Wt, half, D, reg)
     assert e["lids"] == pytest.approx(50.0, abs=1.0) and e["mouth"] < 1.0
+    # a prediction on shapes of its own (bench/own_shapes.py): the blink as two half-size shapes at weight 1
+    own = np.concatenate([np.delete(D, 2, axis=0), 0.5 * D[2:3], 0.5 * D[2:3]])
+    Wo = np.concatenate([np.delete(Wt, 2, axis=1), Wt[:, 2:3], Wt[:, 2:3]], axis=1)
+    assert all(v == pytest.approx(0.0, abs=1e-9) for v in F.region_errors(Wt, Wo, D, reg, pred_deltas=own).values())
+    assert F.region_errors(Wt, Wo[:, :-1], D, reg, pred_deltas=own[:-1])["lids"] == pytest.approx(50.0, abs=1.0)
+    with pytest.raises(ValueError, match="for 7"):
+        F.region_errors(Wt, Wt, D, reg, pred_deltas=own)
 
 
 def test_blink_f1_smile_direction_and_head_error():

@@ -67,22 +67,25 @@ def face_regions(deltas: np.ndarray, names: list[str], floor: float = 0.1) -> di
 
 
 def region_errors(w_true: np.ndarray, w_pred: np.ndarray, deltas: np.ndarray,
-                  regions: dict[str, np.ndarray]) -> dict[str, float]:
+                  regions: dict[str, np.ndarray], pred_deltas: np.ndarray | None = None) -> dict[str, float]:
     """Per region, the error of the vertex motion ``W @ D`` as a percentage of the true motion (module
-    docstring); NaN for a region that does not move in the truth."""
+    docstring); NaN for a region that does not move in the truth.  ``pred_deltas`` (``(K', V, 3)``, the same
+    vertices): the prediction's own shapes, ``w_pred`` their weights (a character driven by shapes other than
+    the truth's); default ``deltas``."""
     Wt = np.asarray(w_true, np.float64)
     Wp = np.asarray(w_pred, np.float64)
-    if Wt.shape != Wp.shape:
-        raise ValueError(f"weights of different shapes: truth {Wt.shape}, predicted {Wp.shape}")
     D = np.asarray(deltas, np.float64)
+    Dp = D if pred_deltas is None else np.asarray(pred_deltas, np.float64)
+    if len(Wt) != len(Wp) or Wt.shape[1] != len(D) or Wp.shape[1] != len(Dp):
+        raise ValueError(f"weights of different shapes: truth {Wt.shape} for {len(D)} shapes, predicted "
+                         f"{Wp.shape} for {len(Dp)}")
     out = {}
     for region, idx in regions.items():
         if not len(idx):
             out[region] = float("nan")
             continue
-        Dr = D[:, idx].reshape(len(D), -1)                            # (K, 3 n)
-        Xt = Wt @ Dr
-        Xp = Wp @ Dr
+        Xt = Wt @ D[:, idx].reshape(len(D), -1)                       # (T, 3 n)
+        Xp = Wp @ Dp[:, idx].reshape(len(Dp), -1)
         den = np.sqrt(np.sum(Xt ** 2))
         out[region] = float(100.0 * np.sqrt(np.sum((Xp - Xt) ** 2)) / den) if den > 0 else float("nan")
     return out
