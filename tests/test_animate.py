@@ -42,11 +42,18 @@ def _take(rig, T=120, seed=0):
     for k in rng.choice(rig.n_shapes, 12, replace=False):
         W[:, k] = np.clip(np.sin(np.linspace(0, rng.uniform(2, 6), T) + rng.uniform(0, 6)), 0, None) * rng.uniform(.3, 1)
     W[: T // 10] = 0.0                                     # a neutral start
+    X, P = _seen(rig, W)
+    return W, X, P
+
+
+def _seen(rig, W):
+    """The rig's 68 landmarks under the weights ``W`` and as :func:`_take`'s camera sees them."""
+    T = len(W)
     X = rig.evaluate(W, rig.landmarks)
     R = Rotation.from_rotvec(np.c_[0.2 * np.sin(np.arange(T) / 11), 0.3 * np.sin(np.arange(T) / 17), 0.05 * np.ones(T)])
     s = 4000.0 * (1 + 0.1 * np.sin(np.arange(T) / 23))    # metres -> pixels, varying distance
     P = s[:, None, None] * np.einsum("tij,tpj->tpi", R.as_matrix(), X) + np.array([256.0, 240.0, 0.0])
-    return W, X, P
+    return X, P
 
 
 def test_mediapipe_68_table_is_a_valid_landmark_map():
@@ -145,6 +152,31 @@ def test_gains_bounded_and_kept_off_the_mouth(arkit):
     # the same take with every shape's gain free (issue 32's first solver): the mouth comes back to 2
     free = LandmarkSolver(prior=10.0, gains=True).fit(arkit, n0).transform(P, biased).prior_gains
     assert np.median(free[mouth & (W.max(axis=0) > 0.3)]) == pytest.approx(2.0, rel=0.1)
+
+
+def test_eye_floor_keeps_the_trackers_blink(arkit):
+    """Where the 68 points see the lids open but the tracker scores a blink (a closed lid a monocular
+    tracker's lid points follow only part of the way), the animate and live solvers keep each scored eye
+    shape at least at its score; without the floor the landmarks pull the blink down; shapes that are not the
+    eyes' keep the solve's value."""
+    from faceretarget.pipelines import frame_solver, video_solver
+
+    W, X, P = _take(arkit)
+    blink = [arkit.names.index(n) for n in ("eyeBlinkLeft", "eyeBlinkRight")]
+    W[:, blink] = 0.0
+    _, P = _seen(arkit, W)                         # the landmarks: lids open throughout
+    Q = W.copy()
+    Q[60:80, blink] = 0.8                          # the tracker: a blink over 20 frames
+    n0 = neutral_face(P, W)
+    for make in (video_solver, frame_solver):
+        on = make().fit(arkit, n0).transform(P, Q)
+        off = make()
+        off.eye_floor = False
+        off = off.fit(arkit, n0).transform(P, Q)
+        assert on.weights[60:80][:, blink].min() >= 0.8 - 1e-9
+        assert off.weights[60:80][:, blink].max() < 0.8            # the landmarks' open lids pull it down
+        eyes = make().fit(arkit, n0).eye_shapes_
+        assert np.allclose(on.weights[:, ~eyes], off.weights[:, ~eyes])
 
 
 def test_landmark_solver_errors_name_the_problem(arkit):

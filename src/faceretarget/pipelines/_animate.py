@@ -136,7 +136,7 @@ def video_solver() -> LandmarkSolver:
     the three others (``bench/fidelity.py``); leaving the mouth out of the gains was chosen after seeing those
     three (docs/results.md says so)."""
     return LandmarkSolver(prior=10.0, gains=True, unscored_prior=0.1, eye_prior=2.0, mouth_gains=False,
-                          gain_min=0.5, gain_max=2.0)
+                          gain_min=0.5, gain_max=2.0, eye_floor=True)
 
 
 def frame_solver() -> LandmarkSolver:
@@ -147,7 +147,7 @@ def frame_solver() -> LandmarkSolver:
     error, the rest equal); the default :class:`~faceretarget.retarget.LandmarkSolver` the live modes used
     before (the scores a weak prior, ``0.1``) lost to the peer everywhere: mouth 1.26x / 1.55x, blink F1 0.16 /
     0.37 (peer 0.77)."""
-    return LandmarkSolver(prior=10.0, unscored_prior=0.1, eye_prior=2.0, mouth_gains=False)
+    return LandmarkSolver(prior=10.0, unscored_prior=0.1, eye_prior=2.0, mouth_gains=False, eye_floor=True)
 
 
 def drives_by_landmarks(character: Rig) -> bool:
