@@ -264,6 +264,26 @@ def test_lower_teeth_stay_behind_the_lower_lip(data_dir):
     assert px is not None and px <= 40, px
 
 
+def test_mouth_close_keeps_the_skin_out_of_the_lower_teeth():
+    """The demo face bo (no data needed): its lower teeth, a bar riding the chin's rigid motion, drop further
+    than the floor of the mouth behind them, so ``jawOpen + mouthClose`` put 2 vertices of that skin inside
+    them; the skin is pushed out of the posed teeth while ``jawOpen`` and ``mouthClose`` are made, with no
+    triangle turned over."""
+    from faceretarget.datasets import make_demo_character
+    from faceretarget.io import character_from_rig
+    from faceretarget.transfer import lips_in_teeth
+
+    rig = make_demo_character("bo")
+    ref = load_character(character_from_rig(rig))
+    hidden = hide_shapes(character_from_rig(rig))
+    hidden.landmarks = ref.landmarks
+    gen = generate_shapes(hidden, shapes=["jawOpen", "mouthClose"])
+    drive = gen.apply()
+    assert lips_in_teeth(drive) == 0
+    m = shape_metrics(drive)
+    assert m["inverted_triangles"] == 0 and m["lip_gap_pct"] <= 1.0
+
+
 # slow: generates shapes from the arkit-face USD asset and measures every rim vertex (~8 s)
 def test_blink_closes_the_whole_rim_of_the_eye(data_dir, tmp_path):
     """The arkit-face as a USD asset, its landmarks found automatically (its lid points land close together on

@@ -451,8 +451,14 @@ class _Transfer:
     def lm_pos(self, D: np.ndarray) -> np.ndarray:
         return self.ch.landmarks.positions(self.V + D)[self.pin_ids]
 
-    def outside(self, x: np.ndarray) -> np.ndarray:
-        return _outside_eyes(x, self.V, self.eyes, self.size)
+    def outside(self, x: np.ndarray, a: str | None = None) -> np.ndarray:
+        """``x`` with the face's vertices out of the eyeballs, and, for the shape ``a``, out of the lower teeth
+        in the shape's poses (:func:`_outside_teeth`)."""
+        x = _outside_eyes(x, self.V, self.eyes, self.size)
+        if a not in ("jawOpen", "mouthClose") or not self.teeth or self.method == "barycentric":
+            return x
+        return _outside_teeth(x, self.V, self.teeth, self.chin, self.size,
+                              self.added.get("jawOpen") if a == "mouthClose" else None)
 
     def kept(self, a: str):
         """What a shape's untangling keeps in place while it can (sparse rows over the vertices): the pinned lid
@@ -468,8 +474,8 @@ class _Transfer:
 
     def untangle(self, a: str, u: np.ndarray) -> np.ndarray:
         """The shape's motion with no triangle turned over in its poses (:func:`_untangle`)."""
-        return _untangle(self.outside(u), self.V, self.ft, self.adj, self.kept(a), self.w <= 1e-3, self.size,
-                         poses=self.poses(a, self.added.get("jawOpen")), project=self.outside)
+        return _untangle(self.outside(u, a), self.V, self.ft, self.adj, self.kept(a), self.w <= 1e-3, self.size,
+                         poses=self.poses(a, self.added.get("jawOpen")), project=lambda x: self.outside(x, a))
 
     def transfer_shapes(self) -> None:
         """Every shape: the template's deformation gradients under each character triangle, solved for the free
@@ -495,6 +501,11 @@ class _Transfer:
         jaw_ids = [7, 8, 9, 55, 56, 57, 58, 59, 65, 66, 67]
         self.chin = skin_idx[np.min(np.linalg.norm(V[skin_idx][:, None] - self.lm[None, jaw_ids], axis=2),
                                     axis=1) < 0.08 * size]
+        # the lower teeth (each a closed piece that rides the jaw) and the skin about the mouth kept out of them
+        mouth = self.lm[60:68].mean(axis=0)
+        near = skin_idx[np.linalg.norm(V[skin_idx] - mouth, axis=1) < 0.6 * size]
+        self.teeth = [t for t in (_Teeth.of(ch.meshes[p.mesh].mesh.vertices[p.vertices], V, near)
+                                  for p in self.parts if p.role == "lower") if t is not None]
         self.pair_rows = {i: r for r, i in enumerate(self.pin_ids)}
         self.added: dict[str, np.ndarray] = {}
         self.shape_notes = {}
@@ -739,6 +750,58 @@ def _outside_eyes(u: np.ndarray, V: np.ndarray, eyes: list[Part], size: float) -
         if bad.any():
             dirs = (X[bad] - e.centre) / np.maximum(d[bad, None], 1e-30)
             u[near[bad]] = e.centre + dirs * want[bad, None] - V[near[bad]]
+    return u
+
+
+@dataclass
+class _Teeth:
+    """A lower teeth piece (rest vertices ``P``) and the skin vertices about the mouth not inside its convex hull
+    at rest (``skin``), which no shape may put inside it."""
+
+    P: np.ndarray
+    skin: np.ndarray
+
+    @classmethod
+    def of(cls, P: np.ndarray, V: np.ndarray, near: np.ndarray):
+        from scipy.spatial import ConvexHull, QhullError
+
+        P = np.asarray(P, np.float64)
+        if len(P) < 8:
+            return None
+        try:
+            h = ConvexHull(P)
+        except QhullError:                                # a flat piece has no inside
+            return None
+        inside = (V[near] @ h.equations[:, :3].T + h.equations[:, 3] < 0).all(axis=1)
+        return cls(P, near[~inside])
+
+
+def _outside_teeth(u: np.ndarray, V: np.ndarray, teeth: list[_Teeth], chin: np.ndarray, size: float,
+                   pose: np.ndarray | None) -> np.ndarray:
+    """Push the skin about the mouth that a shape (``u``, on ``pose``: the open jaw's motion or None) moves into
+    the lower teeth out through the nearest face of their convex hull, plus a margin.  The teeth ride the rigid
+    motion of the chin's skin (as :meth:`_Transfer.result` moves them), so a lip that the shape moves less
+    than the jaw (``mouthClose`` on ``jawOpen``: the floor of a mouth behind the teeth) ends inside them: 2
+    vertices of a demo face did."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if len(chin) < 3:
+        return u
+    o = np.zeros_like(u) if pose is None else pose
+    R1, t1 = _kabsch(V[chin], V[chin] + u[chin])
+    R0, t0 = _kabsch(V[chin], V[chin] + o[chin])
+    for t in teeth:
+        P1 = t.P + (t.P @ R1.T + t1 - t.P) + (t.P @ R0.T + t0 - t.P)
+        try:
+            eq = ConvexHull(P1).equations
+        except QhullError:
+            continue
+        X = V[t.skin] + o[t.skin] + u[t.skin]
+        s = X @ eq[:, :3].T + eq[:, 3]                  # signed distance to each face's plane, < 0 inside
+        bad = (s < 0).all(axis=1)
+        if bad.any():
+            j = s[bad].argmax(axis=1)                   # the nearest face
+            u[t.skin[bad]] += (_margin(size) - s[bad, j])[:, None] * eq[j, :3]
     return u
 
 
