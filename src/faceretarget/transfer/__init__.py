@@ -14,6 +14,7 @@ from ._metrics import (
     blink_gap_pct,
     eye_parts,
     inverted_triangles,
+    lid_gap_pct,
     lip_gap_pct,
     lips_in_teeth,
     mirror_err_pct,
@@ -29,7 +30,7 @@ __all__ = ["Template", "TEMPLATES", "ict_to_arkit", "packaged_template", "closes
            "triangle_areas", "umeyama", "vertex_normals", "components",
            "packaged_template_path", "register_template", "find_parts", "fit_sphere", "Part", "LidMargin",
            "lid_margins", "blink_gap_pct", "lip_gap_pct", "inverted_triangles",
-           "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta", "lips_in_teeth",
+           "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta", "lips_in_teeth", "lid_gap_pct",
            "teeth_showing_px", "SEAM"]
 
 #: Names that moved to :mod:`faceretarget.characters` (issue 33: generating a character's shapes is a

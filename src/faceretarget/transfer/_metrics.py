@@ -10,7 +10,7 @@ from ..character import Character, character_frame
 from ..names import normalize_name
 
 __all__ = ["blink_gap_pct", "lip_gap_pct", "inverted_triangles", "mirror_err_pct", "shape_metrics", "shape_delta",
-           "eye_parts", "lips_in_teeth", "teeth_showing_px"]
+           "eye_parts", "lips_in_teeth", "teeth_showing_px", "lid_gap_pct"]
 
 LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))
 LIP_PAIRS = ((61, 67), (62, 66), (63, 65))
@@ -70,6 +70,29 @@ def _rim_gap_pct(character: Character, side: str, d: np.ndarray) -> float | None
     return None
 
 
+def lid_gap_pct(character: Character, side: str, d: np.ndarray) -> float | None:
+    """Remaining lid gap of the character's ``side`` (``"Left"`` / ``"Right"``) eye under the head mesh's
+    motion ``d`` over the open gap, %: along the whole rim of the eye's opening where the face mesh has one
+    (:func:`_rim_gap_pct`), else the worst lid landmark pair; None when neither can be measured."""
+    d = np.asarray(d, np.float64)
+    rim = _rim_gap_pct(character, side, d)
+    if rim is not None:
+        return rim
+    return _pair_gap_pct(_lm(character, None), _lm(character, d), _side_pairs(character, side))
+
+
+def _pair_gap_pct(open_: np.ndarray, closed: np.ndarray, pairs) -> float | None:
+    """The worst pair's gap in ``closed`` over its gap in ``open_`` (landmark positions), %."""
+    worst = None
+    for up, lo in pairs:
+        g0 = np.linalg.norm(open_[up] - open_[lo])
+        if g0 < 1e-9:
+            continue
+        pct = 100.0 * float(np.linalg.norm(closed[up] - closed[lo]) / g0)
+        worst = pct if worst is None else max(worst, pct)
+    return worst
+
+
 def blink_gap_pct(character: Character, eyes=None) -> tuple[float | None, int | None]:
     """Remaining lid gap at ``eyeBlinkLeft`` / ``eyeBlinkRight`` = 1 over the open gap, worst of both eyes, %:
     along the whole rim of the eye's opening where the face mesh has one (:func:`_rim_gap_pct`), else at the
@@ -78,21 +101,13 @@ def blink_gap_pct(character: Character, eyes=None) -> tuple[float | None, int | 
     ``centre`` and ``radius``; None when none is given)."""
     worst, inside = None, None
     V = character.meshes[character.landmarks.mesh].mesh.vertices
-    rest = _lm(character, None)
     for side in ("Left", "Right"):
         d = shape_delta(character, f"eyeBlink{side}")
         if d is None:
             continue
-        rim = _rim_gap_pct(character, side, d.astype(np.float64))
-        if rim is not None:
-            worst = rim if worst is None else max(worst, rim)
-        at1 = _lm(character, d)
-        for up, lo in _side_pairs(character, side) if rim is None else []:
-            g0 = np.linalg.norm(rest[up] - rest[lo])
-            if g0 < 1e-9:
-                continue
-            pct = 100.0 * float(np.linalg.norm(at1[up] - at1[lo]) / g0)
-            worst = pct if worst is None else max(worst, pct)
+        g = lid_gap_pct(character, side, d)
+        if g is not None:
+            worst = g if worst is None else max(worst, g)
         if eyes:
             inside = inside or 0
             for e in eyes:
@@ -108,15 +123,7 @@ def lip_gap_pct(character: Character) -> float | None:
     jo, mc = shape_delta(character, "jawOpen"), shape_delta(character, "mouthClose")
     if jo is None or mc is None:
         return None
-    a, b = _lm(character, jo), _lm(character, jo + mc)
-    worst = None
-    for up, lo in LIP_PAIRS:
-        g0 = np.linalg.norm(a[up] - a[lo])
-        if g0 < 1e-9:
-            continue
-        pct = 100.0 * float(np.linalg.norm(b[up] - b[lo]) / g0)
-        worst = pct if worst is None else max(worst, pct)
-    return worst
+    return _pair_gap_pct(_lm(character, jo), _lm(character, jo + mc), LIP_PAIRS)
 
 
 def inverted_triangles(character: Character, names: list[str] | None = None, mesh: int | None = None) -> int:
