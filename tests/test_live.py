@@ -286,6 +286,18 @@ def test_arkit_curve_map_of_split_and_foreign_shapes():
     np.testing.assert_allclose(np.array([[0.3, 0.8]]) @ Mb, np.array([[0.3, 0.8]]) @ basis)
 
 
+def test_arkit_curve_map_of_a_character_without_arkit_shapes_says_so_in_one_short_line():
+    """A VALID avatar's 58 own shapes streamed as Live Link Face curves: one warning, naming a few of them and
+    saying what to do (it listed all 58 names)."""
+    names = [f"h_expressions.Shape{i:02d}_h" for i in range(58)]
+    with pytest.warns(DataWarning) as rec:
+        M = arkit_curve_map(names, source="AIAN_F_1_Busi")
+    assert not M.any()
+    assert len(rec) == 1
+    msg = str(rec[0].message)
+    assert "none of its 58" in msg and "(+53 more)" in msg and "character shapes" in msg and len(msg) < 300
+
+
 # ---------------------------------------------------------------------- a session on a real video
 @pytest.fixture(scope="module")
 def video(data_dir) -> Path:

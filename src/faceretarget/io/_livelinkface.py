@@ -370,8 +370,14 @@ def _to_arkit_columns(names: list[str], weights: np.ndarray, source: str) -> np.
         if not any(norm[i] == ARKIT_NAMES[c] for i in range(len(norm))):
             out[:, c] = weights[:, js].mean(axis=1)
     if dropped:
-        warnings.warn(f"{source}: {len(dropped)} channel(s) are not ARKit shapes and are not written "
-                      f"to the Live Link Face CSV: {', '.join(dropped)}", DataWarning, stacklevel=3)
+        shown = ", ".join(dropped[:5]) + (f" (+{len(dropped) - 5} more)" if len(dropped) > 5 else "")
+        if len(dropped) == len(names):
+            warnings.warn(f"{source}: none of its {len(names)} channel(s) is an ARKit shape ({shown}), so every "
+                          "Live Link Face CSV curve is 0; give it ARKit shapes first ('faceretarget character "
+                          "shapes')", DataWarning, stacklevel=3)
+        else:
+            warnings.warn(f"{source}: {len(dropped)} channel(s) are not ARKit shapes and are not written "
+                          f"to the Live Link Face CSV: {shown}", DataWarning, stacklevel=3)
     return out
 
 
