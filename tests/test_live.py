@@ -296,6 +296,7 @@ def test_arkit_curve_map_of_a_character_without_arkit_shapes_says_so_in_one_shor
     assert len(rec) == 1
     msg = str(rec[0].message)
     assert "none of its 58" in msg and "(+53 more)" in msg and "character shapes" in msg and len(msg) < 300
+    assert "CSV" not in msg                                           # streamed, not written to a CSV
 
 
 # ---------------------------------------------------------------------- a session on a real video

@@ -221,6 +221,7 @@ def arkit_curve_map(names: list[str], basis: np.ndarray | None = None, basis_nam
         warnings.simplefilter("always")
         M = _to_arkit_columns(list(names), np.eye(k), source)
     for c in caught:  # re-raised from here, once (the message names the dropped shapes)
-        msg = str(c.message).replace("to the Live Link Face CSV", "to Live Link Face")
+        msg = str(c.message).replace("to the Live Link Face CSV", "to Live Link Face").replace(
+            "Live Link Face CSV", "Live Link Face")
         warnings.warn(msg, DataWarning, stacklevel=2)
     return M
