@@ -370,8 +370,11 @@ def main(argv=None) -> int:
                         runs.append(r)
                         print(line(r), flush=True)
                     if a.live:
+                        from faceretarget.capture import track_video
+
+                        raw = track_video(video)                  # the live peer's raw scores, once per video
                         for kind, dst in dsts:
-                            r = run_live(src, dst, video, Wtake, perf.names, head)
+                            r = run_live(src, dst, video, raw, Wtake, perf.names, head)
                             r.update(character=src.name, take=take_path.stem, setup=setup, target=kind, onto=dst.name,
                                      window=[round(s0, 2), round(s1, 2)], detected=r["detected"],
                                      seconds=round(time.perf_counter() - t0, 1))
@@ -414,18 +417,18 @@ def main(argv=None) -> int:
     return 0
 
 
-def run_live(src: Target, dst: Target, video: Path, Wtake: np.ndarray, names: list[str], head: Rotation) -> dict:
+def run_live(src: Target, dst: Target, video: Path, raw, Wtake: np.ndarray, names: list[str],
+             head: Rotation) -> dict:
     """The live mode on the rendered video (real time off, so every frame is solved): the frames it solved after
-    its calibration, against the truth, and MediaPipe's raw scores on the same frames as the peer."""
+    its calibration, against the truth, and MediaPipe's raw scores on the same frames (``raw``, the video's
+    :func:`~faceretarget.capture.track_video`) as the peer."""
     from types import SimpleNamespace
 
-    from faceretarget.capture import track_video
     from faceretarget.pipelines.live import LiveSession
 
     with LiveSession(video, dst.drive.rig, realtime=False, record=True, log=lambda *_: None) as ses:
         st = ses.run()
     fr = np.asarray(st.frames, np.int64)
-    raw = track_video(video)
     res = SimpleNamespace(weights=st.weights, names=list(st.names), head=st.head, mouth_corr=float("nan"))
     peer = SimpleNamespace(weights=raw.weights[fr], names=list(raw.names),
                            head=SimpleNamespace(quaternions=raw.head.quaternions[fr]))
