@@ -598,11 +598,8 @@ class _Transfer:
 
     def turned(self, u: np.ndarray) -> int:
         """How many face triangles the motion ``u`` turns over (normal reversed)."""
-        V, T = self.V, self.ft
-        n0 = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
-        X = V + u
-        n1 = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
-        return int((((n0 * n1).sum(axis=1) < 0) & ((n0 * n0).sum(axis=1) > 1e-28)).sum())
+        n0 = _normals(self.V, self.ft)
+        return int(_flipped(n0, (n0 * n0).sum(axis=1) > 1e-28, self.V + u, self.ft).sum())
 
     def sewn(self) -> dict:
         """``{mesh: (vertices, {shape: motion})}`` of the pieces sewn to the skin: the smoothest continuation of
@@ -1041,6 +1038,16 @@ def _adjacency(n: int, T: np.ndarray):
 _FACING, _PIN_STIFF = 0.005, 1e4
 
 
+def _normals(X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Each triangle's (unnormalised) normal."""
+    return np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
+
+
+def _flipped(n0: np.ndarray, ok: np.ndarray, X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Which triangles (of rest normals ``n0``, ``ok`` the non-degenerate ones) face the other way at ``X``."""
+    return ((n0 * _normals(X, T)).sum(axis=1) < 0) & ok
+
+
 def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, adj, pins, fixed: np.ndarray, size: float,
               poses=(None,), project=None, rings: int = 2, tries: int = 3):
     """Unfold the triangles a motion turns over (normal reversed at weight 1, alone or added to each of
@@ -1055,7 +1062,7 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, adj, pins, fixed: np.
     The relaxation this replaces (half steps towards the neighbours' mean) could only shrink motion: it
     stopped with folds left where a surface folded at rest opens by more than a right angle (the corners of a
     closed mouth at ``jawOpen``), and a smooth fill of the motion (harmonic, or as-rigid-as-possible) did too."""
-    n0 = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
+    n0 = _normals(V, T)
     a2 = (n0 * n0).sum(axis=1)
     ok = a2 > 1e-28                                       # as :func:`~faceretarget.transfer.inverted_triangles`
     pinned = np.zeros(len(V), bool)
@@ -1065,8 +1072,7 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, adj, pins, fixed: np.
     def turned(x):
         out = np.zeros(len(T), bool)
         for o in offs:
-            X = V + o + x
-            out |= ((n0 * np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])).sum(axis=1) < 0) & ok
+            out |= _flipped(n0, ok, V + o + x, T)
         return out
 
     bad = turned(u)
