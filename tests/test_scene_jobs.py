@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from faceretarget.errors import InvalidDataError, MissingShapeError
+from faceretarget.pipelines.worker import character_parts, read_character_parts
 
 
 @pytest.fixture(scope="module")
@@ -135,6 +136,23 @@ def test_landmark_record_round_trip_and_refusal(arkit_character):
     assert not apply_landmark_record(moved, rec) and moved.landmarks is None
 
 
+def test_character_parts_round_trip_and_refuse_a_torn_file(arkit_character):
+    """The character file the extension writes for the worker: a header, the pickle (arrays out of band, so that
+    pickling copies none of them on Blender's main thread) and each array's bytes; read back equal, and a file
+    cut short refused by name."""
+    parts = character_parts(arkit_character)
+    big = max(memoryview(p).nbytes for p in parts[2:])
+    assert memoryview(parts[1]).nbytes < big            # the pickle holds no array's bytes
+    data = b"".join(bytes(p) for p in parts)
+    back = read_character_parts(data)
+    for a, b in zip(arkit_character.meshes, back.meshes, strict=True):
+        assert np.array_equal(a.mesh.vertices, b.mesh.vertices) and np.array_equal(a.deltas, b.deltas)
+        assert a.shape_names == b.shape_names
+    assert np.allclose(back.landmark_positions(), arkit_character.landmark_positions())
+    with pytest.raises(InvalidDataError, match="written incompletely"):
+        read_character_parts(data[:-10])
+
+
 def test_capture_progress_calls_back_every_frame(data_dir):
     pytest.importorskip("mediapipe", reason="the capture extra")
     from faceretarget.capture import track_video
@@ -160,7 +178,7 @@ def test_worker_runs_a_take_job_and_reports_errors_in_one_line(arkit_character, 
 
     monkeypatch.setenv("FACERETARGET_CACHE", str(tmp_path / "cache"))
     ch = tmp_path / "character.pkl"
-    ch.write_bytes(pickle.dumps(arkit_character))
+    ch.write_bytes(b"".join(bytes(p) for p in character_parts(arkit_character)))
     take = data_dir / "livelinkface" / "MySlate_3_Jason_Millers_iPhone.csv"
     params = {"character": str(ch), "landmarks": None, "take": str(take), "route": "landmarks"}
     msgs = _serve([{"id": 1, "kind": "take", "dir": str(tmp_path), "params": params},
@@ -188,7 +206,7 @@ def test_worker_stop_ends_a_running_live_job(arkit_character, data_dir, tmp_path
     from faceretarget.pipelines import serve_jobs
 
     ch = tmp_path / "character.pkl"
-    ch.write_bytes(pickle.dumps(arkit_character))
+    ch.write_bytes(b"".join(bytes(p) for p in character_parts(arkit_character)))
     r_fd, w_fd = os.pipe()
     reader = os.fdopen(r_fd, "r")
     writer = os.fdopen(w_fd, "w", buffering=1)

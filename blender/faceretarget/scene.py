@@ -5,7 +5,6 @@ writes Blender data (through the library's :mod:`faceretarget.io` Blender functi
 from __future__ import annotations
 
 import json
-import pickle
 
 import bpy
 import numpy as np
@@ -69,21 +68,25 @@ def read_character(job, names: list[str], lo: float = 0.0, hi: float = 0.1):
 
 
 #: Bytes of the pickled character written a step (a VALID avatar pickles to 30 MB: written at once, with the
-#: pickling, it held the main thread for 130-170 ms).
-_WRITE_CHUNK = 4 << 20
+#: pickling, it held the main thread for 130-170 ms; 4 MB a step, one step of writing held it 102 ms under load).
+_WRITE_CHUNK = 1 << 20
 
 
 def save_character(job, character):
-    """Steps pickling the character into the job's folder for the worker (the pickling a step of its own, the
-    file a few MB a step); the path."""
+    """Steps writing the character into the job's folder for the worker (its pickle with the arrays out of band,
+    :func:`faceretarget.pipelines.worker.character_parts`: pickling copies no array, 1 ms for a VALID avatar
+    where its 28 MB pickle took 6-16 ms outside Blender), then 1 MB a step; the path."""
+    from faceretarget.pipelines.worker import character_parts
+
     yield                                                  # the reading's last step and the pickling apart
-    data = pickle.dumps(character, protocol=pickle.HIGHEST_PROTOCOL)
+    parts = character_parts(character)
     path = job.folder / "character.pkl"
     with open(path, "wb") as f:
-        view = memoryview(data)
-        for i in range(0, len(view), _WRITE_CHUNK):
-            yield
-            f.write(view[i:i + _WRITE_CHUNK])
+        for part in parts:
+            view = memoryview(part).cast("B")
+            for i in range(0, len(view), _WRITE_CHUNK):
+                yield
+                f.write(view[i:i + _WRITE_CHUNK])
     return path
 
 

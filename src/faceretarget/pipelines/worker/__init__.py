@@ -7,6 +7,15 @@ cached by its content (:func:`cached_capture`, :func:`capture_cache_path`).  The
 Everything here is also importable from :mod:`faceretarget.pipelines`.
 """
 
-from ._serve import JOB_KINDS, WorkerChannel, cached_capture, capture_cache_path, serve_jobs
+from ._serve import (
+    JOB_KINDS,
+    WorkerChannel,
+    cached_capture,
+    capture_cache_path,
+    character_parts,
+    read_character_parts,
+    serve_jobs,
+)
 
-__all__ = ["serve_jobs", "JOB_KINDS", "WorkerChannel", "cached_capture", "capture_cache_path"]
+__all__ = ["serve_jobs", "JOB_KINDS", "WorkerChannel", "cached_capture", "capture_cache_path", "character_parts",
+           "read_character_parts"]

@@ -92,6 +92,34 @@ def _jsonable(x):
 
 
 # ------------------------------------------------------------------------------------- caches
+def character_parts(character) -> list:
+    """The character pickled for the worker as a list of byte buffers to write one after the other: a header,
+    the pickle (protocol 5, its arrays out of band, so pickling copies none of them), then each array's bytes
+    (:func:`read_character_parts` reads them back).  A host writes them a step at a time: pickled in band, a
+    VALID avatar (30 MB) held Blender's main thread 100-170 ms in one step."""
+    buffers: list = []
+    main = pickle.dumps(character, protocol=5, buffer_callback=buffers.append)
+    views = [b.raw() for b in buffers]
+    sizes = [len(main)] + [v.nbytes for v in views]
+    head = len(sizes).to_bytes(8, "little") + b"".join(n.to_bytes(8, "little") for n in sizes)
+    return [head, main, *views]
+
+
+def read_character_parts(data: bytes):
+    """The character of :func:`character_parts`' buffers written one after the other."""
+    view = memoryview(data)
+    n = int.from_bytes(view[:8], "little")
+    sizes = [int.from_bytes(view[8 + 8 * i:16 + 8 * i], "little") for i in range(n)]
+    if n < 1 or 8 + 8 * n + sum(sizes) != len(view):
+        raise InvalidDataError(f"the character file for the worker is {len(view)} bytes, its header says "
+                               f"{8 + 8 * n + sum(sizes)}: written incompletely")
+    parts, at = [], 8 + 8 * n
+    for size in sizes:
+        parts.append(view[at:at + size])
+        at += size
+    return pickle.loads(parts[0], buffers=parts[1:])
+
+
 def capture_cache_path(video: str | os.PathLike) -> Path:
     """Where the capture of ``video`` that ``animate`` makes (``neutral_percentile=5``) is cached."""
     from ...errors import InputFileError
@@ -219,7 +247,7 @@ class _Job:
         cached = self.server.characters.get(key)
         if cached is not None and (record is None or cached[1] == json.dumps(record, sort_keys=True)):
             return cached[0], False
-        ch = pickle.loads(data)
+        ch = read_character_parts(data)
         found = False
         if record and apply_landmark_record(ch, record, "the scene's landmarks"):
             self.log(f"landmarks: {len(ch.landmarks)} from the scene ({ch.landmarks.source})")
