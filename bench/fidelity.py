@@ -21,8 +21,10 @@ The video is captured once (:func:`~faceretarget.pipelines.capture_take`, MediaP
 * **ours**: the main job (:func:`~faceretarget.pipelines.animate`) onto the **same** character and onto
   **another** one (the next character in the list); on another character the truth is the same ARKit weights
   on its own ARKit shapes (both characters' shapes mean the same expressions by name);
-* **the peer**: MediaPipe's own ARKit scores (the capture's, after its gap filling and smoothing) copied onto
-  the character's shapes by name, as web avatar players do.
+* **the peer**: MediaPipe's own ARKit scores (the capture's, after its gap filling, the take's neutral removed
+  and smoothing: the same calibration ours gets) copied onto the character's shapes by name;
+* **the raw peer** (``peer_raw``): the same scores as the tracker gives them, copied straight, as web avatar
+  players do (issue 32's peer; no face: 0).
 
 Scores (:mod:`faceretarget.metrics._fidelity`), ours and the peer's on the same frames, and ours / peer:
 per-region error as % of the true motion (``mouth``, ``lids``, ``brows``, ``cheeks``; regions from the
@@ -275,7 +277,10 @@ def compare(ours: dict, peer: dict) -> dict:
             "head": ratio(ours["head_deg"], peer["head_deg"])}
 
 
-def run_one(src: Target, dst: Target, cap, res, Wtake: np.ndarray, names: list[str], head: Rotation) -> dict:
+def run_one(src: Target, dst: Target, cap, res, Wtake: np.ndarray, names: list[str], head: Rotation,
+            raw=None) -> dict:
+    """Ours, the peer (``cap``'s scores) and, given the video's raw track ``raw``, the raw peer against the truth
+    on the same frames."""
     n = min(len(Wtake), len(res.weights), len(cap.weights))
     Wt = dst.weights(Wtake[:n], names)
     ours = dst.weights(res.weights[:n], res.names)
@@ -285,8 +290,12 @@ def run_one(src: Target, dst: Target, cap, res, Wtake: np.ndarray, names: list[s
     qo = res.head.quaternions[:n] if res.head is not None else None
     qp = cap.head.quaternions[:n] if cap.head is not None else None
     o, p = scores(dst, Wt, ours, qt, qo), scores(dst, Wt, peer, qt, qp)
-    return {"frames": n, "ours": o, "peer": p, "ratio": compare(o, p), "mouth_corr": res.mouth_corr,
-            "_weights": (Wt, ours, peer)}
+    out = {"frames": n, "ours": o, "peer": p, "ratio": compare(o, p), "mouth_corr": res.mouth_corr,
+           "_weights": (Wt, ours, peer)}
+    if raw is not None:
+        pr = scores(dst, Wt, dst.weights(np.nan_to_num(raw.weights[:n]), raw.names), qt, raw.head.quaternions[:n])
+        out.update(peer_raw=pr, ratio_raw=compare(o, pr))
+    return out
 
 
 # ------------------------------------------------------------------------------------------------ main
@@ -315,8 +324,9 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
+    from faceretarget.capture import DEFAULT_SMOOTH, track_video
     from faceretarget.io import read_livelinkface
-    from faceretarget.pipelines import animate, capture_take
+    from faceretarget.pipelines import animate
 
     setups = [s for s in a.setups.split(",") if s]
     from faceretarget.pipelines import video_solver
@@ -359,20 +369,18 @@ def main(argv=None) -> int:
                 video = work / f"{src.name}-{take_path.stem}-{setup}.mp4"
                 try:
                     render_video(src, src.weights(Wtake, perf.names), head, setup, video, distance=a.distance)
-                    cap = capture_take(video, neutral_percentile=5.0, progress=False, log=lambda *_: None)
+                    raw = track_video(video)              # tracked once: the raw peer's scores, the live peer's
+                    cap = raw.postprocess(neutral_percentile=5.0, smooth=DEFAULT_SMOOTH)     # as capture_take does
                     dsts = [("same", src)] + ([("other", targets[(i + 1) % len(targets)])] if len(targets) > 1 else [])
                     for kind, dst in dsts:
                         res = animate(cap, dst.character, solver=solver())
-                        r = run_one(src, dst, cap, res, Wtake, perf.names, head)
+                        r = run_one(src, dst, cap, res, Wtake, perf.names, head, raw=raw)
                         r.update(character=src.name, take=take_path.stem, setup=setup, target=kind,
                                  onto=dst.name, window=[round(s0, 2), round(s1, 2)],
                                  detected=float(cap.detected.mean()), seconds=round(time.perf_counter() - t0, 1))
                         runs.append(r)
                         print(line(r), flush=True)
                     if a.live:
-                        from faceretarget.capture import track_video
-
-                        raw = track_video(video)                  # the live peer's raw scores, once per video
                         for kind, dst in dsts:
                             r = run_live(src, dst, video, raw, Wtake, perf.names, head)
                             r.update(character=src.name, take=take_path.stem, setup=setup, target=kind, onto=dst.name,
@@ -459,13 +467,17 @@ def summary(runs: list[dict]) -> dict:
         if not rs:
             continue
         d = {"runs": len(rs)}
-        for who in ("ours", "peer"):
+        for who in ("ours", "peer", "peer_raw"):
+            if any(who not in r for r in rs):
+                continue
             d[who] = {"regions": {k: _median(r[who]["regions"][k] for r in rs) for k in REGIONS},
                       "blink_f1": _median(r[who]["blink"]["f1"] for r in rs),
                       "smile_share": _median(r[who]["smile"]["share"] for r in rs),
                       "head_deg": _median(r[who]["head_deg"] for r in rs)}
         d["ratio_of_medians"] = {k: d["ours"]["regions"][k] / d["peer"]["regions"][k] for k in REGIONS}
         d["ratio_median"] = {k: _median(r["ratio"]["regions"][k] for r in rs) for k in REGIONS}
+        if "peer_raw" in d:
+            d["ratio_of_medians_raw"] = {k: d["ours"]["regions"][k] / d["peer_raw"]["regions"][k] for k in REGIONS}
         out[kind] = d
     return out
 
@@ -481,6 +493,11 @@ def table(summ: dict) -> str:
         lines.append(f"  blink F1: {d['ours']['blink_f1']:.2f} / {d['peer']['blink_f1']:.2f}; smile right: "
                      f"{d['ours']['smile_share']:.2f} / {d['peer']['smile_share']:.2f}; head error: "
                      f"{d['ours']['head_deg']:.1f} / {d['peer']['head_deg']:.1f} deg")
+        if "peer_raw" in d:
+            r = d["peer_raw"]
+            lines.append("  the raw peer (the scores copied straight): "
+                         + ", ".join(f"{k} {r['regions'][k]:.1f} ({d['ratio_of_medians_raw'][k]:.2f}x)" for k in REGIONS)
+                         + f"; blink F1 {r['blink_f1']:.2f}; smile right {r['smile_share']:.2f}; head {r['head_deg']:.1f} deg")
     return "\n".join(lines)
 
 
