@@ -12,10 +12,12 @@ motion), the face mesh's motion ``W_own @ D_own`` against the truth's ``W_arkit 
 motion.  Three ways are scored on the same frames:
 
 * ``ours``: the main job as shipped (the tracker's scores reach the own shapes through
-  :func:`~faceretarget.characters.score_map`);
+  :class:`~faceretarget.characters.ScorePrior`: the mouth's scores of a frame fitted together, the others by
+  :func:`~faceretarget.characters.score_map`'s rows);
 * ``names_only``: the main job with the scores taken by name only (what it did before: none reach such a
   character, every shape is solved from the 68 points alone);
-* ``scores_mapped``: no landmarks, the tracker's scores through the same map (the peer a user could build).
+* ``scores_mapped``: no landmarks, the tracker's scores through the same map
+  (:class:`~faceretarget.characters.ScorePrior`: the peer a user could build).
 
 Usage::
 
@@ -66,7 +68,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     import faceretarget.characters._score_map as score_map_module
-    from faceretarget.characters import drive_rig, load_character, score_map
+    from faceretarget.characters import ScorePrior, drive_rig, load_character
     from faceretarget.errors import FaceRetargetError
     from faceretarget.io import read_livelinkface
     from faceretarget.metrics._fidelity import region_errors
@@ -107,8 +109,7 @@ def main(argv=None) -> int:
                 line = []
                 for way in WAYS:
                     if way == "scores_mapped":
-                        M = score_map(drive.rig, list(cap.names))
-                        Wo = np.nan_to_num(cap.weights) @ M
+                        Wo = ScorePrior(drive.rig, list(cap.names))(cap.weights)
                         names = list(drive.rig.names)
                     else:
                         saved = score_map_module.MIN_NAMED

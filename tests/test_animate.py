@@ -495,6 +495,71 @@ def test_score_map_reaches_shapes_without_arkit_names(arkit):
     np.testing.assert_array_equal(by_name, arkit.map_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES)), warn=False))
 
 
+def test_score_prior_fits_the_mouth_scores_of_a_frame_together(arkit):
+    """A character whose shapes are expressions (an open smile) rather than ARKit's separate actions: the
+    mouth's scores of a frame, fitted together (:class:`~faceretarget.characters.ScorePrior`), reach the one
+    shape that makes their sum; row by row they reach the separate ones.  The template's shapes renamed, its
+    jaw drop taken out (as on a VALID avatar, no shape opens the jaw alone), plus ``s_open_smile`` = both smiles
+    + 0.4 jawOpen + 0.5 both upper-lip raisers: a broad open smile's scores give it 1.0 (row by row the separate
+    smiles and lip raisers, and the open smile for the jaw), an eye's score still reaches its own shape by
+    its row, and a rig with ARKit names gets exactly ``S @ rows``."""
+    from faceretarget.characters import ScorePrior, score_map
+    from faceretarget.mesh import Mesh
+    from faceretarget.names import ARKIT_NAMES
+    from faceretarget.rig import Rig
+    from faceretarget.transfer import packaged_template
+
+    t = packaged_template()
+    names = [n for n in t.shapes if n != "jawOpen"]
+    parts = {"mouthSmileLeft": 1.0, "mouthSmileRight": 1.0, "jawOpen": 0.4, "mouthUpperUpLeft": 0.5,
+             "mouthUpperUpRight": 0.5}
+    D = np.stack([t.shapes[n] for n in names] + [sum(w * t.shapes[n] for n, w in parts.items())])
+    rig = Rig(Mesh(t.vertices, np.full(len(t.triangles), 3), t.triangles.ravel()),
+              [f"s_{n}" for n in names] + ["s_open_smile"], D, "m", t.lm_triangles[:, 0], name="expressions")
+    scores = list(ARKIT_NAMES)
+    S = np.zeros((2, len(scores)))
+    for n, w in parts.items():
+        S[0, scores.index(n)] = w
+    S[1, scores.index("eyeBlinkLeft")] = 0.8
+    S[1, scores.index("mouthSmileLeft")] = np.nan                 # a frame the tracker lost counts as 0
+    sp = ScorePrior(rig, scores)
+    P, rows = sp(S), np.nan_to_num(S) @ sp.rows
+    smile, blink = len(names), names.index("eyeBlinkLeft")                 # the rig's own order
+    assert P[0, smile] > 0.95 and np.delete(P[0], smile).max() < 0.05, P[0].max()
+    # row by row: the separate smiles at 1 *and* the open smile at 0.4 (jawOpen's row: the one shape that drops
+    # the jaw), the smile counted twice
+    assert rows[0, smile] < 0.45 and rows[0, names.index("mouthSmileLeft")] > 0.9
+    assert abs(P[1, blink] - 0.8) < 0.05 and abs(P[1, blink] - rows[1, blink]) < 1e-9
+    np.testing.assert_array_equal(sp.rows, score_map(rig, scores))
+    by_name = ScorePrior(arkit, scores)
+    np.testing.assert_allclose(by_name(S), np.nan_to_num(S) @ score_map(arkit, scores))
+
+
+def test_own_shapes_of_a_valid_avatar_smile_with_their_open_smile(data_dir):
+    """The README's video at the actor's broad smile (WDA_KatieHill_000, frame 28, its MediaPipe scores below):
+    the VALID avatar's own shapes, held toward the scores of the frame fitted together, take its open smile
+    (``RsmileOpen_h`` 1.0, ``LsmileOpen_h`` 0.96) with no disgust shape and the snarl ``RlipUp_h`` at 0.26; row
+    by row they took its slight closed smile, the snarl at 0.50 and ``Rdisgust_h`` 0.36, and the render bared
+    the teeth with flat corners."""
+    from faceretarget.characters import ScorePrior, drive_rig, load_character
+
+    frame = {"browOuterUpLeft": 0.28, "browOuterUpRight": 0.1, "eyeBlinkLeft": 0.25, "eyeBlinkRight": 0.25,
+             "eyeSquintLeft": 0.32, "eyeSquintRight": 0.35, "jawOpen": 0.29, "mouthLowerDownLeft": 0.14,
+             "mouthLowerDownRight": 0.16, "mouthPressLeft": 0.08, "mouthPressRight": 0.13, "mouthRollUpper": 0.1,
+             "mouthSmileLeft": 0.78, "mouthSmileRight": 0.83, "mouthStretchLeft": 0.06, "mouthStretchRight": 0.06,
+             "mouthUpperUpLeft": 0.37, "mouthUpperUpRight": 0.54}
+    rig = drive_rig(load_character(data_dir / "characters" / "valid" / "AIAN_F_1_Busi.glb"), "auto").rig
+    short = [n.split(".")[-1] for n in rig.names]
+    sp = ScorePrior(rig, list(frame))
+    S = np.array([list(frame.values())])
+    P, rows = dict(zip(short, sp(S)[0], strict=True)), dict(zip(short, (S @ sp.rows)[0], strict=True))
+    top = sorted(P, key=P.get)[-2:]
+    assert set(top) == {"RsmileOpen_h", "LsmileOpen_h"} and min(P[k] for k in top) > 0.9, top
+    assert P["Rdisgust_h"] == 0 and P["Ldisgust_h"] == 0 and P["RlipUp_h"] < 0.35
+    assert rows["Rdisgust_h"] > 0.3 and rows["RlipUp_h"] > 0.45          # row by row, measured 0.36 and 0.50
+    assert P["LeyeClose_h"] == pytest.approx(rows["LeyeClose_h"])        # the eyes keep their rows
+
+
 def test_own_shapes_of_a_valid_avatar_take_the_scores(data_dir):
     """A VALID avatar's own shapes (``LsmileClose_h``, ``LeyeClose_h``, ...) take the tracker's smile and blink
     through the map (before, no score reached them); measured on AIAN_F_1_Busi: mouthSmileLeft -> LsmileClose_h

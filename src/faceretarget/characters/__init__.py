@@ -26,11 +26,11 @@ from ._load import (
     mesh_sha256,
     read_landmark_file,
 )
-from ._score_map import MIN_NAMED, by_name, held_shapes, score_map
+from ._score_map import MIN_NAMED, ScorePrior, by_name, held_shapes, score_map
 from ._template import load_template
 
 __all__ = ["load_character", "drive_rig", "DriveRig", "look_rig", "character_look", "CharacterLook",
            "character_weights", "inspect_character",
            "CharacterReport", "landmark_cache_path", "landmark_record", "apply_landmark_record", "mesh_sha256",
            "read_landmark_file", "LANDMARKS_FORMAT", "generate_shapes", "GeneratedShapes", "load_template",
-           "LID_PAIRS", "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS", "score_map", "by_name", "held_shapes", "MIN_NAMED"]
+           "LID_PAIRS", "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS", "score_map", "ScorePrior", "by_name", "held_shapes", "MIN_NAMED"]

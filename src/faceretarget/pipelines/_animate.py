@@ -655,14 +655,14 @@ def _solve(character: Rig, take: Performance, o: AnimateOptions, by_landmarks: b
         tr = retarget_take(ftake, o.source_keys, o.target_keys, solver="nnls", log=log)
         own = tr.target if tr.target is not None and tr.target.kind != "mesh" else None
         return _Solved(tr.result.weights, list(tr.result.names), tr.target_keys, own, solve_pairs, ftake)
-    from ..characters import held_shapes, score_map
+    from ..characters import ScorePrior, held_shapes
 
-    # each score's drive of the character's shapes: by name, or through the ARKit template's landmark motion
-    smap = None if take.weights is None else score_map(character, list(take.names), log=log)
-    prior = None if smap is None else np.nan_to_num(take.weights) @ smap
+    # the scores' drive of the character's shapes: by name, or through the ARKit template's landmark motion
+    sp = None if take.weights is None else ScorePrior(character, list(take.names), log=log)
+    prior = None if sp is None else sp(take.weights)
     sol = (o.solver or video_solver()).fit(character, neutral_face(ftake.points))   # the face take's rest face
     # the shapes the scores hold, whatever they scored in this take (the live modes hold the same)
-    scored = None if smap is None else held_shapes(character, list(take.names), smap)
+    scored = None if sp is None else held_shapes(character, list(take.names), sp.rows)
 
     def solve(points: np.ndarray) -> np.ndarray:
         return sol.transform(points, prior, take.times, scored=scored).weights

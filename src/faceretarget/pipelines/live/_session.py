@@ -48,7 +48,7 @@ from ...capture import (
     neutral_baseline,
     pose_from_matrices,
 )
-from ...characters import held_shapes, score_map
+from ...characters import ScorePrior, held_shapes
 from ...errors import InputFileError, InvalidDataError, OutputError
 from ...headpose import HeadPose
 from ...names import normalize_name
@@ -739,7 +739,7 @@ class _State:
                 self._calibrate()
             rest = self.first_rot
         else:
-            prior = calibrate_neutral(S, self.base) @ self.prior_map
+            prior = self.prior_map(calibrate_neutral(S, self.base)[None])[0]
             # the shapes the scores hold, in every frame (not only those scored above 0 in this one)
             W = self.solver.transform(P[None], prior[None], smooth=False, scored=self.held).weights[0]
             amount = params["emotion_amount"]
@@ -795,8 +795,8 @@ class _State:
         neutral = neutral_face(P, calibrate_neutral(S, self.base))
         tpl = s.solver_template
         self.solver = LandmarkSolver(**tpl.get_params()).fit(s.character, neutral)
-        self.prior_map = score_map(s.character, list(self.tracker.names), log=s.log)
-        self.held = self.stats.held = held_shapes(s.character, list(self.tracker.names), self.prior_map)
+        self.prior_map = ScorePrior(s.character, list(self.tracker.names), log=s.log)
+        self.held = self.stats.held = held_shapes(s.character, list(self.tracker.names), self.prior_map.rows)
         self.rest = Rotation.from_quat(np.array(self.cal_rot)).mean()
         s.log(f"calibrated on {len(P)} frames ({self.stats.calibration_frames} with a face): neutral face, "
               f"score baseline (mean {self.base.mean():.3f}), head rest {np.degrees(self.rest.magnitude()):.1f} deg "
