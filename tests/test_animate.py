@@ -536,11 +536,11 @@ def test_score_prior_fits_the_mouth_scores_of_a_frame_together(arkit):
 
 
 def test_own_shapes_of_a_valid_avatar_smile_with_their_open_smile(data_dir):
-    """The README's video at the actor's broad smile (WDA_KatieHill_000, frame 28, its MediaPipe scores below):
-    the VALID avatar's own shapes, held toward the scores of the frame fitted together, take its open smile
-    (``RsmileOpen_h`` 1.0, ``LsmileOpen_h`` 0.96) with no disgust shape and the snarl ``RlipUp_h`` at 0.26; row
-    by row they took its slight closed smile, the snarl at 0.50 and ``Rdisgust_h`` 0.36, and the render bared
-    the teeth with flat corners."""
+    """The README's video at the actor's broad smile (WDA_KatieHill_000, frame 28; its MediaPipe scores of at
+    least 0.05 below, gaze left out): the VALID avatar's own shapes, held toward the scores of the frame fitted
+    together, take its open smile (``RsmileOpen_h`` 1.0, ``LsmileOpen_h`` 0.96) with no disgust shape and the
+    snarl ``RlipUp_h`` at 0.26; row by row they took its slight closed smile, the snarl at 0.50 and
+    ``Rdisgust_h`` 0.36, and the render bared the teeth with flat corners."""
     from faceretarget.characters import ScorePrior, drive_rig, load_character
 
     frame = {"browOuterUpLeft": 0.28, "browOuterUpRight": 0.1, "eyeBlinkLeft": 0.25, "eyeBlinkRight": 0.25,
