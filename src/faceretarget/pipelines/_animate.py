@@ -659,7 +659,7 @@ def _solve(character: Rig, take: Performance, o: AnimateOptions, by_landmarks: b
 
     # the scores' drive of the character's shapes: by name, or through the ARKit template's landmark motion
     sp = None if take.weights is None else ScorePrior(character, list(take.names), log=log)
-    prior = None if sp is None else sp(take.weights)
+    prior = None if sp is None else sp(take.weights, smooth=lambda X: _smooth_take(X, take.times))
     sol = (o.solver or video_solver()).fit(character, neutral_face(ftake.points))   # the face take's rest face
     # the shapes the scores hold, whatever they scored in this take (the live modes hold the same)
     scored = None if sp is None else held_shapes(character, list(take.names), sp.rows)
@@ -670,6 +670,21 @@ def _solve(character: Rig, take: Performance, o: AnimateOptions, by_landmarks: b
     with working(f"solving {len(ftake.times)} frames on {character.name}", o.progress):
         W = solve(ftake.points)
     return _Solved(W, list(character.names), character, None, solve, ftake)
+
+
+def _smooth_take(X: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """``X`` (T, K) through the capture's One Euro filter both ways (no lag), each run of consecutive frames on its
+    own (a take leaves out the frames without a face: a step over 1.5 frame intervals ends a run)."""
+    from ..capture import DEFAULT_SMOOTH, one_euro
+
+    t = np.asarray(times, np.float64)
+    out = np.array(X, np.float64)
+    dt = np.diff(t)
+    cut = np.flatnonzero(dt > 1.5 * np.median(dt)) + 1 if len(dt) else np.zeros(0, int)
+    for a, b in zip(np.r_[0, cut], np.r_[cut, len(t)], strict=True):
+        if b - a > 1:
+            out[a:b] = one_euro(out[a:b], t[a:b], DEFAULT_SMOOTH, both_ways=True)
+    return out
 
 
 def _emotion(s: _Solved, take: Performance, style_model, keys, log):

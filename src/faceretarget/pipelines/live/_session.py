@@ -683,6 +683,7 @@ class _State:
         self.solver: LandmarkSolver | None = None
         self.base = None
         self.prior_map = None
+        self.prior_filter = None
         self.held = None
         self.rest = None
         self.first_rot = None
@@ -739,7 +740,9 @@ class _State:
                 self._calibrate()
             rest = self.first_rot
         else:
-            prior = self.prior_map(calibrate_neutral(S, self.base)[None])[0]
+            pf = self.prior_filter
+            prior = self.prior_map(calibrate_neutral(S, self.base)[None],
+                                   smooth=None if pf is None else lambda X: pf(X[0], f.t)[None])[0]
             # the shapes the scores hold, in every frame (not only those scored above 0 in this one)
             W = self.solver.transform(P[None], prior[None], smooth=False, scored=self.held).weights[0]
             amount = params["emotion_amount"]
@@ -777,7 +780,7 @@ class _State:
     def _reset_filters(self, lm: np.ndarray) -> None:
         p = self.s.smooth
         if p is None:
-            self.filters = None
+            self.filters = self.prior_filter = None
             return
         width = float(np.linalg.norm(lm[_CHEEKS[0], :2] - lm[_CHEEKS[1], :2]))
         # the blink scores pass unfiltered: causal, the One Euro filter (1 Hz at rest) delayed each blink by a
@@ -786,6 +789,7 @@ class _State:
         self.blinks = np.array([i for i, n in enumerate(self.tracker.names) if n.startswith("eyeBlink")], dtype=int)
         self.filters = (OneEuroFilter(p, vector_axis=-1, scale=max(width, 1.0)), OneEuroFilter(p),
                         OneEuroFilter(p))
+        self.prior_filter = OneEuroFilter(p)      # the mouth's jointly fitted prior (ScorePrior's smooth)
 
     def _calibrate(self) -> None:
         s = self.s
