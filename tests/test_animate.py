@@ -535,6 +535,12 @@ def test_score_prior_fits_the_mouth_scores_of_a_frame_together(arkit):
     assert Z[0].max() < 0.05 and Z[1, blink] == P[1, blink]
     by_name = ScorePrior(arkit, scores)
     np.testing.assert_allclose(by_name(S), np.nan_to_num(S) @ score_map(arkit, scores))
+    # more shapes than the 68 points' 204 coordinates: no exact lasso shift, the rows as before
+    extra = np.random.default_rng(0).normal(0.0, 1e-3, (160,) + D.shape[1:])
+    many = Rig(rig.neutral, list(rig.names) + [f"x{i}" for i in range(160)], np.concatenate([D, extra]), "m",
+               t.lm_triangles[:, 0], name="many")
+    wide = ScorePrior(many, scores)
+    assert wide.mouth is None and np.array_equal(wide(S), np.nan_to_num(S) @ wide.rows)
 
 
 def test_own_shapes_move_no_more_jittery_with_the_mouth_fitted_together(aoc_capture, data_dir, monkeypatch):

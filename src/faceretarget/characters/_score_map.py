@@ -99,7 +99,9 @@ class ScorePrior:
     74-100 % of it there, the brows' and eyes' 0-3 %) are fitted together per frame (module docstring): their
     summed motion, carried onto the character as :func:`score_map` carries one score's, is matched by the bounded
     lasso of :data:`SPARSITY` (solved exactly: the lasso's linear term is a shift of the target, ``A' q = p``) and
-    the bounded least squares on the shapes it keeps; the other scores add their rows.  0.6 ms a frame, 9 ms a
+    the bounded least squares on the shapes it keeps; the other scores add their rows.  A rig whose shapes'
+    landmark motion has no such shift (more shapes than the 68 points' 204 coordinates, or shapes that move them
+    alike) keeps the rows.  0.6 ms a frame, 9 ms a
     take of 164 frames on a VALID avatar.  The lasso's choice between near-equal mixes of the same motion can
     switch from one frame to the next (an open smile, or a viseme with a raised lip): ``smooth`` filters the
     jointly fitted part over time (``animate``: the capture's One Euro filter both ways over the take; the live
@@ -124,9 +126,11 @@ class ScorePrior:
         mouth = E[:, _LOWER].sum(axis=1) > 0.5 * E.sum(axis=1)
         if not mouth.any():
             return
-        self.mouth, self.A, self.M = mouth, A, M[mouth]
         p0 = SPARSITY * np.sqrt(np.maximum((A * A).sum(axis=0), 0.0))          # the lasso's weight on each shape
-        self.q0 = np.linalg.pinv(A).T @ p0                                        # A' q0 = p0
+        q0 = np.linalg.pinv(A).T @ p0                                             # A' q0 = p0
+        if np.linalg.norm(A.T @ q0 - p0) > 1e-8 * np.linalg.norm(p0):
+            return          # more shapes than the 68 points have coordinates (or fewer independent ones): rows
+        self.mouth, self.A, self.M, self.q0 = mouth, A, M[mouth], q0
 
     def __call__(self, S: np.ndarray, *, smooth=None) -> np.ndarray:
         """``(T, K)``; ``smooth``: a function of the ``(T, K)`` jointly fitted part (the mouth's), returning it
