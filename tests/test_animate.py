@@ -543,6 +543,50 @@ def test_score_prior_fits_the_mouth_scores_of_a_frame_together(arkit):
     assert wide.mouth is None and np.array_equal(wide(S), np.nan_to_num(S) @ wide.rows)
 
 
+def test_score_prior_on_a_vrm_with_five_vowels(arkit):
+    """A VRoid-style avatar whose mouth is five vowels (``Fcl_MTH_A`` ... ``O``, each a mix of ARKit actions, here
+    made from the template's) and a joy shape: a rounded open mouth (jawOpen 0.3 + mouthFunnel 0.6) is its ``O``
+    alone when the mouth's scores are fitted together (row by row: ``A`` 0.3, ``U`` 0.5 and ``E`` 0.22), a jaw
+    drop is its ``A``, a smile its joy, a blink its blink."""
+    from faceretarget.characters import ScorePrior
+    from faceretarget.mesh import Mesh
+    from faceretarget.names import ARKIT_NAMES
+    from faceretarget.rig import Rig
+    from faceretarget.transfer import packaged_template
+
+    t = packaged_template()
+    mix = {"A": {"jawOpen": 0.7, "mouthLowerDownLeft": 0.3, "mouthLowerDownRight": 0.3},
+           "I": {"jawOpen": 0.2, "mouthStretchLeft": 0.6, "mouthStretchRight": 0.6},
+           "U": {"mouthPucker": 0.8, "mouthFunnel": 0.4, "jawOpen": 0.15},
+           "E": {"jawOpen": 0.35, "mouthStretchLeft": 0.3, "mouthStretchRight": 0.3, "mouthUpperUpLeft": 0.2,
+                 "mouthUpperUpRight": 0.2},
+           "O": {"mouthFunnel": 0.8, "jawOpen": 0.45},
+           "JOY": {"mouthSmileLeft": 1.0, "mouthSmileRight": 1.0, "cheekSquintLeft": 0.5, "cheekSquintRight": 0.5},
+           "BLINK_L": {"eyeBlinkLeft": 1.0}}
+    keys = list(mix)
+    rig = Rig(Mesh(t.vertices, np.full(len(t.triangles), 3), t.triangles.ravel()), [f"Fcl_MTH_{k}" for k in keys],
+              np.stack([sum(w * t.shapes[n] for n, w in m.items()) for m in mix.values()]), "m",
+              t.lm_triangles[:, 0], name="vrm")
+    scores = list(ARKIT_NAMES)
+    sp = ScorePrior(rig, scores)
+
+    def prior(**kw):
+        S = np.zeros((1, len(scores)))
+        for n, w in kw.items():
+            S[0, scores.index(n)] = w
+        return dict(zip(keys, sp(S)[0], strict=True)), dict(zip(keys, (S @ sp.rows)[0], strict=True))
+
+    joint, rows = prior(jawOpen=0.3, mouthFunnel=0.6)
+    assert joint["O"] > 0.6 and max(v for k, v in joint.items() if k != "O") < 0.05, joint
+    assert rows["O"] < 0.05 and rows["U"] > 0.4 and rows["A"] > 0.2, rows       # measured 0, 0.50, 0.30
+    joint, _ = prior(jawOpen=0.6)
+    assert max(joint, key=joint.get) == "A" and joint["A"] > 0.7
+    joint, _ = prior(mouthSmileLeft=0.8, mouthSmileRight=0.8)
+    assert max(joint, key=joint.get) == "JOY" and joint["JOY"] > 0.6
+    joint, _ = prior(eyeBlinkLeft=0.9)
+    assert abs(joint["BLINK_L"] - 0.9) < 0.05 and max(v for k, v in joint.items() if k != "BLINK_L") < 0.05
+
+
 def test_own_shapes_move_no_more_jittery_with_the_mouth_fitted_together(aoc_capture, data_dir, monkeypatch):
     """The lasso's choice between near-equal mixes can switch from frame to frame; the jointly fitted prior goes
     through the capture's One Euro filter both ways, so the VALID avatar's landmarks move as smoothly as with
