@@ -68,13 +68,17 @@ def score_map(rig: Rig, names: list[str], *, log=None) -> np.ndarray:
     names : list of str
         The tracker's score names.
     """
-    from ..numerics import solve_bounded
-
     names = list(names)
     if not _by_template(rig, names):
         return rig.map_weights(names, np.eye(len(names)), warn=False)
-    A, M = _carried_motion(rig, names)
-    out = np.zeros((len(names), rig.n_shapes))
+    return _template_rows(rig, *_carried_motion(rig, names), log=log)
+
+
+def _template_rows(rig: Rig, A: np.ndarray, M: np.ndarray, *, log=None) -> np.ndarray:
+    """:func:`score_map` through the template, from :func:`_carried_motion`'s ``A`` and ``M``."""
+    from ..numerics import solve_bounded
+
+    out = np.zeros((len(M), rig.n_shapes))
     rows = np.flatnonzero(np.abs(M).max(axis=1) > 0)
     if len(rows):                                    # each score's few shapes, then their mix within [0, 1]
         B = M[rows]
@@ -117,11 +121,12 @@ class ScorePrior:
 
     def __init__(self, rig: Rig, names: list[str], *, log=None):
         names = list(names)
-        self.rows = score_map(rig, names, log=log)
         self.mouth = None
         if not _by_template(rig, names):
+            self.rows = score_map(rig, names, log=log)
             return
-        A, M = _carried_motion(rig, names)
+        A, M = _carried_motion(rig, names)                  # once, for the rows and the joint fit
+        self.rows = _template_rows(rig, A, M, log=log)
         E = (M.reshape(len(names), -1, 3) ** 2).sum(axis=2)
         mouth = E[:, _LOWER].sum(axis=1) > 0.5 * E.sum(axis=1)
         if not mouth.any():
