@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -598,8 +599,14 @@ class _Transfer:
 
     def turned(self, u: np.ndarray) -> int:
         """How many face triangles the motion ``u`` turns over (normal reversed)."""
+        n0, ok = self._rest_normals
+        return int(_flipped(n0, ok, self.V + u, self.ft).sum())
+
+    @functools.cached_property
+    def _rest_normals(self) -> tuple[np.ndarray, np.ndarray]:
+        """The face triangles' rest normals and which are not degenerate (:meth:`turned`'s reference)."""
         n0 = _normals(self.V, self.ft)
-        return int(_flipped(n0, (n0 * n0).sum(axis=1) > 1e-28, self.V + u, self.ft).sum())
+        return n0, (n0 * n0).sum(axis=1) > 1e-28
 
     def sewn(self) -> dict:
         """``{mesh: (vertices, {shape: motion})}`` of the pieces sewn to the skin: the smoothest continuation of
