@@ -279,6 +279,33 @@ def test_capture_postprocess_performance_csv_and_npz(tmp_path):
         cap.postprocess()
 
 
+
+def test_postprocess_keeps_a_short_blink_and_smooths_the_rest():
+    """A 3-frame blink at 30 fps over quiet scores, as MediaPipe reads a short one (0.3, 0.55, 0.3): the One Euro
+    filter, even run both ways, took its peak under 0.5 (the closed threshold of P11's blink F1); the blink
+    scores now pass unfiltered, every other score is still smoothed."""
+    from faceretarget.capture import UNFILTERED_SCORES
+
+    T = 90
+    rng = np.random.default_rng(4)
+    cap = _fake_capture(T=T)
+    head = HeadPose.from_livelinkface(rng.normal(0, 0.05, (T, 3)), np.tile([0.0, 0.0, -0.4], (T, 1)))
+    cap = Capture(times=np.arange(T) / 30.0, fps=30.0, image_size=cap.image_size,
+                  landmarks=rng.uniform(0, 40, (T, 478, 3)), weights=np.clip(0.1 + rng.normal(0, 0.02, (T, 51)), 0, 1),
+                  names=cap.names, head=head, detected=np.ones(T, bool), interpolated=np.zeros(T, bool),
+                  source="blink.mp4")
+    eyes = [cap.names.index(n) for n in UNFILTERED_SCORES]
+    other = [i for i in range(51) if i not in eyes]
+    cap.weights[44:47, eyes] = [[0.3], [0.55], [0.3]]            # the blink
+    cap.weights[44:47, other[:3]] = [[0.3], [0.55], [0.3]]       # the same on three other scores
+    out = cap.postprocess(smooth=OneEuroParams())
+    assert out.processing["smooth"]["unfiltered"] == list(UNFILTERED_SCORES)
+    np.testing.assert_allclose(out.weights[:, eyes], cap.weights[:, eyes])
+    assert out.weights[45, eyes].min() == 0.55
+    assert out.weights[45, other[:3]].max() < 0.5               # what the filter did to the blink before
+    quiet = np.r_[0:40, 50:T]
+    assert out.weights[quiet][:, other].std(axis=0).mean() < 0.6 * cap.weights[quiet][:, other].std(axis=0).mean()
+
 def test_model_lookup_errors(monkeypatch, tmp_path):
     import importlib.util
 

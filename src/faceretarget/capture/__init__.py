@@ -20,6 +20,7 @@ needs them, only running a tracker does.  See ``docs/capture.md``.
 from ._appearance import AppearanceModel, procrustes_align
 from ._capture import (
     DEFAULT_SMOOTH,
+    UNFILTERED_SCORES,
     Capture,
     capture_video,
     draw_overlay,
@@ -44,6 +45,7 @@ __all__ = [
     "face_points",
     "mouth_opening",
     "DEFAULT_SMOOTH",
+    "UNFILTERED_SCORES",
     "track_video",
     "capture_video",
     "write_preview",

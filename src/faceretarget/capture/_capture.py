@@ -20,7 +20,7 @@ from ._filters import OneEuroParams, calibrate_neutral, fill_gaps, neutral_basel
 from ._tracker import N_LANDMARKS, FaceTracker
 
 __all__ = ["Capture", "track_video", "capture_video", "write_preview", "draw_overlay", "pose_from_matrices", "FACE_WIDTH_M",
-           "DEFAULT_SMOOTH"]
+           "DEFAULT_SMOOTH", "UNFILTERED_SCORES"]
 
 #: Landmarks at the left and right cheek edges of the face oval (face width).
 _CHEEKS = (234, 454)
@@ -31,6 +31,11 @@ HEAD_EULER = "YXZ"
 _NPZ_VERSION = 2
 #: Default smoothing of :func:`capture_video` (and ``faceretarget capture``).
 DEFAULT_SMOOTH = OneEuroParams()
+#: Scores :meth:`Capture.postprocess` leaves unfiltered: a blink closes and opens in 3-10 frames, and the One
+#: Euro filter (1 Hz at rest, its speed estimate itself filtered at 1 Hz) shaves the peak of the short ones off
+#: even run both ways (P11's 24 cached runs: blink F1 0.75 / 0.74 -> 0.77 / 0.79, the lids' error the same;
+#: a 2-3 frame blink of ``apfel`` onto Rocketbox 0.33 -> 0.57).  The live modes pass them unfiltered too.
+UNFILTERED_SCORES = ("eyeBlinkLeft", "eyeBlinkRight")
 
 
 @dataclass(eq=False)
@@ -137,7 +142,8 @@ class Capture:
             One Euro filter for every stream, each contiguous run of frames separately, with
             ``beta`` in face-relative units: weights as they are, angles in radians, landmarks
             divided by the face width in pixels (:meth:`face_width`, speed = norm of the point's
-            x, y, z velocity), translation by :data:`FACE_WIDTH_M`.
+            x, y, z velocity), translation by :data:`FACE_WIDTH_M`; the blink scores
+            (:data:`UNFILTERED_SCORES`) pass unfiltered.
         both_ways : bool
             Smooth without lag: the filter run forwards and backwards in time, averaged (a whole take
             is at hand; :func:`~faceretarget.capture.one_euro`).  False: causal, as a live stream is
@@ -163,16 +169,20 @@ class Capture:
         if smooth is not None:
             out = replace(self, landmarks=lm, interpolated=filled)
             fw = out.face_width()
+            keep = [i for i, n in enumerate(self.names) if n in UNFILTERED_SCORES]
             for a, b in zip(*runs(valid), strict=True):
                 if b - a < 2:
                     continue
                 s = slice(a, b)
                 lm[s] = one_euro(lm[s], t[s], smooth, vector_axis=-1, scale=fw, both_ways=both_ways)
-                w[s] = np.clip(one_euro(w[s], t[s], smooth, both_ways=both_ways), 0.0, 1.0)
+                ws = np.clip(one_euro(w[s], t[s], smooth, both_ways=both_ways), 0.0, 1.0)
+                ws[:, keep] = w[s][:, keep]
+                w[s] = ws
                 rot[s] = one_euro(rot[s], t[s], smooth, both_ways=both_ways)
                 tr[s] = one_euro(tr[s], t[s], smooth, vector_axis=-1, scale=FACE_WIDTH_M, both_ways=both_ways)
             info["smooth"] = {"min_cutoff": smooth.min_cutoff, "beta": smooth.beta,
-                              "d_cutoff": smooth.d_cutoff, "face_width_px": fw, "both_ways": bool(both_ways)}
+                              "d_cutoff": smooth.d_cutoff, "face_width_px": fw, "both_ways": bool(both_ways),
+                              "unfiltered": [self.names[i] for i in keep]}
         rot[~valid] = np.nan
         tr[~valid] = np.nan
         head = HeadPose.from_euler(HEAD_EULER, rot, tr, source=self.source)

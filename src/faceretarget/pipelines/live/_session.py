@@ -40,6 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from ...capture import (
     DEFAULT_SMOOTH,
+    UNFILTERED_SCORES,
     FaceTracker,
     OneEuroFilter,
     OneEuroParams,
@@ -786,7 +787,8 @@ class _State:
         # the blink scores pass unfiltered: causal, the One Euro filter (1 Hz at rest) delayed each blink by a
         # frame and took only 12-22 % of their jitter at rest on the shared videos; on P11's renders the live
         # blink F1 went 0.68 -> 0.76 (24 cached runs) with the blinks unfiltered
-        self.blinks = np.array([i for i, n in enumerate(self.tracker.names) if n.startswith("eyeBlink")], dtype=int)
+        # (the same scores a whole take's post-processing leaves unfiltered: capture.UNFILTERED_SCORES)
+        self.blinks = np.array([i for i, n in enumerate(self.tracker.names) if n in UNFILTERED_SCORES], dtype=int)
         self.filters = (OneEuroFilter(p, vector_axis=-1, scale=max(width, 1.0)), OneEuroFilter(p),
                         OneEuroFilter(p))
         self.prior_filter = OneEuroFilter(p)      # the mouth's jointly fitted prior (ScorePrior's smooth)
