@@ -176,7 +176,7 @@ class Capture:
                 s = slice(a, b)
                 lm[s] = one_euro(lm[s], t[s], smooth, vector_axis=-1, scale=fw, both_ways=both_ways)
                 ws = np.clip(one_euro(w[s], t[s], smooth, both_ways=both_ways), 0.0, 1.0)
-                ws[:, keep] = w[s][:, keep]
+                ws[:, keep] = np.clip(w[s][:, keep], 0.0, 1.0)
                 w[s] = ws
                 rot[s] = one_euro(rot[s], t[s], smooth, both_ways=both_ways)
                 tr[s] = one_euro(tr[s], t[s], smooth, vector_axis=-1, scale=FACE_WIDTH_M, both_ways=both_ways)
