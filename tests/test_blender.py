@@ -423,3 +423,26 @@ def test_skeleton_target_plays_in_blender_bvh_and_gltf_importers(B, data_dir, tm
         err, dev = np.abs(got - ours).max(), np.abs(bone_lengths(got, t.parents) - L0).max()
         print(f"\nskeleton {ext} in Blender: joints within {err:.1e} m of ours, bone lengths within {dev:.1e} m")
         assert err < 1e-5 and dev < 1e-5
+
+
+def test_affine_inverse_of_bone_matrices_needs_no_lapack():
+    """The scene reader inverts bone and object matrices with the cross-product formula (inside Blender,
+    ``np.linalg.inv`` went to OpenBLAS's threaded solver, whose threads held the main thread 35-205 ms under
+    load): equal to NumPy's inverse on rotations with scale, shear and translation, one matrix or a stack,
+    and a singular matrix raises as NumPy's does.  No Blender needed."""
+    from faceretarget.io._blender_scene import _inv_affine
+
+    rng = np.random.default_rng(3)
+    M = np.zeros((129, 4, 4))
+    M[:, :3, :3] = Rotation.random(129, random_state=4).as_matrix() * rng.uniform(0.01, 100.0, (129, 1, 1))
+    M[5, :3, :3] = [[1.0, 0.5, 0.0], [0.0, 2.0, 0.3], [0.1, 0.0, 3.0]]          # a sheared bone
+    M[:, :3, 3] = rng.normal(0.0, 5.0, (129, 3))
+    M[:, 3, 3] = 1.0
+    inv = _inv_affine(M)
+    np.testing.assert_allclose(inv, np.linalg.inv(M), rtol=0, atol=1e-12 * np.abs(np.linalg.inv(M)).max())
+    np.testing.assert_allclose(np.einsum("nij,njk->nik", M, inv), np.broadcast_to(np.eye(4), M.shape), atol=1e-12)
+    np.testing.assert_allclose(_inv_affine(M[7]), np.linalg.inv(M[7]), atol=1e-12)
+    flat = np.eye(4)
+    flat[2, 2] = 0.0
+    with pytest.raises(np.linalg.LinAlgError):
+        _inv_affine(flat)

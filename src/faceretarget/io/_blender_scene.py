@@ -216,6 +216,28 @@ def _m(M) -> np.ndarray:
     return np.array([list(r) for r in M], dtype=np.float64)
 
 
+def _inv_affine(M: np.ndarray) -> np.ndarray:
+    """Inverses of affine 4x4 matrices ``(..., 4, 4)`` (last row 0 0 0 1: Blender's object and bone
+    matrices) by the cross-product formula, without LAPACK.  Inside Blender, ``np.linalg.inv`` goes to
+    OpenBLAS's threaded ``gesv``, whose threads spin against Blender's main thread: on two cores with two
+    other busy processes, inverting an avatar's 129 bone matrices held the main thread 35-205 ms of CPU and
+    1.2-1.5 s of wall time (the extension's slowest tick).  Singular matrices raise as ``np.linalg.inv`` does."""
+    M = np.asarray(M, dtype=np.float64)
+    A, t = M[..., :3, :3], M[..., :3, 3]
+    r0, r1, r2 = A[..., 0, :], A[..., 1, :], A[..., 2, :]
+    c0, c1, c2 = np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)
+    det = np.einsum("...i,...i->...", r0, c0)
+    scale = np.maximum(np.abs(A).max(axis=(-2, -1)), 1e-300) ** 3
+    if not (np.abs(det) > 1e-12 * scale).all():
+        raise np.linalg.LinAlgError("Singular matrix")
+    inv = np.stack([c0, c1, c2], axis=-1) / det[..., None, None]
+    out = np.zeros(M.shape)
+    out[..., :3, :3] = inv
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", inv, t)
+    out[..., 3, 3] = 1.0
+    return out
+
+
 def _character(bpy, path: Path) -> Character:
     arms = [o for o in bpy.data.objects if o.type == "ARMATURE"]
     meshes = [o for o in bpy.data.objects if o.type == "MESH" and not o.hide_render]
@@ -234,8 +256,8 @@ def _character_steps(bpy, path: Path | None, arms: list, mesh_objects: list) -> 
         pose = np.array([_m(arm.pose.bones[b.name].matrix) for b in bones]).reshape(-1, 4, 4)
         rest = np.array([_m(b.matrix_local) for b in bones]).reshape(-1, 4, 4)
         world_all = Aw @ pose
-        inv_world = np.linalg.inv(world_all) if len(bones) else world_all
-        skin = pose @ np.linalg.inv(rest) if len(bones) else pose    # armature-space skinning matrix of each bone
+        inv_world = _inv_affine(world_all) if len(bones) else world_all
+        skin = pose @ _inv_affine(rest) if len(bones) else pose    # armature-space skinning matrix of each bone
         row = {b.name: i for i, b in enumerate(bones)}
         for i, b in enumerate(bones):
             world = world_all[i].copy()
@@ -291,7 +313,7 @@ def _skin_steps(obj, me, bones):
             m = skin.get((arm.name, g.name))
             if m is None:                                   # an armature outside the character
                 pb = arm.pose.bones[g.name]
-                m = _m(pb.matrix) @ np.linalg.inv(_m(pb.bone.matrix_local))
+                m = _m(pb.matrix) @ _inv_affine(_m(pb.bone.matrix_local))
             mats[g.index] = (m, index.get((arm.name, g.name), -1))
     vi, gi, wi = [], [], []
     verts = me.vertices
@@ -331,7 +353,7 @@ def _skin_steps(obj, me, bones):
     jn[vs[top], rank[top]] = J[slot[order][top]]
     jw[vs[top], rank[top]] = wi[order][top]
     A = _m(arm.matrix_world)
-    Oinv_A = np.linalg.inv(A) @ _m(obj.matrix_world)
+    Oinv_A = _inv_affine(A) @ _m(obj.matrix_world)
     return A @ M @ Oinv_A, jn, jw
 
 
