@@ -170,14 +170,14 @@ class Capture:
             out = replace(self, landmarks=lm, interpolated=filled)
             fw = out.face_width()
             keep = [i for i, n in enumerate(self.names) if n in UNFILTERED_SCORES]
+            filt = np.setdiff1d(np.arange(w.shape[1]), keep)
             for a, b in zip(*runs(valid), strict=True):
                 if b - a < 2:
                     continue
                 s = slice(a, b)
                 lm[s] = one_euro(lm[s], t[s], smooth, vector_axis=-1, scale=fw, both_ways=both_ways)
-                ws = np.clip(one_euro(w[s], t[s], smooth, both_ways=both_ways), 0.0, 1.0)
-                ws[:, keep] = np.clip(w[s][:, keep], 0.0, 1.0)
-                w[s] = ws
+                w[s, filt] = one_euro(w[s, filt], t[s], smooth, both_ways=both_ways)
+                w[s] = np.clip(w[s], 0.0, 1.0)
                 rot[s] = one_euro(rot[s], t[s], smooth, both_ways=both_ways)
                 tr[s] = one_euro(tr[s], t[s], smooth, vector_axis=-1, scale=FACE_WIDTH_M, both_ways=both_ways)
             info["smooth"] = {"min_cutoff": smooth.min_cutoff, "beta": smooth.beta,
