@@ -277,9 +277,9 @@ def test_bad_take_fails_only_its_job_and_the_exit_code(data_dir, takes, tmp_path
 
 
 def test_headmotion_synth_builds_its_database_once(data_dir, tmp_path, client):
-    from faceretarget.headmotion import HeadMotionDatabase
+    from faceretarget.headmotion import HeadMotionDatabase, rotation_range
     from faceretarget.io import read_audio, read_bvh_head
-    from faceretarget.pipelines import build_head_database, run_batch
+    from faceretarget.pipelines import build_head_database, read_jobs, run_batch
 
     hm = data_dir / "headmotion" / "zeggs_067_Speech_2_x_1_0"
     path = tmp_path / "jobs.toml"
@@ -292,6 +292,7 @@ out = "out/{{character}}/{{take}}.bvh"
 [jobs.options]
 build = [["{hm}.wav", "{hm}.bvh"]]
 seed = 3
+motion_range = [20, 10, 5]
 """)
     s = run_batch(path, client=client)
     assert s.exit_code == 0 and s.models == 1 and s.count("ok") >= 1
@@ -299,11 +300,16 @@ seed = 3
     assert isinstance(db, HeadMotionDatabase)
     for o in s.outcomes:
         audio, rate = read_audio(o.job.input)
-        ref = db.transform(audio, rate, seed=3, source=str(o.job.input)).take.head
+        ref = db.transform(audio, rate, seed=3, source=str(o.job.input), motion_range=[20, 10, 5]).take.head
         got = read_bvh_head(o.job.out).head
         assert got.n_frames == ref.n_frames == o.frames > 50
         angle = (got.rotation.inv() * ref.rotation).magnitude()          # radians between the poses
         assert np.degrees(angle).max() < 0.01
+        assert np.allclose(rotation_range(got), [20, 10, 5], rtol=0.01)  # as far as asked
+    bad = path.read_text().replace("motion_range = [20, 10, 5]", "motion_range = [20, 10]")
+    path.write_text(bad)
+    with pytest.raises(InvalidDataError, match=r"key 'options.motion_range'.*\[YAW, PITCH, ROLL\]"):
+        read_jobs(path)
 
 
 def _free_port() -> int:

@@ -197,35 +197,97 @@ def test_arkit_weights_are_kept_in_zero_one_in_the_rigs_geometry(arkit_rig):
 
 
 # ------------------------------------------------------------------------------------ what the output says
-def test_speech_head_moves_about_the_characters_rest_pose(data_dir, tmp_path):
-    """``animate --head speech``: the database's motion is about its speakers' mean pose (12 degrees of
-    pitch for the two shared takes); the character's head moves about its own rest, as the tracked one."""
-    from faceretarget.io import read_audio
+@pytest.fixture(scope="module")
+def head_db_path(data_dir, tmp_path_factory) -> Path:
+    """A head-motion database of the two shared takes (BEAT and ZEGGS, mirrored), saved."""
     from faceretarget.pipelines import build_head_database
-    from faceretarget.pipelines._animate import _speech_head
 
     H = data_dir / "headmotion"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         db = build_head_database([(H / f"{n}.wav", H / f"{n}.bvh") for n in ("beat_2_scott_0_1_1",
                                                                               "zeggs_067_Speech_2_x_1_0")])
-    db.save(tmp_path / "head.npz")
+    path = tmp_path_factory.mktemp("headdb") / "head.npz"
+    db.save(path)
+    return path
+
+
+def test_speech_head_moves_about_the_characters_rest_pose(data_dir, head_db_path):
+    """``animate --head speech``: the database's motion is about its speakers' mean pose (12 degrees of
+    pitch for the two shared takes); the character's head moves about its own rest, as the tracked one."""
+    from faceretarget.io import read_audio
+    from faceretarget.pipelines._animate import _speech_head
+
     audio, rate = read_audio(data_dir / "video" / "WDA_KatieHill_000.mp4")
     mono = np.asarray(audio, dtype=np.float64).reshape(len(audio), -1).mean(axis=1)     # as animate mixes it
     times = np.arange(200) / 25.0
     from faceretarget.headmotion import HeadMotionDatabase
     from faceretarget.timebase import infer_fps
 
-    raw = HeadMotionDatabase.load(tmp_path / "head.npz").transform(mono, rate, seed=0, fps=infer_fps(times)).take
+    raw = HeadMotionDatabase.load(head_db_path).transform(mono, rate, seed=0, fps=infer_fps(times)).take
     raw_rot = raw.head.resample(raw.times, times).rotation
     assert np.degrees(raw_rot.mean().magnitude()) > 5.0                       # what was written before
     lines: list[str] = []
-    head = _speech_head(tmp_path / "head.npz", audio, rate, times, 1.0, lines.append)
+    head = _speech_head(head_db_path, audio, rate, times, 1.0, lines.append)
     rot = head.rotation
     assert np.degrees(rot.mean().magnitude()) < 0.01                          # about the rest pose
     rel = raw_rot.mean().inv() * raw_rot                                      # the same motion
     assert np.degrees((rel.inv() * rot).magnitude()).max() < 1e-6
     assert any("rest pose" in m for m in lines)
+
+
+def test_speech_head_turns_as_far_as_the_actors_tracked_head(data_dir, head_db_path):
+    """``animate --head speech`` on a take with a tracked head: nothing in speech tells how far a speaker
+    turns the head (docs/headmotion.md: the two shared speakers differ 2.3x in yaw), so the synthesized
+    head turns as far as the actor's in the video; without a head pose, or with ``database``, as far as the
+    database's speakers; given degrees, that far."""
+    from faceretarget.headmotion import rotation_range
+    from faceretarget.headpose import HeadPose
+    from faceretarget.io import read_audio
+    from faceretarget.performance import Performance
+    from faceretarget.pipelines._animate import _speech_head, _speech_range
+
+    audio, rate = read_audio(data_dir / "video" / "WDA_KatieHill_000.mp4")
+    times = np.arange(200) / 25.0                                            # the 8 s of the clip's audio
+    # the actor's tracked head: a slow sway of +-6 deg yaw, +-3 pitch, +-2 roll (5-95 % range 11.9 / 6.0 / 4.0)
+    ph = 2 * np.pi * times / 4.0
+    rot = np.radians(np.c_[6 * np.sin(ph), 3 * np.sin(1.3 * ph + 1), 2 * np.sin(0.7 * ph + 2)])
+    tracked = HeadPose.from_euler("YXZ", rot, None, source="video")
+    take = Performance(times=times, fps=25.0, head=tracked, source="video")
+    real = rotation_range(tracked)
+
+    def turns(head_range):
+        lines: list[str] = []
+        r = _speech_range(take, head_range, lines.append)
+        head = _speech_head(head_db_path, audio, rate, times, 1.0, lines.append, r)
+        return rotation_range(head), lines
+
+    auto, lines = turns("auto")
+    assert np.allclose(auto, real, rtol=0.02), (auto, real)                  # within 2 % on every axis
+    assert any("actor's tracked head" in m and f"{real[0]:.1f}" in m for m in lines)
+    db, lines = turns("database")
+    assert (np.abs(db / real - 1) > 0.3).any(), (db, real)                  # what speech alone gives
+    assert any("database's speakers" in m for m in lines)
+    given, _ = turns([20.0, 10.0, 5.0])
+    assert np.allclose(given, [20, 10, 5], rtol=0.02), given
+    short = Performance(times=times[:25], fps=25.0, head=HeadPose.from_euler("YXZ", rot[:25], None), source="v")
+    lines = []
+    assert _speech_range(short, "auto", lines.append) is None and "only 1.0 s of tracked head" in lines[0]
+    lines = []
+    headless = Performance(times=times, fps=25.0, weights=np.zeros((200, 1)), names=["jawOpen"], source="v")
+    assert _speech_range(headless, "auto", lines.append) is None
+    assert "no head pose" in lines[0]
+
+
+def test_head_range_option_is_checked():
+    from faceretarget.pipelines import AnimateOptions
+
+    for bad in ("far", [1, 2], -3, [10, 400, 5]):
+        with pytest.raises(InvalidDataError, match="head range"):
+            AnimateOptions(head_range=bad).check()
+    for good in ("auto", "database", 15, [20, 10, 5]):
+        AnimateOptions(head_range=good).check()
+    assert main(["animate", "v.mp4", "--character", "c", "--out", "o.glb", "--head-range", "1,2"]) == 2
 
 
 def test_a_head_that_never_moves_is_not_announced_and_glb_says_blenders_range(data_dir, arkit_rig, tmp_path):

@@ -27,6 +27,21 @@ HEAD_AMPLITUDE = Range(0, 10)
 PREVIEW_SIZE = Range(16, 4096, integer=True)
 #: ``--neck-share``.
 NECK_SHARE = Range(0, 1)
+#: Each angle of ``--head-range``, degrees.
+HEAD_RANGE_DEG = Range(0, 360)
+
+
+def head_range(text: str):
+    """``--head-range``: ``auto``, ``database``, or degrees (one number, or yaw,pitch,roll)."""
+    import argparse
+
+    if text in ("auto", "database"):
+        return text
+    parts = text.split(",")
+    if len(parts) not in (1, 3):
+        raise argparse.ArgumentTypeError(f"expected auto, database, DEG or YAW,PITCH,ROLL degrees, got {text!r}")
+    vals = [HEAD_RANGE_DEG(x.strip()) for x in parts]
+    return vals[0] if len(vals) == 1 else vals
 
 __all__ = ["register", "cmd_animate", "add_character_options", "character_out"]
 
@@ -103,6 +118,7 @@ def cmd_animate(args, log) -> int:
     with warnings_to_log(log):
         res = animate(video, character, AnimateOptions(
             out=out, preview=preview, head=args.head, head_db=args.head_db, head_amplitude=args.head_amplitude,
+            head_range=args.head_range,
             emotion=args.emotion, style=args.style, speech=args.speech, source_keys=sk, target_keys=tk,
             max_frames=args.max_frames, landmarker=args.model, preview_size=args.preview_size, bake=args.bake,
             progress=not log.quiet, shapes=args.shapes, landmarks=args.landmarks, mesh=args.mesh,
@@ -145,6 +161,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     a.add_argument("--head-db", help="head-motion database (.npz from 'headmotion build') for --head speech")
     a.add_argument("--head-amplitude", type=HEAD_AMPLITUDE, default=1.0,
                    help=f"scale of the head motion, {HEAD_AMPLITUDE} (default 1)")
+    a.add_argument("--head-range", type=head_range, default="auto", metavar="auto|database|DEG|YAW,PITCH,ROLL",
+                   help="--head speech: how far the head turns, degrees of 5-95%% range (default auto: as far as "
+                   "the actor's tracked head in the video, else the database speakers'; nothing in speech tells it)")
     a.add_argument("--emotion", help="EMOTION:AMOUNT (e.g. angry:0.6) or a curve file of TIME EMOTION AMOUNT "
                    "lines; needs --style")
     a.add_argument("--style", help="style model (.npz from 'style fit' on face takes of the emotions)")

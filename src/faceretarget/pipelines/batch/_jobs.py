@@ -143,6 +143,26 @@ def _word_or_file(words: tuple[str, ...], what: str):
 
 
 _head_transfer = _word_or_file(("auto", "off"), "a head-motion file")
+
+
+def _degrees(words: tuple[str, ...]):
+    """A validator: one of ``words``, or how far a head turns: one number or [YAW, PITCH, ROLL] in [0, 360]
+    degrees (a list of three)."""
+    deg = _number(0, 360)
+
+    def check(v, root: Path):
+        if isinstance(v, str) and v in words:
+            return v
+        if isinstance(v, list) and len(v) == 3:
+            return [deg(x, root) for x in v]
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            return deg(v, root)
+        quoted = "".join(f'"{w}", ' for w in words)
+        raise _Bad(f"expected {quoted}degrees or [YAW, PITCH, ROLL] degrees, got {v!r}")
+
+    return check
+
+
 _regions = _word_or_file(("upper-lower", "default"), "a regions JSON file")
 
 
@@ -200,6 +220,7 @@ JOB_OPTIONS: dict[str, dict[str, tuple[str, Callable, object]]] = {
         "head": ("apply", _choice("video", "speech", "off"), "video"),
         "head_db": ("apply", _file, None),
         "head_amplitude": ("apply", _number(0, 10), 1.0),
+        "head_range": ("apply", _degrees(("auto", "database")), "auto"),
         "emotion": ("apply", _emotion, None),
         "max_frames": ("apply", _number(1, integer=True), None),
         "bake": ("apply", _bool, False),
@@ -214,6 +235,7 @@ JOB_OPTIONS: dict[str, dict[str, tuple[str, Callable, object]]] = {
         "mirror": ("fit", _bool, True),
         "allow_mismatch": ("fit", _bool, False),
         "amplitude": ("apply", _number(0, 10), 1.0),
+        "motion_range": ("apply", _degrees(()), None),
         "rotation": ("apply", _bool, True),
         "translation": ("apply", _bool, True),
         "seed": ("apply", _number(0, 2**32 - 1, integer=True), None),

@@ -506,7 +506,8 @@ def _animate(job: Job, f: _Fitted) -> int:
     o = job.apply
     job.out.parent.mkdir(parents=True, exist_ok=True)
     res = animate(video, f.character, AnimateOptions(
-        out=job.out, head=o["head"], head_db=o["head_db"], head_amplitude=o["head_amplitude"], emotion=o["emotion"],
+        out=job.out, head=o["head"], head_db=o["head_db"], head_amplitude=o["head_amplitude"],
+        head_range=o["head_range"], emotion=o["emotion"],
         style=f.style, source_keys=f.source_keys, target_keys=f.target_keys, max_frames=o["max_frames"],
         bake=o["bake"]))
     return len(res.times)
@@ -519,7 +520,8 @@ def _headmotion(job: Job, f: _Fitted) -> int:
     audio, rate = read_audio(job.input)
     try:
         res = f.model.transform(audio, rate, amplitude=o["amplitude"], rotation=o["rotation"],
-                                translation=o["translation"], seed=o["seed"], fps=o["fps"], source=str(job.input))
+                                translation=o["translation"], seed=o["seed"], fps=o["fps"], source=str(job.input),
+                                motion_range=o["motion_range"])
     except InvalidDataError as e:
         raise InvalidDataError(f"{job.input}: {e}") from e
     job.out.parent.mkdir(parents=True, exist_ok=True)
