@@ -282,6 +282,47 @@ def test_symmetric_head_blinks_are_mirror_images(data_dir):
     assert inverted_triangles(drive) <= 4           # the underside of its upper lids, as before (issue 34)
 
 
+def _turned_z_up(ch):
+    """A copy of the character turned as a Z-up file holds it (Blender, a Z-up USD or FBX): y -> z, z -> -y."""
+    import copy
+
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    out = copy.deepcopy(ch)
+    for m in out.meshes:
+        m.mesh.vertices = m.mesh.vertices @ R.T
+        if m.deltas is not None and len(m.deltas):
+            m.deltas = (m.deltas @ R.T).astype(m.deltas.dtype)
+    R4 = np.eye(4)
+    R4[:3, :3] = R
+    for j in out.joints:
+        j.world = R4 @ j.world
+    out.up = None if ch.up is None else R @ ch.up
+    out.front = None if ch.front is None else R @ ch.front
+    return out, R
+
+
+def test_blinks_close_on_a_z_up_character_as_on_a_y_up_one(data_dir):
+    """Generation is the same whichever way up the file holds the face.  The blink's pins compared the
+    template's lid gap in its own (Y-up) frame with its motion in the character's: on a Z-up character
+    (Rocketbox saved as .blend) no lid pair counted as closing and the lids stayed 39.6 % open.  arkit-face
+    turned Z-up, its landmarks given: its blinks are the Y-up ones turned, and closed."""
+    ref = load_character(data_dir / "arkit-face")
+    hidden = hide_shapes(read_character(data_dir / "arkit-face"))
+    hidden.landmarks = ref.landmarks
+    turned, R = _turned_z_up(hidden)
+    names = ["eyeBlinkLeft", "eyeBlinkRight"]
+    a = generate_shapes(hidden, shapes=names).apply()
+    b = generate_shapes(turned, shapes=names).apply()
+    lm = a.landmark_positions()
+    eoc = float(np.linalg.norm(lm[36] - lm[45]))
+    for n in names:
+        da, db = shape_delta(a, n).astype(float), shape_delta(b, n).astype(float)
+        assert np.abs(da).max() > 0.05 * eoc                              # the lid moves
+        assert np.linalg.norm(db - da @ R.T, axis=1).max() < 0.005 * eoc, n  # the same motion, turned
+    ma, mb = shape_metrics(a), shape_metrics(b)
+    assert mb["blink_gap_pct"] <= 10.0 and abs(mb["blink_gap_pct"] - ma["blink_gap_pct"]) < 0.5, (ma, mb)
+
+
 def test_mouth_close_keeps_the_skin_out_of_the_lower_teeth():
     """The demo face bo (no data needed): its lower teeth, a bar riding the chin's rigid motion, drop further
     than the floor of the mouth behind them, so ``jawOpen + mouthClose`` put 2 vertices of that skin inside
@@ -362,12 +403,16 @@ def test_cli_bad_inputs(data_dir, tmp_path, capsys):
     assert "no face shapes" in capsys.readouterr().err
     assert main(["character", "shapes", str(tmp_path / "missing"), "--out", str(tmp_path / "d")]) == 2
     assert "not found" in capsys.readouterr().err
+    # every shape asked is its own (kept): one line before any work, instead of an API message after it
+    assert main(["character", "shapes", src, "--shapes", "jawOpen,eyeBlinkLeft", "--out", str(tmp_path / "d.glb")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "has all 2 of the shapes asked" in err[0] and "--replace" in err[0], err
     try:
         from faceretarget.io import write_character_shapes  # noqa: F401
     except ImportError:
         assert main(["character", "shapes", src, "--out", str(tmp_path / "e.glb")]) == 2
         assert "write_character_shapes" in capsys.readouterr().err
-    assert not any((tmp_path / n).exists() for n in "abcde")
+    assert not any((tmp_path / n).exists() for n in ("a", "b", "c", "d", "d.glb", "e", "e.glb"))
 
 
 def test_no_face_found(tmp_path, capsys):

@@ -232,6 +232,10 @@ def generate_shapes(character, *, template="ict-face", shapes="arkit", replace: 
     if method not in METHODS:
         raise InvalidDataError(f"method must be one of {', '.join(METHODS)}, not '{method}'")
     job = _Transfer(character, template, shapes, replace, mesh, landmarks, method, say)
+    if not job.todo:                            # every shape asked is the character's own, kept: nothing to do
+        job.timings["total"] = time.perf_counter() - job.t_all
+        say(f"nothing to generate: '{job.ch.name}' has all {len(job.skipped)} of the shapes asked")
+        return GeneratedShapes(job.ch, {}, job.skipped, job.notes, {}, job.timings, job.tmpl.name, {}, replace)
     job.find_skin()
     job.register()
     job.prepare_lips_and_mirror(symmetric)
@@ -439,7 +443,7 @@ class _Transfer:
         pinned instead of their landmarks."""
         solver, margins = self.solve, self.margins
         if margins and a.startswith("eyeBlink"):
-            mt = _margin_targets(a, margins, self.V, self.eyes, self.tmpl, d_t, self.size)
+            mt = _margin_targets(a, margins, self.V, self.eyes, self.tmpl, d_t, self.size, self.sR)
             if mt is not None:
                 starts = np.cumsum([0] + [len(m.vertices) for m in margins])
                 sel = tuple(i for i in range(len(margins)) if not np.isnan(mt[starts[i]:starts[i + 1]]).any())
@@ -530,7 +534,7 @@ class _Transfer:
                 target = np.einsum("fkc,fdc->fkd", grad0, Q) - grad0    # J Q^T - J: the gradient of the motion
                 pins = ch.landmarks.positions(ub)[self.pin_ids]
                 note = _pin_targets(a, pins, self.lm_pos, self.pair_rows, ch, V, self.added, self.eyes, self.tmpl,
-                                    d_t, size)
+                                    d_t, size, self.sR)
                 if note:
                     self.shape_notes[a] = note
                 rhs = (self.G.T @ (self.Aw @ target.reshape(-1, 3)) + self.lam * self.varea[free, None] * ub[free]
@@ -554,7 +558,7 @@ class _Transfer:
             if self.method != "barycentric":
                 pins = self.Cm @ u_s[free]
                 _pin_targets(a, pins, self.lm_pos, self.pair_rows, self.ch, V, added, self.eyes, self.tmpl,
-                             self.template_motion(a), self.size)
+                             self.template_motion(a), self.size, self.sR)
                 rhs = (self.G.T @ (self.Aw @ (self.Gfull @ u_s)) + self.lam * self.varea[free, None] * u_s[free]
                        + self.mu * (self.Cm.T @ pins))
                 u_s = u_s.copy()
@@ -726,13 +730,15 @@ def _factorized(K):
         return factorized(K)
 
 
-def _pin_targets(a, pins, lm_pos, rows, ch, V, added, eyes, tmpl, d_t, size) -> str:
+def _pin_targets(a, pins, lm_pos, rows, ch, V, added, eyes, tmpl, d_t, size, sR) -> str:
     """Set the lid / lip landmark targets (``pins``, in place) where the shape closes them: a blink puts
     each upper lid point and the lower one facing it on one point (where the template's lids meet,
-    outside the eyeball), ``mouthClose`` puts the inner lips of the open jaw together."""
+    outside the eyeball), ``mouthClose`` puts the inner lips of the open jaw together.  ``d_t`` is the
+    template's motion in the character's frame, ``sR`` (3, 3) the registration's scaled rotation that put
+    it there (row vectors: ``x @ sR``)."""
     rest = lm_pos(np.zeros_like(V))
     if a.startswith("eyeBlink"):
-        t_l = tmpl.landmarks()
+        t_l = tmpl.landmarks() @ sR                        # the template's lids in the character's frame
         t_d = np.einsum("pk,pkd->pd", tmpl.lm_bary, d_t[tmpl.lm_triangles])
         n = 0
         for up, lo in LID_PAIRS:
@@ -1206,11 +1212,12 @@ def _facing_solve(P0: list, TL: np.ndarray, fi: np.ndarray, S: list, N0: np.ndar
     return z
 
 
-def _margin_targets(a: str, margins: list[LidMargin], V: np.ndarray, eyes, tmpl, d_t, size) -> np.ndarray | None:
+def _margin_targets(a: str, margins: list[LidMargin], V: np.ndarray, eyes, tmpl, d_t, size,
+                    sR: np.ndarray) -> np.ndarray | None:
     """Per rim vertex (all margins, in order): its motion closing the lids for ``eyeBlink*`` (each rim point
     and the point facing it on the other lid meet where the template's lids meet, outside the eyeball);
-    None when the shape closes no eye."""
-    t_l = tmpl.landmarks()
+    None when the shape closes no eye.  ``d_t`` and ``sR`` as for :func:`_pin_targets`."""
+    t_l = tmpl.landmarks() @ sR                            # the template's lids in the character's frame
     t_d = np.einsum("pk,pkd->pd", tmpl.lm_bary, d_t[tmpl.lm_triangles])
     parts, closes = [], False
     for m in margins:

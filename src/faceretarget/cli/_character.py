@@ -17,7 +17,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..errors import FaceNotFoundError, OutputError
+from ..errors import FaceNotFoundError, InvalidDataError, OutputError
 from ..formats import PNG
 from ._support import check_inputs, warnings_to_log
 
@@ -133,6 +133,10 @@ def cmd_shapes(args, log) -> int:
     with warnings_to_log(log):
         gen = generate_shapes(args.file, template=args.template, shapes=args.shapes, replace=args.replace,
                               mesh=args.mesh, landmarks=args.landmarks, progress=log)
+        if not gen.added:
+            raise InvalidDataError(f"{args.file}: has all {len(gen.skipped)} of the shapes asked ({args.shapes}) "
+                                   "and keeps its own: nothing to generate, nothing written (--replace generates "
+                                   "them over its own)")
         for n in gen.notes:
             log(f"note: {n}")
         if obj:
