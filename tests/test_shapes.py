@@ -323,6 +323,64 @@ def test_blinks_close_on_a_z_up_character_as_on_a_y_up_one(data_dir):
     assert mb["blink_gap_pct"] <= 10.0 and abs(mb["blink_gap_pct"] - ma["blink_gap_pct"]) < 0.5, (ma, mb)
 
 
+def _yawed(ch, deg: float):
+    """A copy of the character with its head turned ``deg`` about the up axis in the file (a head scanned or
+    modelled turned); its file axes kept."""
+    import copy
+
+    a = np.radians(deg)
+    R = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    out = copy.deepcopy(ch)
+    for m in out.meshes:
+        m.mesh.vertices = m.mesh.vertices @ R.T
+        if m.deltas is not None and len(m.deltas):
+            m.deltas = (m.deltas @ R.T).astype(m.deltas.dtype)
+    return out, R
+
+
+def test_face_frame_of_a_head_held_turned(data_dir):
+    """A head the file holds turned gets the face's own frame from its symmetry plane (the file's axes and
+    the landmark search's axis-aligned views gave the old frame): arkit-face turned 25 degrees and rolled 15
+    is found turned by 25.0 / 15.0 degrees, facing where it faces; upright it keeps the file's axes."""
+    from faceretarget.character import character_frame
+    from faceretarget.characters import face_turn
+
+    ref = load_character(data_dir / "arkit-face")
+    assert face_turn(ref) is None and np.allclose(character_frame(ref), np.eye(3))
+    turned, R = _yawed(ref, 25.0)
+    turned.up, turned.front = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])   # as a search would leave it
+    lines: list[str] = []
+    assert face_turn(turned, lines.append) == pytest.approx(25.0, abs=0.1)
+    assert np.degrees(np.arccos(turned.front @ (R @ [0.0, 0.0, 1.0]))) < 0.1
+    assert "turned 25.0 degrees" in lines[0]
+    c, s_ = np.cos(np.radians(15)), np.sin(np.radians(15))
+    rolled = load_character(data_dir / "arkit-face")
+    Rz = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    for m in rolled.meshes:
+        m.mesh.vertices = m.mesh.vertices @ Rz.T
+    rolled.up, rolled.front = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    assert face_turn(rolled) == pytest.approx(15.0, abs=0.1)
+    assert np.degrees(np.arccos(rolled.up @ (Rz @ [0.0, 1.0, 0.0]))) < 0.1
+
+
+def test_blinks_close_on_a_head_held_turned(data_dir):
+    """arkit-face turned 25 degrees in its file, its landmarks given: its blinks stayed 32 % open and its
+    left / right shapes were not made mirror images (no symmetry plane found along the file's axes); in the
+    face's own frame the lids close as upright (2 %) and the pairs mirror."""
+    from faceretarget.transfer import mirror_err_pct
+
+    ref = load_character(data_dir / "arkit-face")
+    hidden = hide_shapes(read_character(data_dir / "arkit-face"))
+    hidden.landmarks = ref.landmarks
+    turned, _ = _yawed(hidden, 25.0)
+    turned.up, turned.front = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    gen = generate_shapes(turned, shapes=["eyeBlinkLeft", "eyeBlinkRight", "mouthSmileLeft", "mouthSmileRight"])
+    drive = gen.apply()
+    assert shape_metrics(drive)["blink_gap_pct"] <= 10.0
+    assert mirror_err_pct(drive) is not None and mirror_err_pct(drive) <= 1.0
+    assert any("turned 25.0 degrees" in n for n in drive.notes + gen.notes)
+
+
 def test_mouth_close_keeps_the_skin_out_of_the_lower_teeth():
     """The demo face bo (no data needed): its lower teeth, a bar riding the chin's rigid motion, drop further
     than the floor of the mouth behind them, so ``jawOpen + mouthClose`` put 2 vertices of that skin inside
