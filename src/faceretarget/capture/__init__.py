@@ -30,7 +30,7 @@ from ._capture import (
 )
 from ._composite import FaceCompositor, image_shapes
 from ._filters import OneEuroFilter, OneEuroParams, calibrate_neutral, fill_gaps, neutral_baseline, one_euro
-from ._find_landmarks import FINDER_VERSION, LandmarkSearch, face_region, find_landmarks
+from ._find_landmarks import FINDER_VERSION, LandmarkSearch, face_pitch, face_region, find_landmarks
 from ._points import MEDIAPIPE_68, face_points, mouth_opening
 from ._tracker import FaceTracker, find_model
 from ._warp import PiecewiseAffineWarp
@@ -38,6 +38,7 @@ from ._warp import PiecewiseAffineWarp
 __all__ = [
     "find_landmarks",
     "LandmarkSearch",
+    "face_pitch",
     "face_region",
     "FINDER_VERSION",
     "Capture",

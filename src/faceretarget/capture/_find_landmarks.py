@@ -37,12 +37,13 @@ from ..errors import FaceNotFoundError
 from ..render import look_at, pick, render_scene
 from ._points import MEDIAPIPE_68
 
-__all__ = ["find_landmarks", "LandmarkSearch", "face_region", "CHARACTER_68", "FINDER_VERSION"]
+__all__ = ["find_landmarks", "LandmarkSearch", "face_region", "face_pitch", "CHARACTER_68", "FINDER_VERSION"]
 
 #: The version of what :func:`find_landmarks` does.  The landmark cache searches a character again when its
 #: cached landmarks were found by another version (:mod:`faceretarget.characters`).  2 (issue 34): the jaw
-#: line onto a mask's edge, lid points out of the eye's opening onto the lids.
-FINDER_VERSION = 2
+#: line onto a mask's edge, lid points out of the eye's opening onto the lids.  3: a head the file holds turned
+#: or nodding is looked at again, square to the face (:mod:`faceretarget.characters`' ``_frame``).
+FINDER_VERSION = 3
 
 
 @dataclass(eq=False)
@@ -68,6 +69,9 @@ class LandmarkSearch:
         The final render's camera.
     depth : (68,) float
         The landmarker's relative depth of each point (pixels, smaller nearer the camera).
+    pose : (4, 4) float or None
+        The landmarker's facial transformation matrix on the final render (its canonical face in the
+        camera's frame: :func:`face_pitch` reads how far the face looks down in it).
     """
 
     landmarks: SurfacePoints
@@ -80,6 +84,17 @@ class LandmarkSearch:
     seconds: float = 0.0
     camera: object = None
     depth: np.ndarray | None = None
+    pose: np.ndarray | None = None
+
+
+def face_pitch(pose: np.ndarray) -> float:
+    """Degrees the landmarker's face looks down (+) or up (-) in its camera's frame, from a facial
+    transformation matrix (the X angle of its rotation as intrinsic Y-X-Z angles, scale removed)."""
+    from scipy.spatial.transform import Rotation
+
+    M = np.asarray(pose, dtype=np.float64)[:3, :3]
+    M = M / np.cbrt(np.linalg.det(M))
+    return float(Rotation.from_matrix(M).as_euler("YXZ", degrees=True)[1])
 
 
 def face_region(character: Character, mesh: int | None = None) -> np.ndarray:
@@ -507,7 +522,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
                 + ("no face" if r is None else f"a face, {v['frontal']:.0%} frontal")
                 + f" ({time.perf_counter() - t0:.1f} s)")
             if r is not None and (best is None or v["frontal"] > best[0]):
-                best = (v["frontal"], up, front, r[0], cam, seen)
+                best = (v["frontal"], up, front, r[0], cam, seen, r[2])
             if r is not None and v["frontal"] > (0.6 if character.front is not None
                                                  and np.allclose(front, character.front) else 0.85):
                 break                                    # a face seen squarely: the other sides can only be worse
@@ -518,7 +533,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
                 "'faceretarget character inspect FILE --out check.png' for what was rendered)", views=views)
             err.images = images
             raise err
-        _, up, front, px, cam, seen = best
+        _, up, front, px, cam, seen, pose = best
         if not character.face_meshes() and not character.face_filter:     # the head mesh was a guess
             prim = _face_under(character, prim, seen, px, log)
         # zoom on the face found and look again
@@ -536,7 +551,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         if r2 is None:                                   # the zoom lost it: keep the first view's points
             cam2, img2, px2 = cam, render_scene(character.meshes, cam).image, px
         else:
-            px2 = r2[0]
+            px2, pose = r2[0], r2[2]
         pts = px2[CHARACTER_68, :2]
         alone = render_scene(character.meshes, cam2, only=[prim], textures=False)
         tris, bary, dist = pick(alone, character.meshes, pts, prim, radius=max(6, size // 40))
@@ -556,7 +571,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         log(f"landmarks: face found facing {np.round(front, 3).tolist()} (up {np.round(up, 3).tolist()}), "
             f"{len(views)} view(s) tried, {int((dist > 0).sum())} of 68 snapped to the surface")
         return LandmarkSearch(SurfacePoints(prim, tris, bary, "found on a render"), up, front, views, img2, pts,
-                              dist, time.perf_counter() - t0, cam2, px2[CHARACTER_68, 2])
+                              dist, time.perf_counter() - t0, cam2, px2[CHARACTER_68, 2], pose)
     finally:
         if own:
             tr.close()

@@ -8,7 +8,15 @@ It sits between the methods (capture, transfer, ...) and the pipelines: the pipe
 Blender extension use it; nothing below it imports it (``tests/test_architecture.py``).
 """
 
-from ._frame import FACE_SYMMETRIC_PCT, FACE_TURN_DEG, face_turn, symmetry_plane
+from ._frame import (
+    FACE_SYMMETRIC_PCT,
+    FACE_TURN_DEG,
+    PITCH_BIAS_DEG,
+    PITCH_TOLERANCE_DEG,
+    face_pitch_turn,
+    face_turn,
+    symmetry_plane,
+)
 from ._generate import EYE_LOOK_DEGREES, LID_PAIRS, LIP_PAIRS, METHODS, GeneratedShapes, generate_shapes
 from ._load import (
     LANDMARKS_FORMAT,
@@ -35,4 +43,5 @@ __all__ = ["load_character", "drive_rig", "DriveRig", "look_rig", "character_loo
            "CharacterReport", "landmark_cache_path", "landmark_record", "apply_landmark_record", "mesh_sha256",
            "read_landmark_file", "LANDMARKS_FORMAT", "generate_shapes", "GeneratedShapes", "load_template",
            "LID_PAIRS", "LIP_PAIRS", "EYE_LOOK_DEGREES", "METHODS", "score_map", "ScorePrior", "by_name", "held_shapes", "MIN_NAMED",
-           "face_turn", "symmetry_plane", "FACE_TURN_DEG", "FACE_SYMMETRIC_PCT"]
+           "face_turn", "symmetry_plane", "FACE_TURN_DEG", "FACE_SYMMETRIC_PCT", "face_pitch_turn",
+           "PITCH_BIAS_DEG", "PITCH_TOLERANCE_DEG"]

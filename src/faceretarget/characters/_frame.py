@@ -20,7 +20,8 @@ import numpy as np
 
 from ..character import Character, character_frame
 
-__all__ = ["face_turn", "symmetry_plane", "FACE_TURN_DEG", "FACE_SYMMETRIC_PCT"]
+__all__ = ["face_turn", "face_pitch_turn", "symmetry_plane", "FACE_TURN_DEG", "FACE_SYMMETRIC_PCT",
+           "PITCH_BIAS_DEG", "PITCH_TOLERANCE_DEG"]
 
 #: Degrees between the face's symmetry plane and the file's left-right axis over which the face's own frame is
 #: used (the shared characters, upright: 0.00-0.11).
@@ -28,6 +29,13 @@ FACE_TURN_DEG = 1.0
 #: The face's mean mirror distance (% of the outer-eye-corner distance) up to which its symmetry plane is trusted
 #: (the shared characters: 0.0-0.8).
 FACE_SYMMETRIC_PCT = 3.0
+
+#: What the landmarker reads as the pitch (degrees, + looking down) of a face held upright in its file, square to
+#: the camera: 1.1-5.6 on the seven shared characters, 4.3 their median.
+PITCH_BIAS_DEG = 4.0
+#: A reading further than this from :data:`PITCH_BIAS_DEG` is a head the file holds pitched (a 17-degree nod read
+#: 16.3): the head frame is tipped by the difference.
+PITCH_TOLERANCE_DEG = 8.0
 
 #: Left-right landmark pairs of the 68-point scheme (the character's right, left): jaw, brows, nose, eyes, lips.
 _PAIRS = ([(i, 16 - i) for i in range(8)] + [(17 + i, 26 - i) for i in range(5)] + [(31, 35), (32, 34)]
@@ -111,3 +119,26 @@ def face_turn(ch: Character, log=None) -> float | None:
     if log is not None:
         log(msg)
     return deg
+
+
+def face_pitch_turn(ch: Character, pitch: float, log=None) -> float | None:
+    """Tip ``ch.up`` / ``ch.front`` about the head frame's left-right axis when the landmarker read the face on a
+    render square to that frame as looking ``pitch`` degrees down (+) or up (-), more than
+    :data:`PITCH_TOLERANCE_DEG` off what it reads on an upright face (:data:`PITCH_BIAS_DEG`); the degrees
+    tipped, or None.  A symmetry plane tells nothing of a pitch (:func:`face_turn`): a head the file holds
+    nodding 17 degrees had its lip and jaw landmarks picked from below, the jaw line 22 % of the eye-corner
+    distance off where the upright copy's are."""
+    off = float(pitch) - PITCH_BIAS_DEG
+    if not np.isfinite(off) or abs(off) <= PITCH_TOLERANCE_DEG:
+        return None
+    F = character_frame(ch)
+    t = np.radians(off)
+    ch.up = F[1] * np.cos(t) + F[2] * np.sin(t)
+    ch.front = F[2] * np.cos(t) - F[1] * np.sin(t)
+    msg = (f"the face looks {abs(off):.1f} degrees {'down' if off > 0 else 'up'} in the file's frame (the "
+           f"landmarker reads {pitch:.1f}, {PITCH_BIAS_DEG:g} on an upright face): its own frame used, facing "
+           f"{np.round(ch.front, 3).tolist()}")
+    ch.notes.append(msg)
+    if log is not None:
+        log(msg)
+    return off

@@ -62,7 +62,7 @@ from ..errors import FaceNotFoundError, InputFileError, InvalidDataError, Missin
 from ..files import atomic_path, cache_dir, cache_enabled, file_sha256
 from ..formats import JSON, character_format_of
 from ..rig import Rig
-from ._frame import face_turn
+from ._frame import face_pitch_turn, face_turn
 
 __all__ = ["load_character", "drive_rig", "DriveRig", "inspect_character", "CharacterReport", "landmark_cache_path",
            "look_rig", "character_look", "CharacterLook", "character_weights", "landmark_record", "apply_landmark_record", "mesh_sha256",
@@ -463,16 +463,19 @@ def load_character(character, *, landmarks: str | os.PathLike | None = None, mes
 
 def _search(ch: Character, tracker, log) -> None:
     """The landmarks found on renders; a face the file holds turned (:func:`face_turn`) is looked at again,
-    square to it: on a head turned 25 degrees the far side's points are foreshortened, and its generated
+    square to it (a head nodding in its file, by the landmarker's pitch, :func:`face_pitch_turn`): on a head turned 25 degrees the far side's points are foreshortened, and its generated
     left and right shapes came out 4.5 % from mirror images (0.0 % found square)."""
-    from ..capture import find_landmarks
+    from ..capture import face_pitch, find_landmarks
 
     log(f"landmarks: looking for the face on renders of '{ch.meshes[ch.primary].name}' (once: then cached)")
     res = find_landmarks(ch, tracker=tracker, log=log)
     ch.landmarks = res.landmarks
     ch.up, ch.front = res.up, res.front
     ch.search = res
-    if face_turn(ch, log) is not None:
+    turned = face_turn(ch, log) is not None
+    if res.pose is not None:
+        turned = face_pitch_turn(ch, face_pitch(res.pose), log) is not None or turned
+    if turned:
         log("landmarks: looking again, square to the face")
         res = find_landmarks(ch, tracker=tracker, log=log)
         ch.landmarks = res.landmarks
