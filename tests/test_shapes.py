@@ -282,11 +282,12 @@ def test_symmetric_head_blinks_are_mirror_images(data_dir):
     assert inverted_triangles(drive) <= 4           # the underside of its upper lids, as before (issue 34)
 
 
-def _turned_z_up(ch):
-    """A copy of the character turned as a Z-up file holds it (Blender, a Z-up USD or FBX): y -> z, z -> -y."""
+def _rotated(ch, R: np.ndarray, *, frame: bool = True):
+    """A copy of the character turned by the rotation ``R`` (3, 3): its meshes, shapes and joints; with
+    ``frame`` its up and front too (a file that holds it that way up), else they stay (a head the file holds
+    turned)."""
     import copy
 
-    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
     out = copy.deepcopy(ch)
     for m in out.meshes:
         m.mesh.vertices = m.mesh.vertices @ R.T
@@ -296,9 +297,16 @@ def _turned_z_up(ch):
     R4[:3, :3] = R
     for j in out.joints:
         j.world = R4 @ j.world
-    out.up = None if ch.up is None else R @ ch.up
-    out.front = None if ch.front is None else R @ ch.front
-    return out, R
+    if frame:
+        out.up = None if ch.up is None else R @ ch.up
+        out.front = None if ch.front is None else R @ ch.front
+    return out
+
+
+def _turned_z_up(ch):
+    """A copy of the character turned as a Z-up file holds it (Blender, a Z-up USD or FBX): y -> z, z -> -y."""
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    return _rotated(ch, R), R
 
 
 def test_blinks_close_on_a_z_up_character_as_on_a_y_up_one(data_dir):
@@ -326,16 +334,9 @@ def test_blinks_close_on_a_z_up_character_as_on_a_y_up_one(data_dir):
 def _yawed(ch, deg: float):
     """A copy of the character with its head turned ``deg`` about the up axis in the file (a head scanned or
     modelled turned); its file axes kept."""
-    import copy
-
     a = np.radians(deg)
     R = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
-    out = copy.deepcopy(ch)
-    for m in out.meshes:
-        m.mesh.vertices = m.mesh.vertices @ R.T
-        if m.deltas is not None and len(m.deltas):
-            m.deltas = (m.deltas @ R.T).astype(m.deltas.dtype)
-    return out, R
+    return _rotated(ch, R, frame=False), R
 
 
 def test_face_frame_of_a_head_held_turned(data_dir):
@@ -354,10 +355,8 @@ def test_face_frame_of_a_head_held_turned(data_dir):
     assert np.degrees(np.arccos(turned.front @ (R @ [0.0, 0.0, 1.0]))) < 0.1
     assert "turned 25.0 degrees" in lines[0]
     c, s_ = np.cos(np.radians(15)), np.sin(np.radians(15))
-    rolled = load_character(data_dir / "arkit-face")
     Rz = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
-    for m in rolled.meshes:
-        m.mesh.vertices = m.mesh.vertices @ Rz.T
+    rolled = _rotated(ref, Rz, frame=False)
     rolled.up, rolled.front = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
     assert face_turn(rolled) == pytest.approx(15.0, abs=0.1)
     assert np.degrees(np.arccos(rolled.up @ (Rz @ [0.0, 1.0, 0.0]))) < 0.1

@@ -93,7 +93,7 @@ def face_turn(ch: Character, log=None) -> float | None:
     """Turn ``ch.up`` / ``ch.front`` to the face's own frame when the file holds the head turned (module
     docstring), in place; the degrees it was turned, or None when the file's frame is kept (no landmarks, a
     face not symmetric enough to tell, or one square to the file's axes)."""
-    from ..transfer import components
+    from ..transfer import landmark_skin
 
     if ch.landmarks is None:
         return None
@@ -102,11 +102,8 @@ def face_turn(ch: Character, log=None) -> float | None:
         return None                                 # landmarks that span nothing tell no plane
     m = ch.meshes[ch.landmarks.mesh].mesh
     V = m.vertices.astype(np.float64)
-    T = m.triangles()
-    lab = components(len(V), T)
-    skin = lab == np.bincount(lab[ch.landmarks.triangles.ravel()]).argmax()
     F = character_frame(ch)
-    x, _, pct = symmetry_plane(V, skin, lm, F[1])
+    x, _, pct = symmetry_plane(V, landmark_skin(ch), lm, F[1])
     deg = float(np.degrees(np.arccos(np.clip(abs(x @ F[0]), -1.0, 1.0))))
     if pct > FACE_SYMMETRIC_PCT or deg <= FACE_TURN_DEG:
         return None

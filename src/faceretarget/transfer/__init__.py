@@ -22,12 +22,12 @@ from ._metrics import (
     shape_metrics,
     teeth_showing_px,
 )
-from ._parts import SEAM, LidMargin, Part, components, find_parts, fit_sphere, lid_margins
+from ._parts import SEAM, LidMargin, Part, components, find_parts, fit_sphere, landmark_skin, lid_margins
 from ._register import register_template
 from ._template import TEMPLATES, Template, ict_to_arkit, packaged_template, packaged_template_path
 
 __all__ = ["Template", "TEMPLATES", "ict_to_arkit", "packaged_template", "closest_points", "gradient_operator",
-           "triangle_areas", "umeyama", "vertex_normals", "components",
+           "triangle_areas", "umeyama", "vertex_normals", "components", "landmark_skin",
            "packaged_template_path", "register_template", "find_parts", "fit_sphere", "Part", "LidMargin",
            "lid_margins", "blink_gap_pct", "lip_gap_pct", "inverted_triangles",
            "mirror_err_pct", "shape_metrics", "eye_parts", "shape_delta", "lips_in_teeth", "lid_gap_pct",

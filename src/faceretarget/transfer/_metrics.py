@@ -49,13 +49,12 @@ def _rim_gap_pct(character: Character, side: str, d: np.ndarray) -> float | None
     """Worst remaining gap between the lid rims of one eye's opening at weight 1 over the open gap, over the
     rim points whose open gap is at least a third of the widest (near the corners the gap vanishes); None when
     the face mesh has no opening around that eye (:func:`~faceretarget.transfer.lid_margins`)."""
-    from ._parts import components, lid_margins
+    from ._parts import landmark_skin, lid_margins
 
     m = character.meshes[character.landmarks.mesh]
     V = m.mesh.vertices.astype(np.float64)
     T = m.mesh.triangles()
-    lab = components(len(V), T)
-    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    skin = landmark_skin(character)
     lm = _lm(character, None)
     eye = _side_pairs(character, side)[0][0]
     for rim in lid_margins(V, T[skin[T].all(axis=1)], lm, character_frame(character)):
@@ -167,12 +166,10 @@ def mirror_err_pct(character: Character, *, symmetric_tol: float = 0.02) -> floa
     F = character_frame(character)
     lm = _lm(character, None)
     size = float(np.linalg.norm(lm[36] - lm[45]))
-    from ._parts import components
+    from ._parts import landmark_skin
 
     H = (V - lm[27:36].mean(0)) @ F.T                    # head frame about the nose line
-    T = character.meshes[mi].mesh.triangles()
-    lab = components(len(V), T)
-    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    skin = landmark_skin(character)
     near = skin & (np.linalg.norm(V - lm[17:68].mean(0), axis=1) < 1.5 * size)
     idx = np.flatnonzero(near)
     Hm = H[idx] * np.array([-1.0, 1.0, 1.0])
@@ -202,13 +199,10 @@ def mirror_err_pct(character: Character, *, symmetric_tol: float = 0.02) -> floa
 def eye_parts(character: Character) -> list:
     """The character's eyeballs (:class:`~faceretarget.transfer.Part` with ``centre`` and ``radius``), found
     as :func:`~faceretarget.characters.generate_shapes` finds them."""
-    from ._parts import components, find_parts
+    from ._parts import find_parts, landmark_skin
 
     mi = character.landmarks.mesh
-    m = character.meshes[mi]
-    V = m.mesh.vertices
-    lab = components(len(V), m.mesh.triangles())
-    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    skin = landmark_skin(character)
     lm = _lm(character, None)
     size = float(np.linalg.norm(lm[36] - lm[45]))
     return [p for p in find_parts(character, mi, skin, lm, character_frame(character), size) if p.role == "eye"]
@@ -217,13 +211,12 @@ def eye_parts(character: Character) -> list:
 def _mouth_parts(character: Character) -> tuple:
     """The face mesh's index, rest vertices and skin (its piece holding the landmarks), the landmarks, the
     outer-eye-corner distance, and the teeth / tongue pieces (:func:`~faceretarget.transfer.find_parts`)."""
-    from ._parts import components, find_parts
+    from ._parts import find_parts, landmark_skin
 
     mi = character.landmarks.mesh
     m = character.meshes[mi]
     V = m.mesh.vertices.astype(np.float64)
-    lab = components(len(V), m.mesh.triangles())
-    skin = lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    skin = landmark_skin(character)
     lm = _lm(character, None)
     size = float(np.linalg.norm(lm[36] - lm[45]))
     parts = [p for p in find_parts(character, mi, skin, lm, character_frame(character), size)

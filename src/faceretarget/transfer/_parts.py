@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Part", "find_parts", "fit_sphere", "components", "LidMargin", "lid_margins", "SEAM"]
+__all__ = ["Part", "find_parts", "fit_sphere", "components", "landmark_skin", "LidMargin", "lid_margins", "SEAM"]
 
 
 @dataclass(eq=False)
@@ -56,6 +56,14 @@ def components(n: int, T: np.ndarray) -> np.ndarray:
     e = np.concatenate([T[:, [0, 1]], T[:, [1, 2]]])
     g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
     return connected_components(g, directed=False)[1]
+
+
+def landmark_skin(character) -> np.ndarray:
+    """``(V,)`` bool over the vertices of the character's landmark mesh: the face's skin, the piece (connected
+    component) holding most of its 68 landmarks' triangles (an eyeball or teeth of the same mesh are others)."""
+    m = character.meshes[character.landmarks.mesh].mesh
+    lab = components(m.n_vertices, m.triangles())
+    return lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
 
 
 #: Vertices of two pieces closer than this (times the outer-eye-corner distance) are one point of a seam.
