@@ -331,6 +331,24 @@ def test_blinks_close_on_a_z_up_character_as_on_a_y_up_one(data_dir):
     assert mb["blink_gap_pct"] <= 10.0 and abs(mb["blink_gap_pct"] - ma["blink_gap_pct"]) < 0.5, (ma, mb)
 
 
+def test_rocketbox_blinks_turn_no_triangle_over(chars):
+    """Rocketbox's generated blinks pressed the strip under each upper lid's edge flat onto the lid's inner
+    face (4 triangles turned over, 175 degrees between the strip's normals and its neighbours', from 81): the
+    eyeball push turned over again what the untangling had unfolded.  Now none, and the lids still close."""
+    from faceretarget.transfer import inverted_triangles
+
+    names = ["eyeBlinkLeft", "eyeBlinkRight"]
+    gen = generate_shapes(chars / "rocketbox" / "Female_Adult_01_facial.fbx", shapes=names, replace=True)
+    ch = gen.apply()
+    assert inverted_triangles(ch, names) == 0
+    m = shape_metrics(ch)
+    assert m["blink_gap_pct"] <= 10.0 and m["lid_inside_eye"] == 0, m
+    lm = ch.landmark_positions()
+    eoc = float(np.linalg.norm(lm[36] - lm[45]))
+    for n in names:
+        assert np.abs(shape_delta(ch, n)).max() > 0.05 * eoc        # the lid moves
+
+
 def _yawed(ch, deg: float):
     """A copy of the character with its head turned ``deg`` about the up axis in the file (a head scanned or
     modelled turned); its file axes kept."""

@@ -730,6 +730,12 @@ def _factorized(K):
         return factorized(K)
 
 
+def _template_landmarks(tmpl, d_t: np.ndarray, sR: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The template's 68 landmarks in the character's frame (``sR``: the registration's scaled rotation, row
+    vectors) and their motion under ``d_t`` (the template's motion, already in that frame)."""
+    return tmpl.landmarks() @ sR, np.einsum("pk,pkd->pd", tmpl.lm_bary, d_t[tmpl.lm_triangles])
+
+
 def _pin_targets(a, pins, lm_pos, rows, ch, V, added, eyes, tmpl, d_t, size, sR) -> str:
     """Set the lid / lip landmark targets (``pins``, in place) where the shape closes them: a blink puts
     each upper lid point and the lower one facing it on one point (where the template's lids meet,
@@ -738,8 +744,7 @@ def _pin_targets(a, pins, lm_pos, rows, ch, V, added, eyes, tmpl, d_t, size, sR)
     it there (row vectors: ``x @ sR``)."""
     rest = lm_pos(np.zeros_like(V))
     if a.startswith("eyeBlink"):
-        t_l = tmpl.landmarks() @ sR                        # the template's lids in the character's frame
-        t_d = np.einsum("pk,pkd->pd", tmpl.lm_bary, d_t[tmpl.lm_triangles])
+        t_l, t_d = _template_landmarks(tmpl, d_t, sR)
         n = 0
         for up, lo in LID_PAIRS:
             g = t_l[up] - t_l[lo]
@@ -1062,15 +1067,18 @@ def _flipped(n0: np.ndarray, ok: np.ndarray, X: np.ndarray, T: np.ndarray) -> np
 
 
 def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, adj, pins, fixed: np.ndarray, size: float,
-              poses=(None,), project=None, rings: int = 2, tries: int = 3):
+              poses=(None,), project=None, rings: int = 2, tries: int = 3, soft_tries: int = 2):
     """Unfold the triangles a motion turns over (normal reversed at weight 1, alone or added to each of
     ``poses``): the smallest smooth change of the motion around them (least squared differences of the change
     along the edges) under which every triangle near them keeps facing its rest side (:func:`_facing_solve`).
     The region is the turned triangles' vertices and ``rings`` rings more, doubled while some are left; the
-    vertices of ``pins`` (sparse rows: the pinned lid and lip points) move only in a last try, and then the
-    pinned points stiffly; ``fixed`` ones (no coverage) never; ``project`` (the eyeball push) follows, and what
-    it moves stays for the next try.  A change that moves a vertex further than the shape moves any is
-    refused; the motion with the fewest turned over is kept.
+    vertices of ``pins`` (sparse rows: the pinned lid and lip points) move only in the last ``soft_tries``
+    tries, and then the pinned points stiffly; ``fixed`` ones (no coverage) never; ``project`` (the eyeball
+    push) follows, and what it moves stays for the next try.  A change that moves a vertex further than the
+    shape moves any is refused; the motion with the fewest turned over is kept.  With one soft try, the
+    eyeball push turned over again what it had unfolded: on Rocketbox's blinks the strip under each upper
+    lid's edge, pressed flat onto the lid's inner face (175 degrees between their normals, from 81), 4
+    triangles; the second try, the pushed vertices held, unfolds it.
 
     The relaxation this replaces (half steps towards the neighbours' mean) could only shrink motion: it
     stopped with folds left where a surface folded at rest opens by more than a right angle (the corners of a
@@ -1092,10 +1100,10 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, adj, pins, fixed: np.
     best, best_n = u, int(bad.sum())
     sel = np.zeros(len(V), bool)
     r, reach = rings, float(np.abs(u).max())
-    for attempt in range(tries + 1):
+    for attempt in range(tries + soft_tries):
         if not best_n:
             break
-        soft = attempt == tries                           # last: the pinned points may give a little
+        soft = attempt >= tries                           # the last: the pinned points may give a little
         sel[T[bad].ravel()] = True
         reg = sel.copy()
         for _ in range(r):
@@ -1217,8 +1225,7 @@ def _margin_targets(a: str, margins: list[LidMargin], V: np.ndarray, eyes, tmpl,
     """Per rim vertex (all margins, in order): its motion closing the lids for ``eyeBlink*`` (each rim point
     and the point facing it on the other lid meet where the template's lids meet, outside the eyeball);
     None when the shape closes no eye.  ``d_t`` and ``sR`` as for :func:`_pin_targets`."""
-    t_l = tmpl.landmarks() @ sR                            # the template's lids in the character's frame
-    t_d = np.einsum("pk,pkd->pd", tmpl.lm_bary, d_t[tmpl.lm_triangles])
+    t_l, t_d = _template_landmarks(tmpl, d_t, sR)
     parts, closes = [], False
     for m in margins:
         ratios = []
