@@ -349,6 +349,19 @@ def test_rocketbox_blinks_turn_no_triangle_over(chars):
         assert np.abs(shape_delta(ch, n)).max() > 0.05 * eoc        # the lid moves
 
 
+def test_a_side_shape_asked_alone_stays_on_its_side(data_dir, arkit_generated):
+    """``--shapes mouthSmileLeft`` without its right mate was made symmetric on a symmetric face (averaged with
+    its own mirror image: both corners half up, 49 % off the one generated with the whole set); it is the same
+    one-sided smile now."""
+    ref, _, whole, _ = arkit_generated
+    hidden = hide_shapes(read_character(data_dir / "arkit-face"))
+    hidden.landmarks = ref.landmarks
+    one = generate_shapes(hidden, shapes=["mouthSmileLeft"]).apply()
+    d, d0 = shape_delta(one, "mouthSmileLeft").astype(float), shape_delta(whole, "mouthSmileLeft").astype(float)
+    moving = np.linalg.norm(d0, axis=1) > 0.1 * np.linalg.norm(d0, axis=1).max()
+    assert np.sqrt(((d - d0)[moving] ** 2).sum(1).mean() / (d0[moving] ** 2).sum(1).mean()) < 0.05
+
+
 def _yawed(ch, deg: float):
     """A copy of the character with its head turned ``deg`` about the up axis in the file (a head scanned or
     modelled turned); its file axes kept."""

@@ -930,7 +930,7 @@ def _symmetrise(added: dict, mirror, F) -> None:
             right = r.copy()
             right[idx] = mirrored(left)
             added[a], added[a[:-4] + "Right"] = left, right
-        elif not a.endswith("Right"):
+        elif not a.endswith(("Left", "Right")):           # a side shape asked without its mate stays one-sided
             out = d.copy()
             out[idx] = 0.5 * (d[idx] + mirrored(d))
             added[a] = out
