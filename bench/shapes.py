@@ -5,7 +5,7 @@ Characters: every character file (``.glb .gltf .vrm .fbx .blend .usd*``) and rig
 ``--characters`` (default ``../shared/data``: ``ict-face``, ``arkit-face``, ``characters/rocketbox``,
 ``characters/valid``; the robot has no human face) plus the demo characters ``ada`` and ``bo``.  Per
 character, after hiding every face shape it has (its landmarks found again on the neutral's render; a rig's
-own landmark file kept):
+own landmark file kept; a neutral character, with none, is measured as it is):
 
 * ``shapes``: how many were generated, ``seconds`` the whole generation (landmarks, registration, solve);
 * ``blink_gap_pct`` (lid gap left at ``eyeBlink*`` = 1 over the open gap, worst lid landmark pair, %),
@@ -125,7 +125,7 @@ def one(name: str, src, caps: dict, work: Path, log) -> dict:
     try:
         os.environ["FACERETARGET_CACHE"] = str(work / f"cache-{name}")
         if isinstance(src, Path):
-            ref = load_character(src)
+            ref = load_character(src, need_shapes=False)   # a neutral character: nothing to hide or compare with
             hidden = hide_shapes(read_character(src))
             if not src.is_dir():
                 hidden.path = None                    # its landmarks are found again, on the neutral

@@ -362,6 +362,89 @@ def test_a_side_shape_asked_alone_stays_on_its_side(data_dir, arkit_generated):
     assert np.sqrt(((d - d0)[moving] ** 2).sum(1).mean() / (d0[moving] ** 2).sum(1).mean()) < 0.05
 
 
+def _cut_out(ch, faces: np.ndarray):
+    """A copy of the character with the polygon ``faces`` (bool) of its landmark mesh cut off along a seam (as
+    UV or material seams split a mesh): their border vertices doubled, the copies on the cut-out piece; and
+    the (old, new) vertex pairs along the seam."""
+    import copy
+
+    from faceretarget.character import SurfacePoints
+    from faceretarget.mesh import Mesh
+
+    out = copy.deepcopy(ch)
+    m = out.meshes[out.landmarks.mesh]
+    M = m.mesh
+    on = faces[np.repeat(np.arange(len(M.face_counts)), M.face_counts)]
+    inside, outside = np.zeros(M.n_vertices, bool), np.zeros(M.n_vertices, bool)
+    inside[M.face_indices[on]] = True
+    outside[M.face_indices[~on]] = True
+    seam = np.flatnonzero(inside & outside)
+    new = np.full(M.n_vertices, -1)
+    new[seam] = M.n_vertices + np.arange(len(seam))
+    idx = M.face_indices.copy()
+    moved = on & (new[idx] >= 0)
+    idx[moved] = new[idx[moved]]
+    T0 = M.triangles()
+    m.mesh = Mesh(np.r_[M.vertices, M.vertices[seam]], M.face_counts.copy(), idx, name=M.name)
+    m.deltas = np.concatenate([m.deltas, m.deltas[:, seam]], axis=1)
+    T1, lm = m.mesh.triangles(), out.landmarks
+    tri, S0 = lm.triangles.copy(), np.sort(T0, axis=1)
+    for k in range(len(tri)):                           # the same triangle, on the piece where it now is
+        hit = np.flatnonzero((S0 == np.sort(tri[k])).all(axis=1))
+        if len(hit):
+            tri[k] = [T1[hit[0]][list(T0[hit[0]]).index(v)] for v in tri[k]]
+    out.landmarks = SurfacePoints(lm.mesh, tri, lm.bary.copy(), lm.source)
+    return out, np.c_[seam, new[seam]]
+
+
+def test_lips_or_a_lid_cut_out_by_a_seam_move_as_on_the_whole_mesh(data_dir, arkit_generated):
+    """A face whose lips or lid a UV or material seam cuts out as their own piece: generation took the piece
+    for another part (an eyeball, teeth), moved its landmarks onto the skin beside it and dragged the piece
+    along (arkit-face's right lid cut out: the blink 18.8 % open, 2 triangles turned over; its lips: the mouth
+    shapes 16-26 % off the whole mesh's).  A piece sewn on that carries the skin's surface on and holds
+    landmarks is skin now, its seam held shut: each shape within 6 % of the whole mesh's, the seam closed to
+    0.2 % of the eye-corner distance.  Rocketbox's pieces holding lid landmarks, the linings inside its lids
+    (flaps on edges its skin is closed across), stay apart."""
+    from matplotlib.path import Path as Polygon
+
+    from faceretarget.transfer import landmark_skin
+
+    ref, _, whole, _ = arkit_generated
+    hidden = hide_shapes(read_character(data_dir / "arkit-face"))
+    hidden.landmarks = ref.landmarks
+    M = hidden.meshes[hidden.landmarks.mesh].mesh
+    P = hidden.landmark_positions()
+    eoc = float(np.linalg.norm(P[36] - P[45]))
+    centres = np.add.reduceat(M.vertices[M.face_indices], np.r_[0, np.cumsum(M.face_counts)[:-1]]) / \
+        M.face_counts[:, None]
+    eye = P[36:42].mean(axis=0)
+    a = np.linspace(0.0, 2 * np.pi, 40)
+    cuts = {"lips": (Polygon(P[48:60, :2]), P[48:68, 2].mean()),
+            "right lid": (Polygon(np.c_[eye[0] + 0.22 * eoc * np.cos(a), eye[1] + 0.12 * eoc * np.sin(a)]), eye[2])}
+    names = ["jawOpen", "mouthSmileLeft", "mouthPucker", "eyeBlinkLeft", "eyeBlinkRight"]
+    for what, (poly, z) in cuts.items():
+        faces = poly.contains_points(centres[:, :2]) & (np.abs(centres[:, 2] - z) < 0.25 * eoc)
+        cut, seam = _cut_out(hidden, faces)
+        assert landmark_skin(cut).all(), what                          # the piece is skin
+        gen = generate_shapes(cut, shapes=names)
+        assert not any("another piece" in n for n in gen.notes), gen.notes
+        out = gen.apply()
+        for n in names:
+            d, d0 = shape_delta(out, n).astype(float), shape_delta(whole, n).astype(float)
+            moving = np.linalg.norm(d0, axis=1) > 0.1 * np.linalg.norm(d0, axis=1).max()
+            off = np.sqrt(((d[:M.n_vertices] - d0)[moving] ** 2).sum(1).mean() / (d0[moving] ** 2).sum(1).mean())
+            assert off < 0.06, (what, n, off)
+            assert np.linalg.norm(d[seam[:, 0]] - d[seam[:, 1]], axis=1).max() < 0.002 * eoc, (what, n)
+        assert shape_metrics(out)["blink_gap_pct"] < 3.0
+    rb = load_character(data_dir / "characters" / "rocketbox" / "Female_Adult_01_facial.fbx")
+    m = rb.meshes[rb.landmarks.mesh].mesh
+    from faceretarget.transfer import components
+
+    lab = components(m.n_vertices, m.triangles())
+    assert len(np.unique(lab[rb.landmarks.triangles.ravel()])) > 1          # some lid points on the linings
+    assert (landmark_skin(rb) == (lab == np.bincount(lab[rb.landmarks.triangles.ravel()]).argmax())).all()
+
+
 def _yawed(ch, deg: float):
     """A copy of the character with its head turned ``deg`` about the up axis in the file (a head scanned or
     modelled turned); its file axes kept."""

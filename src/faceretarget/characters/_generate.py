@@ -23,6 +23,7 @@ from ..transfer import (
     components,
     find_parts,
     gradient_operator,
+    landmark_skin,
     lid_margins,
     register_template,
     triangle_areas,
@@ -278,14 +279,14 @@ class _Transfer:
         self.size = float(np.linalg.norm(self.lm[36] - self.lm[45]))
 
     def find_skin(self) -> None:
-        """The face's skin: the head mesh's piece that holds the landmarks, near the face; landmarks that
-        landed on another piece (an eyeball, teeth) put on it."""
+        """The face's skin (:func:`~faceretarget.transfer.landmark_skin`: the head mesh's piece that holds the
+        landmarks, with the islands sewn to it that hold some), near the face; landmarks that landed on another
+        piece (an eyeball, teeth) put on it."""
         ch, V, T = self.ch, self.V, self.T
         centre = self.lm[17:68].mean(axis=0)
-        lab = components(len(V), T)
-        skin_label = np.bincount(lab[ch.landmarks.triangles.ravel()]).argmax()
         near = np.linalg.norm(V - centre, axis=1) < 1.8 * self.size
-        self.skin = (lab == skin_label)
+        self.skin = landmark_skin(ch)
+        self.seams = _island_seams(V, T, np.flatnonzero(self.skin), self.size)
         self.region = self.skin & near
         self.rt = T[self.region[T].all(axis=1)]
         snapped = _onto_skin(ch, V, self.rt, self.region)
@@ -316,7 +317,7 @@ class _Transfer:
         t_lm_reg = np.einsum("pk,pkd->pd", tmpl.lm_bary, reg[tmpl.lm_triangles])
         t_side = _mouth_side(reg, t_lm_reg, self.F, size, tt)
         self.t_tri_side = np.sign(t_side[tt].sum(axis=1))
-        self.c_side = _mouth_side(V, self.lm, self.F, size, self.T)
+        self.c_side = _mouth_side(V, self.lm, self.F, size, self.T, self.seams)
         self.ctri, self.cbar, cdist = self.corr(V[ridx], vn[ridx], self.c_side[ridx])
         te = np.concatenate([tt[:, [0, 1]], tt[:, [1, 2]], tt[:, [2, 0]]])
         te.sort(axis=1)
@@ -410,9 +411,17 @@ class _Transfer:
                     vals.append(b)
         self.Cm = csr_matrix((vals, (rows, cols)), shape=(len(pin_ids), len(free)))
         self.mu = _PIN * float(self.varea[free].mean()) / size ** 2
+        jaw = self.carried(self.template_motion("jawOpen")) if "jawOpen" in self.tmpl.shapes else None
+        keep = (col[self.seams] >= 0).all(axis=1)
+        if jaw is not None:                    # a closed mouth's two lips may touch at one point, and part
+            keep &= np.linalg.norm(jaw[self.seams[:, 0]] - jaw[self.seams[:, 1]], axis=1) <= 0.02 * size
+        self.welds = self.seams[keep]
+        D = csr_matrix((np.tile([1.0, -1.0], len(self.welds)),
+                        (np.repeat(np.arange(len(self.welds)), 2), col[self.welds].ravel())),
+                       shape=(len(self.welds), len(free)))
         t0 = time.perf_counter()
         self.K = (self.G.T @ self.Aw @ self.G + self.lam * diags(self.varea[free])
-                  + self.mu * (self.Cm.T @ self.Cm)).tocsc()
+                  + self.mu * (self.Cm.T @ self.Cm) + self.mu * (D.T @ D)).tocsc()
         self.solve = _factorized(self.K)
         # the lid rims (eye openings of the face mesh): a blink pins all of each rim shut, solved with its own
         # factorisation (the rims' rows added), made when a blink needs it
@@ -514,7 +523,7 @@ class _Transfer:
         self.pair_rows = {i: r for r, i in enumerate(self.pin_ids)}
         self.added: dict[str, np.ndarray] = {}
         self.shape_notes = {}
-        self.adj = _adjacency(len(V), ft)
+        self.adj = _adjacency(len(V), np.r_[ft, self.welds[:, [0, 1, 1]]] if len(self.welds) else ft)
         self.keep = _point_rows(ch.landmarks.triangles[self.pin_ids], ch.landmarks.bary[self.pin_ids], len(V))
         rims = [v for m in self.margins for v in m.vertices]            # a blink's rims, not smoothed open again
         lids = [i for i in self.pin_ids if not any(i in m.eye for m in self.margins)]
@@ -981,7 +990,8 @@ def _separate_lips(ch: Character, V: np.ndarray, ub: np.ndarray, size: float) ->
     return moved
 
 
-def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float, T: np.ndarray | None = None) -> np.ndarray:
+def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float, T: np.ndarray | None = None,
+                seams: np.ndarray | None = None) -> np.ndarray:
     """+1 for points of the upper lip, -1 of the lower, 0 elsewhere: in the mouth's zone (between the
     corners, within a third of ``size`` of the lips' line), above or below the inner-lip line (the
     middles of the facing inner-lip landmarks and the corners, interpolated across).
@@ -989,7 +999,10 @@ def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float, T: np
     With the mesh's triangles ``T``, where the mouth is a slit (in the zone the upper lip's surface is not
     joined to the lower's), each lip is the piece of the zone holding its outer landmarks: where closed lips
     touch, their inner surfaces lie on the lips' line and the position alone gave points of one lip to the
-    other (on a VALID avatar 21 of 583; their template motion then tore the lip and folded it at ``jawOpen``)."""
+    other (on a VALID avatar 21 of 583; their template motion then tore the lip and folded it at ``jawOpen``).
+    ``seams`` (pairs of vertices, :func:`_island_seams`) join pieces a seam cut apart (lips cut out as their
+    own island: without, the island's points were told by position alone and the lips folded where they
+    touch)."""
     H = P @ F.T
     L = lm @ F.T
     xs = [L[60, 0], 0.5 * (L[61, 0] + L[67, 0]), 0.5 * (L[62, 0] + L[66, 0]), 0.5 * (L[63, 0] + L[65, 0]), L[64, 0]]
@@ -1002,7 +1015,11 @@ def _mouth_side(P: np.ndarray, lm: np.ndarray, F: np.ndarray, size: float, T: np
     out = np.where(zone, np.where(H[:, 1] >= line, 1, -1), 0)
     if T is None or not zone.any():
         return out
-    lab = components(len(P), T[zone[T].all(axis=1)])
+    TZ = T[zone[T].all(axis=1)]
+    if seams is not None and len(seams):
+        sz = seams[zone[seams].all(axis=1)]
+        TZ = np.r_[TZ, sz[:, [0, 1, 1]]]
+    lab = components(len(P), TZ)
     inz = np.flatnonzero(zone)
 
     def piece(ids):
@@ -1031,6 +1048,23 @@ def _onto_skin(ch: Character, V: np.ndarray, rt: np.ndarray, region: np.ndarray)
     T2[bad], B2[bad] = rt[tri], bar
     ch.landmarks = SurfacePoints(lm.mesh, T2, B2, lm.source + "; snapped onto the skin")
     return [int(b) for b in bad]
+
+
+def _island_seams(V: np.ndarray, T: np.ndarray, skin: np.ndarray, size: float) -> np.ndarray:
+    """``(n, 2)`` pairs of ``skin`` vertices at one point (:data:`~faceretarget.transfer.SEAM`) on different
+    pieces of the mesh: the seams of islands joined to the skin (a lid or the lips cut out by UV or material
+    seams, :func:`~faceretarget.transfer.landmark_skin`).  The solve ties those the template's ``jawOpen``
+    moves alike (:meth:`_Transfer.factorise`; left alone, the cut-out lips of arkit-face drifted 17 % of the
+    eye-corner distance off their seam at ``jawOpen``), and the lips' sides are told across them
+    (:func:`_mouth_side`)."""
+    from scipy.spatial import cKDTree
+
+    lab = components(len(V), T)
+    pairs = cKDTree(V[skin]).query_pairs(SEAM * size, output_type="ndarray")
+    if not len(pairs):
+        return np.zeros((0, 2), np.int64)
+    pairs = skin[pairs]
+    return pairs[lab[pairs[:, 0]] != lab[pairs[:, 1]]]
 
 
 def _point_rows(tri: np.ndarray, bary: np.ndarray, n: int):

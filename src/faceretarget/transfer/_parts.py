@@ -60,10 +60,66 @@ def components(n: int, T: np.ndarray) -> np.ndarray:
 
 def landmark_skin(character) -> np.ndarray:
     """``(V,)`` bool over the vertices of the character's landmark mesh: the face's skin, the piece (connected
-    component) holding most of its 68 landmarks' triangles (an eyeball or teeth of the same mesh are others)."""
+    component) holding most of its 68 landmarks' triangles (an eyeball or teeth of the same mesh are others),
+    with the pieces sewn to it (:data:`SEAM`: split off by UV or material seams) that hold landmarks too and
+    carry its surface on (:func:`_continues`): a lid or the lips cut out as their own island are skin the
+    landmarker saw.  (Rocketbox's pieces holding lid landmarks are the linings inside its lids, flaps on its
+    skin: not skin.)"""
     m = character.meshes[character.landmarks.mesh].mesh
+    V = m.vertices
     lab = components(m.n_vertices, m.triangles())
-    return lab == np.bincount(lab[character.landmarks.triangles.ravel()]).argmax()
+    held = lab[character.landmarks.triangles.ravel()]
+    skin = lab == np.bincount(held).argmax()
+    others = [c for c in np.unique(held) if not skin[np.flatnonzero(lab == c)[0]]]
+    if others:
+        P = character.landmarks.positions(V)
+        tol = SEAM * float(np.linalg.norm(P[36] - P[45]))
+        for c in others:
+            if _continues(V, m.triangles(), skin, lab == c, tol):
+                skin |= lab == c
+    return skin
+
+
+def _continues(V: np.ndarray, T: np.ndarray, skin: np.ndarray, piece: np.ndarray,
+               tol: float) -> bool:
+    """Whether ``piece`` is sewn to ``skin`` (vertices at one point, within ``tol``) and carries its surface
+    on: along the seam, edges on the border of both, and across most of them the two triangles on opposite
+    sides of the edge (the lips cut out of the face), whichever way they wind.  Not a piece folded back at its
+    seam (both triangles on one side), nor a flap on edges the skin itself is closed across (the linings
+    inside Rocketbox's lids)."""
+    from scipy.spatial import cKDTree
+
+    sv = np.flatnonzero(skin)
+    d, nn = cKDTree(V[sv]).query(V, distance_upper_bound=tol)
+    twin = np.full(len(V), -1)
+    near = piece & (d <= tol)
+    twin[near] = sv[nn[near]]
+    if int(near.sum()) < 3:
+        return False
+
+    def third(tris):                                         # each edge's triangles: their third vertices
+        out: dict = {}
+        for t in tris.tolist():
+            for k in range(3):
+                out.setdefault((min(t[k], t[k - 2]), max(t[k], t[k - 2])), []).append(t[k - 1])
+        return out
+
+    tp = T[piece[T].all(axis=1)]
+    ts = T[skin[T].all(axis=1) & np.isin(T, twin[near]).any(axis=1)]
+    on_piece, on_skin = third(tp), third(ts)
+    cos = []
+    for (a, b), ds in on_piece.items():
+        if len(ds) != 1 or twin[a] < 0 or twin[b] < 0:
+            continue
+        cs = on_skin.get((min(twin[a], twin[b]), max(twin[a], twin[b])))
+        if not cs or len(cs) != 1:
+            continue
+        e = V[b] - V[a]
+        e = e / max(float(np.linalg.norm(e)), 1e-30)
+        pc, pd = V[cs[0]] - V[a], V[ds[0]] - V[a]
+        pc, pd = pc - (pc @ e) * e, pd - (pd @ e) * e
+        cos.append(float(pc @ pd) / max(float(np.linalg.norm(pc) * np.linalg.norm(pd)), 1e-30))
+    return bool(cos) and float(np.median(cos)) < 0.0
 
 
 #: Vertices of two pieces closer than this (times the outer-eye-corner distance) are one point of a seam.
