@@ -332,8 +332,8 @@ def test_blinks_close_on_a_z_up_character_as_on_a_y_up_one(data_dir):
 
 
 def test_rocketbox_blinks_turn_no_triangle_over(chars):
-    """Rocketbox's generated blinks pressed the strip under each upper lid's edge flat onto the lid's inner
-    face (4 triangles turned over, 175 degrees between the strip's normals and its neighbours', from 81): the
+    """Rocketbox's generated blinks folded the strip under each upper lid's edge back under the lid's front
+    skin (4 triangles turned over, 175 degrees between the strip's normals and its neighbours', from 81): the
     eyeball push turned over again what the untangling had unfolded.  Now none, and the lids still close."""
     from faceretarget.transfer import inverted_triangles
 

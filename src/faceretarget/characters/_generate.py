@@ -411,9 +411,9 @@ class _Transfer:
                     vals.append(b)
         self.Cm = csr_matrix((vals, (rows, cols)), shape=(len(pin_ids), len(free)))
         self.mu = _PIN * float(self.varea[free].mean()) / size ** 2
-        jaw = self.carried(self.template_motion("jawOpen")) if "jawOpen" in self.tmpl.shapes else None
         keep = (col[self.seams] >= 0).all(axis=1)
-        if jaw is not None:                    # a closed mouth's two lips may touch at one point, and part
+        if len(self.seams) and "jawOpen" in self.tmpl.shapes:   # a closed mouth's lips may touch, and part
+            jaw = self.carried(self.template_motion("jawOpen"))
             keep &= np.linalg.norm(jaw[self.seams[:, 0]] - jaw[self.seams[:, 1]], axis=1) <= 0.02 * size
         self.welds = self.seams[keep]
         D = csr_matrix((np.tile([1.0, -1.0], len(self.welds)),
@@ -1111,7 +1111,7 @@ def _untangle(u: np.ndarray, V: np.ndarray, T: np.ndarray, adj, pins, fixed: np.
     push) follows, and what it moves stays for the next try.  A change that moves a vertex further than the
     shape moves any is refused; the motion with the fewest turned over is kept.  With one soft try, the
     eyeball push turned over again what it had unfolded: on Rocketbox's blinks the strip under each upper
-    lid's edge, pressed flat onto the lid's inner face (175 degrees between their normals, from 81), 4
+    lid's edge, folded back under the lid's front skin (175 degrees between their normals, from 81), 4
     triangles; the second try, the pushed vertices held, unfolds it.
 
     The relaxation this replaces (half steps towards the neighbours' mean) could only shrink motion: it
