@@ -66,8 +66,8 @@ def landmark_skin(character) -> np.ndarray:
     landmarker saw.  (Rocketbox's pieces holding lid landmarks are the linings inside its lids, flaps on its
     skin: not skin.)"""
     m = character.meshes[character.landmarks.mesh].mesh
-    V = m.vertices
-    lab = components(m.n_vertices, m.triangles())
+    V, T = m.vertices, m.triangles()
+    lab = components(m.n_vertices, T)
     held = lab[character.landmarks.triangles.ravel()]
     skin = lab == np.bincount(held).argmax()
     others = [c for c in np.unique(held) if not skin[np.flatnonzero(lab == c)[0]]]
@@ -75,7 +75,7 @@ def landmark_skin(character) -> np.ndarray:
         P = character.landmarks.positions(V)
         tol = SEAM * float(np.linalg.norm(P[36] - P[45]))
         for c in others:
-            if _continues(V, m.triangles(), skin, lab == c, tol):
+            if _continues(V, T, skin, lab == c, tol):
                 skin |= lab == c
     return skin
 
