@@ -508,6 +508,47 @@ def test_a_head_nodding_in_its_file_is_looked_at_square(data_dir, tmp_path, monk
     assert face_pitch_turn(up, PITCH_BIAS_DEG + PITCH_TOLERANCE_DEG - 0.5) is None and np.allclose(up.up, [0, 1, 0])
 
 
+def test_a_face_wound_inside_out_is_found_and_shaped_as_outward(data_dir, tmp_path, monkeypatch):
+    """A face mesh whose triangles wind inward (an inside-out export; a mirror whose winding was not turned),
+    single-sided as glTF's default material is: the landmark search saw nothing from the front and found the
+    face from behind, in the hollow of the mask, left and right swapped (every generated shape on the wrong
+    side, 100 % off, while the closed lids and unfolded triangles read as right).  It is now drawn from both
+    sides to be looked at and its normals taken outward: the same landmarks and shapes as the outward file's."""
+    pytest.importorskip("mediapipe")
+    from faceretarget.io import write_glb
+    from faceretarget.mesh import Mesh
+    from faceretarget.rig import Rig
+
+    monkeypatch.setenv("FACERETARGET_CACHE", str(tmp_path / "cache"))
+    rig = read_rig(data_dir / "arkit-face")
+    m = rig.neutral
+    starts = np.r_[0, np.cumsum(m.face_counts)[:-1]]
+    idx = np.concatenate([m.face_indices[s0:s0 + c][::-1] for s0, c in zip(starts, m.face_counts, strict=True)])
+    inside_out = Rig(Mesh(m.vertices, m.face_counts, idx, name="face"), list(rig.names), rig.deltas,
+                     unit=rig.unit, name="face")
+    assert not m.winds_inward() and inside_out.neutral.winds_inward()
+    paths = [write_glb(tmp_path / f"{n}.glb", r, np.zeros((1, r.n_shapes)), np.zeros(1))
+             for n, r in (("outward", rig), ("inward", inside_out))]
+    lines: list[str] = []
+    a, b = load_character(paths[0]), load_character(paths[1], log=lines.append)
+    assert any("wind inward" in ln for ln in lines)
+    pa, pb = a.landmark_positions(), b.landmark_positions()
+    eoc = float(np.linalg.norm(pa[36] - pa[45]))
+    assert np.linalg.norm(pa - pb, axis=1).max() < 0.01 * eoc            # swapped: an eye-corner distance off
+    names = ["eyeBlinkLeft", "mouthSmileLeft", "jawOpen"]
+    made = []
+    for ch in (a, b):
+        hidden = hide_shapes(ch)
+        hidden.landmarks = ch.landmarks
+        gen = generate_shapes(hidden, shapes=names)
+        made.append(gen.apply())
+    assert any("wind inward" in n for n in gen.notes)
+    for n in names:
+        da, db = shape_delta(made[0], n).astype(float), shape_delta(made[1], n).astype(float)
+        mv = np.linalg.norm(da, axis=1) > 0.1 * np.linalg.norm(da, axis=1).max()
+        assert np.sqrt(((db - da)[mv] ** 2).sum(1).mean() / (da[mv] ** 2).sum(1).mean()) < 0.03, n
+
+
 def test_blinks_close_on_a_head_held_turned(data_dir):
     """arkit-face turned 25 degrees in its file, its landmarks given: its blinks stayed 32 % open and its
     left / right shapes were not made mirror images (no symmetry plane found along the file's axes); in the

@@ -162,6 +162,20 @@ class Mesh:
         norm = np.linalg.norm(n, axis=-1, keepdims=True)
         return n / np.where(norm > 0, norm, 1.0)
 
+    def winds_inward(self) -> bool:
+        """True when the faces wind the wrong way round, their normals pointing into the shape (an inside-out
+        export; a mirrored mesh whose winding was not turned with it): the cones from the vertices' centroid
+        to the triangles, signed by their winding, add up to clearly less than nothing (a closed or cupped
+        surface wound outward sums to +0.6..+1.0 of their unsigned total: the shared heads, a face mask; inside
+        out, as far below)."""
+        v = np.asarray(self.vertices, dtype=np.float64)
+        tri = self.triangles()
+        if not len(tri):
+            return False
+        a, b, c = (v[tri[:, k]] - v.mean(axis=0) for k in range(3))
+        cone = np.einsum("ij,ij->i", a, np.cross(b, c))
+        return float(cone.sum()) < -0.25 * float(np.abs(cone).sum())
+
     def with_vertices(self, vertices: np.ndarray, name: str | None = None) -> Mesh:
         """A mesh with the same faces and UVs and new vertex positions (same count)."""
         vertices = np.asarray(vertices, dtype=np.float64)

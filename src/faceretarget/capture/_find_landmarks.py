@@ -42,8 +42,9 @@ __all__ = ["find_landmarks", "LandmarkSearch", "face_region", "face_pitch", "CHA
 #: The version of what :func:`find_landmarks` does.  The landmark cache searches a character again when its
 #: cached landmarks were found by another version (:mod:`faceretarget.characters`).  2 (issue 34): the jaw
 #: line onto a mask's edge, lid points out of the eye's opening onto the lids.  3: a head the file holds turned
-#: or nodding is looked at again, square to the face (:mod:`faceretarget.characters`' ``_frame``).
-FINDER_VERSION = 3
+#: or nodding is looked at again, square to the face (:mod:`faceretarget.characters`' ``_frame``).  4: a face
+#: mesh wound inside out is drawn from both sides (it was found from behind, left and right swapped).
+FINDER_VERSION = 4
 
 
 @dataclass(eq=False)
@@ -503,6 +504,12 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
     lo, hi = region.min(axis=0), region.max(axis=0)
     centre = (lo + hi) / 2.0
     extent = float((hi - lo).max())
+    # a face mesh wound inside out shows, single-sided, only the inside of its back from the front, and from
+    # behind the hollow of its face, mirrored (left and right swapped): looked at from both sides
+    both = [prim] if character.meshes[prim].mesh.winds_inward() else []
+    if both:
+        log(f"landmarks: the triangles of '{character.meshes[prim].name}' wind inward (its normals point into "
+            "the head, as from an inside-out export): drawn from both sides to look for the face")
     own = tracker is None
     tr = FaceTracker(images=True, min_detection=0.3, min_presence=0.3) if own else tracker
     try:
@@ -511,7 +518,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         best = None
         for up, front in _candidates(character):
             cam = look_at(centre, front, up, 2.0 * extent, (320, 320))
-            seen = render_scene(character.meshes, cam)
+            seen = render_scene(character.meshes, cam, both_sides=both)
             img = seen.image
             images.append(img)
             r = tr.track(img, 0.0)
@@ -546,14 +553,14 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         centre2 = cam.center + R.T @ off
         width2 = 1.9 * width_px / cam.scale
         cam2 = look_at(centre2, front, up, width2, (size, size))
-        img2 = render_scene(character.meshes, cam2).image
+        img2 = render_scene(character.meshes, cam2, both_sides=both).image
         r2 = tr.track(img2, 0.0)
         if r2 is None:                                   # the zoom lost it: keep the first view's points
-            cam2, img2, px2 = cam, render_scene(character.meshes, cam).image, px
+            cam2, img2, px2 = cam, render_scene(character.meshes, cam, both_sides=both).image, px
         else:
             px2, pose = r2[0], r2[2]
         pts = px2[CHARACTER_68, :2]
-        alone = render_scene(character.meshes, cam2, only=[prim], textures=False)
+        alone = render_scene(character.meshes, cam2, only=[prim], textures=False, both_sides=both)
         tris, bary, dist = pick(alone, character.meshes, pts, prim, radius=max(6, size // 40))
         _separate_lips(character, prim, alone, pts, tris, bary, radius=max(4, size // 40))
         _front_surface(character, prim, alone, pts, tris, bary, front, radius=max(8, size // 25))

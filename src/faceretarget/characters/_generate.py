@@ -274,6 +274,11 @@ class _Transfer:
         self.hm = ch.meshes[self.head]
         self.V = self.hm.mesh.vertices.astype(np.float64)
         self.T = self.hm.mesh.triangles().astype(np.int64)
+        if self.hm.mesh.winds_inward():            # inside out: every normal used here turned outward
+            self.T = self.T[:, ::-1].copy()
+            self.notes.append(f"the triangles of '{self.hm.name}' wind inward (normals into the head, as from an "
+                              "inside-out export): its shapes made as on the outward mesh; the file keeps its "
+                              "winding, which a viewer culling back faces shows inside out")
         self.lm = ch.landmark_positions()
         self.F = character_frame(ch)
         self.size = float(np.linalg.norm(self.lm[36] - self.lm[45]))

@@ -69,7 +69,7 @@ class SceneRender:
 
 def render_scene(meshes: Sequence[SceneMesh], camera: Camera, *, vertices: Sequence[np.ndarray | None] | None = None,
                  only: Sequence[int] | None = None, background=(0.92, 0.92, 0.92), ambient: float = 0.45,
-                 light=(-0.35, 0.45, 0.82), textures: bool = True) -> SceneRender:
+                 light=(-0.35, 0.45, 0.82), textures: bool = True, both_sides: Sequence[int] = ()) -> SceneRender:
     """Render meshes with their materials.
 
     Alpha and sides as a glTF viewer draws them (:class:`~faceretarget.character.Material`): a ``MASK``
@@ -91,6 +91,8 @@ def render_scene(meshes: Sequence[SceneMesh], camera: Camera, *, vertices: Seque
         Direction toward the key light in view space (x right, y up, z toward the viewer).
     textures : bool
         Sample base-colour textures (else base colours only).
+    both_sides : sequence of int
+        Meshes drawn double-sided whatever their materials say (a face mesh wound inside out, looked for).
     """
     W, H = camera.size
     sel = list(range(len(meshes))) if only is None else [int(i) for i in only]
@@ -111,6 +113,8 @@ def render_scene(meshes: Sequence[SceneMesh], camera: Camera, *, vertices: Seque
     loc = np.concatenate(local_tri) if local_tri else np.zeros(0, np.int64)
     p = camera.project(P)
     mode, cutoff, sides, group = _triangle_materials(meshes, own, loc)
+    if len(both_sides):
+        sides = sides | np.isin(own, np.asarray(both_sides, np.int64))
     # keep triangles with a corner in front of the image plane's box (cheap culling of the body), and of a
     # single-sided material only those facing the camera
     inside = ((p[:, 0] > -W) & (p[:, 0] < 2 * W) & (p[:, 1] > -H) & (p[:, 1] < 2 * H))
