@@ -549,6 +549,26 @@ def test_a_face_wound_inside_out_is_found_and_shaped_as_outward(data_dir, tmp_pa
         assert np.sqrt(((db - da)[mv] ** 2).sum(1).mean() / (da[mv] ** 2).sum(1).mean()) < 0.03, n
 
 
+def test_a_face_denser_than_generation_handles_is_told(data_dir, arkit_generated, monkeypatch):
+    """A scan-dense face (74k vertices: 6 min, 5,319 triangles turned over at the mouth's corners) is told
+    what to expect and what to do, before the wait and in the notes; a production head (arkit-face, 1,220
+    face vertices) is not."""
+    from faceretarget.characters import _generate
+
+    ref, whole, _, _ = arkit_generated
+    assert not any("decimated" in n for n in whole.notes)
+    hidden = hide_shapes(read_character(data_dir / "arkit-face"))
+    hidden.landmarks = ref.landmarks
+    monkeypatch.setattr(_generate, "_DENSE_FACE", 1000)
+    lines: list[str] = []
+    gen = generate_shapes(hidden, shapes=["jawOpen"], progress=lines.append)
+    said = [n for n in gen.notes if "decimated" in n]
+    assert len(said) == 1 and "1,220 vertices in the face" in said[0] and "1k face vertices" in said[0], said
+    assert any("takes minutes" in ln for ln in lines[:3])                 # before the wait
+    lm = gen.apply().landmark_positions()
+    assert np.abs(shape_delta(gen.apply(), "jawOpen")).max() > 0.1 * np.linalg.norm(lm[36] - lm[45])
+
+
 def test_blinks_close_on_a_head_held_turned(data_dir):
     """arkit-face turned 25 degrees in its file, its landmarks given: its blinks stayed 32 % open and its
     left / right shapes were not made mirror images (no symmetry plane found along the file's axes); in the
