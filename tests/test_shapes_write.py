@@ -27,6 +27,7 @@ from faceretarget.character import character_frame
 from faceretarget.characters import drive_rig
 from faceretarget.errors import InvalidDataError, MissingShapeError, OutputError
 from faceretarget.io import read_character, write_character_shapes
+from faceretarget.mesh import Mesh
 from faceretarget.pipelines import shape_sheet
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -693,3 +694,60 @@ def test_quantized_values_and_normal_deltas():
     over = np.array([[0.0, 0.0, 1.0]])                                     # turned over from -Z: nothing helps
     d, enc = normal_delta(np.array([[0.0, 0.0, -1.0]]), over, b)
     assert enc == Encoding() and np.array_equal(d, [[0.0, 0.0, 2.0]])
+
+
+def _with_normals_glb(path: Path, V: np.ndarray, T: np.ndarray, D: np.ndarray, T_normals: np.ndarray) -> Path:
+    """A ``.glb`` of one mesh of triangles ``T`` with NORMAL and one morph target (``D``, with its NORMAL
+    deltas), the normals those of ``T_normals`` as wound (pygltflib)."""
+    import pygltflib
+
+    def vn(P):
+        return np.asarray(Mesh.from_triangles(P, T_normals).vertex_normals(), np.float32)
+
+    N0 = vn(V)
+    arrays = [(V.astype(np.float32), True), (N0, False), (T.astype(np.uint32).reshape(-1), False),
+              (D.astype(np.float32), True), (vn(V + D) - N0, False)]
+    blob, views, accessors = b"", [], []
+    for a, mm in arrays:
+        blob += b"\0" * ((-len(blob)) % 4)
+        views.append(pygltflib.BufferView(buffer=0, byteOffset=len(blob), byteLength=a.nbytes))
+        blob += a.tobytes()
+        scalar = a.ndim == 1
+        accessors.append(pygltflib.Accessor(bufferView=len(views) - 1, count=len(a), type="SCALAR" if scalar else "VEC3",
+                                            componentType=pygltflib.UNSIGNED_INT if scalar else pygltflib.FLOAT,
+                                            min=a.min(0).tolist() if mm else None, max=a.max(0).tolist() if mm else None))
+    prim = pygltflib.Primitive(attributes=pygltflib.Attributes(POSITION=0, NORMAL=1), indices=2,
+                               targets=[{"POSITION": 3, "NORMAL": 4}])
+    g = pygltflib.GLTF2(scene=0, scenes=[pygltflib.Scene(nodes=[0])], nodes=[pygltflib.Node(mesh=0, name="face")],
+                        meshes=[pygltflib.Mesh(primitives=[prim], name="face", extras={"targetNames": ["jawOpen"]})],
+                        accessors=accessors, bufferViews=views, buffers=[pygltflib.Buffer(byteLength=len(blob))])
+    g.set_binary_blob(blob)
+    g.save_binary(str(path))
+    return path
+
+
+def test_new_targets_normals_face_the_files_normals_on_a_mesh_wound_inward(tmp_path, data_dir):
+    """A mesh wound inward whose normals face outward (a mirror whose winding was not turned): the new targets'
+    normal deltas were worked out from the winding, so a shape turned the file's normals the wrong way (up to
+    2.5 off the outward-wound file's).  They now face the file's own normals: the same deltas either way."""
+    from faceretarget.io import GltfDocument, read_rig
+
+    rig = read_rig(data_dir / "arkit-face")
+    k = rig.mm_per_unit / 1000.0
+    V, T = rig.neutral.vertices * k, rig.neutral.triangles()
+    names = list(rig.names)
+    smile = rig.deltas[names.index("mouthSmileLeft")] * k
+    got = []
+    for tag, tri in (("outward", T), ("inward", T[:, ::-1])):
+        src = _with_normals_glb(tmp_path / f"{tag}.glb", V, tri, rig.deltas[names.index("jawOpen")] * k, T)
+        ch = read_character(src)
+        out = write_character_shapes(tmp_path / f"{tag}_out.glb", ch, {ch.meshes[0].name: {"smile": smile}})
+        doc = GltfDocument(out)
+        p = doc.json["meshes"][0]["primitives"][0]
+        got.append((doc.accessor(p["attributes"]["NORMAL"]), doc.accessor(p["targets"][-1]["NORMAL"])))
+    n0, d_out = got[0]
+    want = np.asarray(Mesh.from_triangles(V + smile, T).vertex_normals()) - n0
+    moving = np.linalg.norm(smile, axis=1) > 1e-4
+    assert np.abs(d_out - want)[moving].max() < 1e-3
+    assert np.allclose(got[1][0], n0)                                        # the file's normals, outward both
+    assert np.abs(got[1][1] - d_out).max() < 1e-4, np.abs(got[1][1] - d_out).max()

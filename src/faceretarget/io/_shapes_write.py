@@ -282,7 +282,9 @@ def _write_gltf(out: Path, character: Character, shapes: dict, replace: bool, lo
                         raise OutputError(f"{doc.path}: mesh '{gm.get('name', gmi)}' primitive {p_i} decodes to {n} "
                                           f"vertices, its POSITION accessor says {count}")
                     sl = slice(a, a + n)
-                    entry = _new_target(morphs, kinds[p_i], local[sl], pos, tri, P[sl], L[sl], D[sl])
+                    nrm = prim["attributes"].get("NORMAL") if kinds[p_i][1] is not None else None
+                    entry = _new_target(morphs, kinds[p_i], local[sl], pos, tri, P[sl], L[sl], D[sl],
+                                        None if nrm is None else doc.accessor(int(nrm)))
                 else:
                     entry = _zero_target(morphs, count, kinds[p_i][1])
                 if k < len(tg):
@@ -367,10 +369,12 @@ def _zero_target(morphs, count: int, nrm_enc) -> dict:
 
 
 def _new_target(morphs, kinds, local: np.ndarray, pos: np.ndarray, tri: np.ndarray, Pw: np.ndarray,
-                Lp: np.ndarray, D: np.ndarray) -> dict:
+                Lp: np.ndarray, D: np.ndarray, normals: np.ndarray | None = None) -> dict:
     """One primitive's morph target: its ``local`` deltas over its own positions ``pos``, and (when its
     targets have normals) the normal deltas of the world surface ``Pw`` deformed by ``D``, in the
-    primitive's normal space (a normal maps to the world by L^-T, so back by L^T)."""
+    primitive's normal space (a normal maps to the world by L^-T, so back by L^T), facing the way the
+    primitive's own ``normals`` face: a mesh wound inward with its normals outward (a mirror whose winding was
+    not turned) had its normals turned the wrong way by the shapes (up to 2.5 off)."""
     from ._gltf_targets import normal_delta
 
     pos_enc, nrm_enc = kinds
@@ -378,6 +382,8 @@ def _new_target(morphs, kinds, local: np.ndarray, pos: np.ndarray, tri: np.ndarr
     if nrm_enc is not None:
         n0 = _unit(np.einsum("vji,vj->vi", Lp, _vertex_normals(Pw, tri)))
         n1 = _unit(np.einsum("vji,vj->vi", Lp, _vertex_normals(Pw + D, tri)))
+        if normals is not None and len(normals) == len(n0) and float(np.einsum("ij,ij->", n0, normals)) < 0:
+            n0, n1 = -n0, -n1
         delta, enc = normal_delta(n0, n1, nrm_enc)
         entry["NORMAL"] = morphs.add(delta, enc, n0, position=False)
     return entry
