@@ -543,6 +543,7 @@ def find_landmarks(character: Character, *, tracker=None, size: int = 512, log=N
         _, up, front, px, cam, seen, pose = best
         if not character.face_meshes() and not character.face_filter:     # the head mesh was a guess
             prim = _face_under(character, prim, seen, px, log)
+            both = [prim] if character.meshes[prim].mesh.winds_inward() else []
         # zoom on the face found and look again
         p = px[CHARACTER_68]
         mid = (p[:, :2].min(axis=0) + p[:, :2].max(axis=0)) / 2.0
