@@ -569,6 +569,61 @@ def test_a_face_denser_than_generation_handles_is_told(data_dir, arkit_generated
     assert np.abs(shape_delta(gen.apply(), "jawOpen")).max() > 0.1 * np.linalg.norm(lm[36] - lm[45])
 
 
+def _mouth_sealed(ch):
+    """A copy of the character whose mouth opening is zipped shut (a strip of triangles from the upper lip's
+    edge to the lower's, corner to corner): lips that are one surface, as a scan's are."""
+    import copy
+
+    from faceretarget.mesh import Mesh
+    from faceretarget.transfer import components
+
+    out = copy.deepcopy(ch)
+    m = out.meshes[out.landmarks.mesh]
+    V, T = m.mesh.vertices, m.mesh.triangles()
+    e = np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]])
+    _, inv, cnt = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True, return_counts=True)
+    border = e[cnt[inv.ravel()] == 1]                               # directed as their triangles wind
+    lab = components(len(V), np.c_[border, border[:, :1]])
+    lm = out.landmark_positions()
+    ring = min((border[lab[border[:, 0]] == k] for k in np.unique(lab[border[:, 0]])),
+               key=lambda b: np.linalg.norm(V[b[:, 0]].mean(axis=0) - lm[60:68].mean(axis=0)))
+    nxt = dict(ring.tolist())
+    loop = [int(ring[0, 0])]
+    while nxt[loop[-1]] != loop[0]:
+        loop.append(nxt[loop[-1]])
+    loop = np.array(loop)
+    k0, k1 = (int(np.argmin(np.linalg.norm(V[loop] - lm[i], axis=1))) for i in (60, 64))
+    n = len(loop)
+    A = loop[[(k0 + i) % n for i in range((k1 - k0) % n + 1)]]          # along the border's direction
+    B = loop[[(k0 - i) % n for i in range((k0 - k1) % n + 1)]]          # against it, also corner to corner
+    strip, i, j = [[A[1], A[0], B[1]]], 1, 1                            # A[0] = B[0], A[-1] = B[-1]: corners
+    while i < len(A) - 2 or j < len(B) - 2:
+        if j == len(B) - 2 or (i < len(A) - 2 and np.linalg.norm(V[A[i + 1]] - V[B[j]])
+                               <= np.linalg.norm(V[A[i]] - V[B[j + 1]])):
+            strip.append([A[i + 1], A[i], B[j]])
+            i += 1
+        else:
+            strip.append([B[j], B[j + 1], A[i]])
+            j += 1
+    strip = np.array(strip + [[A[-1], A[-2], B[-2]]])
+    m.mesh = Mesh(V, np.r_[m.mesh.face_counts, np.full(len(strip), 3)], np.r_[m.mesh.face_indices, strip.ravel()],
+                  name=m.mesh.name)
+    return out
+
+
+def test_lips_that_are_one_surface_are_told(data_dir, arkit_generated):
+    """A face whose lips are one surface (a scan's; no mouth opening between them) cannot part them: the mouth
+    shapes stretch the surface across the mouth.  Generation says so and what to do; a face with an opening
+    (arkit-face, its lips touching at rest) is not told."""
+    ref, whole, _, _ = arkit_generated
+    assert not any("one surface" in n for n in whole.notes)
+    hidden = hide_shapes(read_character(data_dir / "arkit-face"))
+    hidden.landmarks = ref.landmarks
+    gen = generate_shapes(_mouth_sealed(hidden), shapes=["jawOpen"])
+    said = [n for n in gen.notes if "one surface" in n]
+    assert len(said) == 1 and "cut the lips apart" in said[0], gen.notes
+
+
 def test_blinks_close_on_a_head_held_turned(data_dir):
     """arkit-face turned 25 degrees in its file, its landmarks given: its blinks stayed 32 % open and its
     left / right shapes were not made mirror images (no symmetry plane found along the file's axes); in the

@@ -391,6 +391,10 @@ class _Transfer:
             if moved:
                 self.notes.append(f"inner-lip landmarks {', '.join(map(str, moved))} moved onto the lip that opens "
                                   "with the jaw")
+        if _lips_one_surface(self.V, self.rt, self.ch.landmarks.triangles, self.ch.landmark_positions()):
+            self.notes.append(f"the lips of '{self.hm.name}' are one surface (no opening between them, as on a scan): "
+                              "the mouth shapes stretch it instead of parting the lips; for a mouth that opens, cut "
+                              "the lips apart along the lip line (and give the mouth an inside) before generating")
         self.mirror = _mirror_map(self.V, self.lm, self.F, self.skin, self.size) if symmetric else None
         if self.mirror is not None:
             _mirror_landmarks(self.ch, self.V, self.rt, self.F, self.mirror[2])
@@ -1061,6 +1065,25 @@ def _onto_skin(ch: Character, V: np.ndarray, rt: np.ndarray, region: np.ndarray)
     T2[bad], B2[bad] = rt[tri], bar
     ch.landmarks = SurfacePoints(lm.mesh, T2, B2, lm.source + "; snapped onto the skin")
     return [int(b) for b in bad]
+
+
+def _lips_one_surface(V: np.ndarray, T: np.ndarray, lm_tri: np.ndarray, lm: np.ndarray) -> bool:
+    """Whether the lips are one surface (no mouth opening between them: a scan, a sculpt): from each middle upper
+    inner-lip landmark (61-63) to the lower one facing it (67-65) the shortest path along the mesh's edges ``T`` is
+    under a quarter of the mouth's width; across an opening, even lips that touch at rest, it goes round a corner
+    of the mouth or through the mouth's inside (at least about half the width)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    width = float(np.linalg.norm(lm[54] - lm[48]))
+    e = np.unique(np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1), axis=0)
+    w = np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1) + 1e-12
+    g = coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(len(V), len(V))).tocsr()
+    for up, low in ((61, 67), (62, 66), (63, 65)):
+        d = dijkstra(g, indices=np.unique(lm_tri[up]), min_only=True, limit=0.25 * width)
+        if not np.isfinite(d[np.unique(lm_tri[low])]).any():
+            return False
+    return True
 
 
 def _island_seams(V: np.ndarray, T: np.ndarray, skin: np.ndarray, size: float) -> np.ndarray:
