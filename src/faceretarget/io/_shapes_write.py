@@ -265,6 +265,8 @@ def _write_gltf(out: Path, character: Character, shapes: dict, replace: bool, lo
             Linv = np.linalg.pinv(L)
         slices = {p_i: (a, n, pos, tri) for p_i, a, n, pos, tri in kept}
         kinds = [_target_kinds(js, prim) for prim in prims]
+        file_normals = {p_i: doc.accessor(int(prims[p_i]["attributes"]["NORMAL"])) for p_i in slices
+                        if kinds[p_i][1] is not None and "NORMAL" in prims[p_i].get("attributes", {})}
         for name, D, existing in work:
             local = np.einsum("vij,vj->vi", Linv, D)
             k = sm.shape_refs[existing] if existing is not None else len(names)
@@ -282,9 +284,8 @@ def _write_gltf(out: Path, character: Character, shapes: dict, replace: bool, lo
                         raise OutputError(f"{doc.path}: mesh '{gm.get('name', gmi)}' primitive {p_i} decodes to {n} "
                                           f"vertices, its POSITION accessor says {count}")
                     sl = slice(a, a + n)
-                    nrm = prim["attributes"].get("NORMAL") if kinds[p_i][1] is not None else None
                     entry = _new_target(morphs, kinds[p_i], local[sl], pos, tri, P[sl], L[sl], D[sl],
-                                        None if nrm is None else doc.accessor(int(nrm)))
+                                        file_normals.get(p_i))
                 else:
                     entry = _zero_target(morphs, count, kinds[p_i][1])
                 if k < len(tg):
